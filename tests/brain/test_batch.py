@@ -1,0 +1,65 @@
+"""Batch equivalence and determinism: A agents together == each alone; same feeds, same arrays."""
+
+import numpy as np
+import pytest
+
+from services.brain.circuit import load_circuit
+from services.brain.engine import PARALLEL_FROM, Engine
+
+
+def random_feeds(seed, ticks, agents, inputs):
+    rng = np.random.default_rng(seed)
+    values = rng.random((ticks, agents, inputs)) * 4
+    return np.where(rng.random((ticks, agents, inputs)) < 0.03, values, np.nan)
+
+
+@pytest.mark.parametrize("agents", [5, PARALLEL_FROM + 3])  # serial and parallel kernels
+def test_agents_together_equal_each_alone(agents):
+    c = load_circuit("insect").with_learning_rate(0.05)
+    feeds = random_feeds(1, 3000, agents, len(c.inputs))
+    together = Engine(c, agents=agents)
+    spikes = together.run(feeds)
+    assert spikes.any(axis=(0, 1))[c.neuron_index("PAIN")]
+    for a in sorted({0, 1, agents // 2, agents - 1}):
+        alone = Engine(c)
+        np.testing.assert_array_equal(alone.run(feeds[:, a : a + 1]), spikes[:, a : a + 1])
+        np.testing.assert_array_equal(alone.v, together.v[a : a + 1])
+        np.testing.assert_array_equal(alone.w, together.w[a : a + 1])
+    # agents with different inputs end with different weights
+    assert not np.array_equal(together.w[0], together.w[1])
+
+
+def test_same_feeds_give_identical_arrays():
+    c = load_circuit("insect")
+    feeds = random_feeds(7, 5000, 3, len(c.inputs))
+    runs = []
+    for _ in range(2):
+        e = Engine(c, agents=3)
+        runs.append((e.run(feeds), e.v.copy(), e.w.copy(), e.state.copy(), e.hist.copy()))
+    for x, y in zip(*runs):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_reset_restores_the_initial_state():
+    c = load_circuit("insect")
+    feeds = random_feeds(2, 2000, 1, len(c.inputs))
+    e = Engine(c)
+    first = e.run(feeds)
+    e.reset()
+    np.testing.assert_array_equal(e.run(feeds), first)
+
+
+def test_weights_get_and_set():
+    c = load_circuit("insect")
+    e = Engine(c, agents=2)
+    w = e.get_weights()
+    w[:, c.synapse_index("RED", "PAIN")] = 12.5
+    e.set_weights(w)
+    assert e.w[1, c.synapse_index("RED", "PAIN")] == 12.5
+    w[0, c.synapse_index("RED", "PAIN")] = 16.0  # above w_max of a plastic synapse
+    with pytest.raises(ValueError, match="RED->PAIN"):
+        e.set_weights(w)
+    with pytest.raises(ValueError, match="shape"):
+        e.set_weights(np.ones((3, len(c.synapses))))
+    with pytest.raises(ValueError, match="shape"):
+        e.step(np.zeros((2, 1)))

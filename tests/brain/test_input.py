@@ -1,0 +1,38 @@
+"""Input neurons: latency code floor(v) + 1, pulse count, busy-ignore (MODEL.md section 5)."""
+
+import pytest
+
+from services.brain.circuit import build_circuit
+from services.brain.engine import Engine
+
+from .helpers import run_with_events
+
+
+def input_engine(pulses=1):
+    doc = {"neurons": {"X": "regular"}, "inputs": {"x_in": {"target": "X", "pulses": pulses}}}
+    return Engine(build_circuit(doc))
+
+
+@pytest.mark.parametrize("value,latency", [(0.0, 1), (0.2, 1), (1.0, 2), (2.7, 3), (3.99, 4), (12.0, 13)])
+def test_latency_is_floor_plus_one(value, latency):
+    spikes = run_with_events(input_engine(), 40, {5: {"x_in": value}})
+    assert spikes["x_in"] == [5 + latency]
+    assert spikes["X"] == [5 + latency + 1]  # the input's synapse has delay 1, weight 20
+
+
+def test_several_pulses_each_after_the_latency():
+    spikes = run_with_events(input_engine(pulses=3), 40, {0: {"x_in": 4.5}})
+    assert spikes["x_in"] == [5, 10, 15]
+
+
+def test_feeds_while_busy_are_ignored():
+    events = {0: {"x_in": 4.0}, 1: {"x_in": 0.0}, 4: {"x_in": 0.0}, 5: {"x_in": 1.0}}
+    spikes = run_with_events(input_engine(), 40, events)
+    # busy from 0 until its pulse at 5; the feed at 5 comes after that pulse and is taken
+    assert spikes["x_in"] == [5, 7]
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), -1.0])
+def test_nan_inf_and_negative_feeds_are_ignored(value):
+    spikes = run_with_events(input_engine(), 20, {0: {"x_in": value}})
+    assert spikes["x_in"] == []

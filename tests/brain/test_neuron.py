@@ -1,0 +1,106 @@
+"""The integrate-and-fire state machine against its analytic values (MODEL.md section 2)."""
+
+import numpy as np
+import pytest
+
+from services.brain.circuit import build_circuit
+from services.brain.engine import Engine
+
+from .helpers import run_with_events
+
+
+def one_input(weight, delay=1, inhibitory_weight=None, ntype="regular"):
+    doc = {
+        "neurons": {"X": ntype},
+        "inputs": {"x_in": {"target": "X", "weight": weight, "delay": delay}},
+    }
+    if inhibitory_weight is not None:
+        doc["neurons"]["I"] = "regular"
+        doc["inputs"]["i_in"] = {"target": "I"}
+        doc["synapses"] = [{"from": "I", "to": "X", "weight": inhibitory_weight, "delay": 1, "inhibitory": True}]
+    return Engine(build_circuit(doc))
+
+
+def test_decay_curve_toward_rest():
+    e = one_input(weight=8.0)
+    e.feed[0, 0] = 0.0  # input spikes at tick 1, pulse arrives at tick 2
+    trace = []
+    for _ in range(30):
+        e.step()
+        trace.append(e.v[0, 0])
+    assert trace[0] == trace[1] == -65.0
+    # arrival at tick 2 adds 8, then each tick removes 8 % of the distance to rest
+    k = np.arange(28)
+    expected = -65.0 + 8.0 * 0.92 ** (k + 1)
+    np.testing.assert_allclose(trace[2:], expected, rtol=0, atol=1e-12)
+
+
+def test_decay_from_below_rest_never_overshoots():
+    e = one_input(weight=1.0, inhibitory_weight=6.0)
+    e.feed[0, 1] = 0.0  # i_in spikes at 1, I fires at 2, inhibition arrives at X at 3
+    for _ in range(4):
+        e.step()
+    assert e.v[0, 0] == pytest.approx(-65.0 - 6.0 * 0.92)
+    for _ in range(500):
+        e.step()
+        assert e.v[0, 0] <= -65.0
+    assert e.v[0, 0] == pytest.approx(-65.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("weight,fires", [(10.0, True), (9.999, False)])
+def test_threshold_crossing(weight, fires):
+    e = one_input(weight=weight)
+    spikes = run_with_events(e, 10, {0: {"x_in": 0.0}})
+    assert spikes["X"] == ([2] if fires else [])
+
+
+@pytest.mark.parametrize("ntype,period,refr_v", [("regular", 3, -75.0), ("pacemaker", 1, -70.0)])
+def test_refractory_clamp_and_length(ntype, period, refr_v):
+    e = one_input(weight=20.0, ntype=ntype)
+    e.feed[0, 0] = 0.0  # X fires at tick 2
+    v = []
+    for _ in range(3 + period):
+        e.step()
+        v.append(e.v[0, 0])
+    # clamped from the firing tick through the end of the refractory period
+    assert v[2:] == [refr_v] * (period + 1)
+    # a strong pulse during the last refractory tick is ignored; right after, it fires
+    for arrive, fires in ((2 + period, False), (3 + period, True)):
+        e = one_input(weight=20.0, ntype=ntype)
+        spikes = run_with_events(e, 20, {0: {"x_in": 0.0}, arrive - 2: {"x_in": 0.0}})
+        assert (arrive in spikes["X"]) == fires, (arrive, spikes["X"])
+
+
+def test_inhibition_floor():
+    e = one_input(weight=1.0, inhibitory_weight=50.0)
+    e.feed[0, 1] = 0.0  # i_in spikes at 1, I fires at 2, inhibition arrives at X at 3
+    for _ in range(4):
+        e.step()
+    # inhibition arrives at tick 3 and is floored at -75; the decay of tick 3 then applies
+    assert e.v[0, 0] == pytest.approx(-75.0 + 10.0 * 0.08)
+
+
+@pytest.mark.parametrize("delay", [1, 2, 3, 5, 8])
+def test_arrival_tick_for_each_delay(delay):
+    doc = {
+        "neurons": {"A": "regular", "B": "regular"},
+        "inputs": {"a_in": {"target": "A"}},
+        "synapses": [{"from": "A", "to": "B", "weight": 20, "delay": delay}],
+    }
+    e = Engine(build_circuit(doc))
+    spikes = run_with_events(e, 20, {0: {"a_in": 0.0}})
+    assert spikes["A"] == [2]
+    assert spikes["B"] == [2 + delay]  # fires in the tick the pulse arrives
+
+
+def test_pacemaker_oscillates_and_drives_reward():
+    from services.brain.circuit import load_circuit
+
+    e = Engine(load_circuit("insect"))
+    spikes = run_with_events(e, 300, {})
+    assert spikes["kick"] == [1]
+    assert spikes["H1"][:3] == [2, 7, 12]  # H1 -> H2 delay 2, H2 -> H1 delay 3: period 5
+    assert spikes["H2"][:3] == [4, 9, 14]
+    # H1 -> REWARD (3.5 every 5 ticks) alone lifts REWARD to threshold: the insect keeps moving
+    assert len(spikes["REWARD"]) > 0 and len(spikes["MOVE"]) == len(spikes["REWARD"])
+    assert spikes["PAIN"] == [] and spikes["ROTATE"] == []
