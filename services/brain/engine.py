@@ -1,7 +1,8 @@
 """The spiking-network engine: A agents of one circuit stepped together, one tick per call.
 
-State is a struct of arrays with the agent axis first (no per-neuron objects). One tick runs five
-named phases in a fixed order (docs/tick.md):
+State is a struct of arrays with an agent axis (no per-neuron objects); inside, the agent axis is
+last so that each phase is one vectorised loop across agents, and the public views `v`, `w` and
+`spiked` are [A, ...]. One tick runs five named phases in a fixed order (docs/tick.md):
 
   1. inputs   input neurons count down; one whose count reaches 0 spikes
   2. feed     new sensor values are latched by idle input neurons (latency floor(v) + 1)
@@ -20,7 +21,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import get_num_threads, njit, prange
 
 from .circuit import Circuit
 from .stdp import stdp_table
@@ -28,14 +29,15 @@ from .stdp import stdp_table
 HISTORY = 30  # arrivals a neuron remembers since its last spike (oldest dropped)
 NEVER = -(2**62)  # last-spike tick of a neuron that has not fired yet
 SYN_BITS = 16  # a history entry packs (arrival tick << SYN_BITS) | synapse index
+SYN_MASK = (1 << SYN_BITS) - 1
 
 # npar columns: per-neuron parameters (from its type), then W(dt) for dt = -STDP_OFFSET.. (stdp.py)
 REST, THRESHOLD, DECAY, REFR_V, REFR_PERIOD, FLOOR, W_MIN, W_MAX, STDP_OFFSET, STDP = range(10)
 # syn columns; flags bits
 PRE, POST, DELAY, FLAGS = 0, 1, 2, 3
 INHIBITORY, PLASTIC = 1, 2
-# node state columns [A, nodes, 3]: for neurons ...
-REFR_LEFT, LAST_SPIKE, HIST_LEN = 0, 1, 2
+# node state planes [3, nodes, A] (int32): for neurons ...
+REFR_LEFT, HIST_LEN = 0, 1
 # ... and for input neurons (the nodes after the neurons)
 COUNT, LEFT, LATENCY = 0, 1, 2
 # inpar columns: per input neuron
@@ -45,99 +47,134 @@ TICK, TRAINING = 0, 1
 
 
 @njit(cache=True, inline="always")
-def _learn(a, s, post, dt, npar, w):
-    """STDP: w += W(dt) from the post neuron's table, clipped to [w_min, w_max]."""
+def _learn(w, s, a, post, dt, npar):
+    """STDP: w[s, a] += W(dt) from the post neuron's table, clipped to [w_min, w_max]."""
     k = dt + int(npar[post, STDP_OFFSET])
     if 0 <= k < npar.shape[1] - STDP:
-        w[a, s] = min(max(w[a, s] + npar[post, STDP + k], npar[post, W_MIN]), npar[post, W_MAX])
+        w[s, a] = min(max(w[s, a] + npar[post, STDP + k], npar[post, W_MIN]), npar[post, W_MAX])
+
+
+# Each phase is a loop across agents lo..hi with unsigned indices (numba then emits no
+# negative-index checks), so the loops compile to vector code.
 
 
 @njit(cache=True, inline="always")
-def _step_agent(a, feed, clock, syn, npar, inpar, v, w, state, hist, ring, spiked):
-    t = clock[TICK]
-    training = clock[TRAINING] != 0
-    n_neurons = v.shape[1]
-    mask = ring.shape[1] - 1  # ring length is a power of two
-
+def _inputs_and_feed(lo, hi, t, feed, inpar, n_neurons, state, spiked):
+    """Phases 1 (inputs) and 2 (feed), in one loop: each input neuron is independent."""
     for i in range(feed.shape[1]):
         node = n_neurons + i
-        spiked[a, node] = 0
-        # 1. inputs: count down; a pulse when the count reaches 0, then restart for the next pulse
-        if state[a, node, LEFT] > 0:
-            state[a, node, COUNT] -= 1
-            if state[a, node, COUNT] == 0:
-                spiked[a, node] = 1
-                state[a, node, LEFT] -= 1
-                if state[a, node, LEFT] > 0:
-                    state[a, node, COUNT] = state[a, node, LATENCY]
-        # 2. feed: an idle input neuron latches a value x >= 0 (NaN: nothing fed); busy ones ignore it
-        x = feed[a, i]
-        feed[a, i] = np.nan  # consumed
-        if t == 0 and not math.isnan(inpar[i, AT_START]):
-            x = inpar[i, AT_START]
-        if state[a, node, LEFT] == 0 and x >= 0.0 and x < 1e9:  # NaN and inf fail both tests
-            latency = int(math.floor(x)) + 1
-            state[a, node, LATENCY] = latency
-            state[a, node, COUNT] = latency
-            state[a, node, LEFT] = int(inpar[i, PULSES])
+        pulses = np.int32(inpar[i, PULSES])
+        start = t == 0 and not math.isnan(inpar[i, AT_START])  # the circuit's own feed at tick 0
+        # Feeds arrive at random, so this loop computes every field and selects (no branches).
+        for a in range(lo, hi):
+            # 1. inputs: count down; a pulse when the count reaches 0, then restart for the next pulse
+            left = state[LEFT, node, a]
+            count = state[COUNT, node, a] - (left > 0)
+            fired = left > 0 and count == 0
+            left -= fired
+            count = state[LATENCY, node, a] if fired and left > 0 else count
+            spiked[node, a] = fired
+            # 2. feed: an idle input neuron latches x >= 0 (NaN: nothing fed); busy ones ignore it
+            x = inpar[i, AT_START] if start else feed[a, i]
+            take = left == 0 and x >= 0.0 and x < 1e9  # NaN and inf fail the tests
+            latency = np.int32(x if take else 0.0) + np.int32(1)  # int() is floor() for x >= 0
+            state[LATENCY, node, a] = latency if take else state[LATENCY, node, a]
+            state[COUNT, node, a] = latency if take else count
+            state[LEFT, node, a] = pulses if take else left
 
-    # 3. deliver: pulses due now; a REFRACTORY post ignores them but they still count for learning.
-    # Arrivals are random, so the potential update is branch-free: w * r * open is exactly 0 or w.
-    slot = t & mask
+
+@njit(cache=True, inline="always")
+def _deliver(lo, hi, t, training, syn, npar, v, w, state, last_spike, hist, ring):
+    """Phase 3: pulses due now. A REFRACTORY post ignores them (w * r * open is exactly 0 or w),
+    but they still count for learning: depression now, and a place in the post's history."""
+    slot = t & (ring.shape[0] - 1)
     for s in range(syn.shape[0]):
-        r = ring[a, slot, s]
-        ring[a, slot, s] = 0
         post = syn[s, POST]
-        dv = w[a, s] * r * (state[a, post, REFR_LEFT] == 0)
         if syn[s, FLAGS] & INHIBITORY:
-            v[a, post] = max(v[a, post] - dv, npar[post, FLOOR])  # v >= floor always holds
+            floor = npar[post, FLOOR]
+            for a in range(lo, hi):  # v >= floor always holds, so max() is exact when dv = 0
+                dv = w[s, a] * ring[slot, s, a] * (state[REFR_LEFT, post, a] == 0)
+                v[post, a] = max(v[post, a] - dv, floor)
         else:
-            v[a, post] += dv
-        if r and syn[s, FLAGS] & PLASTIC:
-            last = state[a, post, LAST_SPIKE]
-            if training and last != NEVER:  # once per pulse, against the latest post spike
-                _learn(a, s, post, t - last, npar, w)
-            n = state[a, post, HIST_LEN]
-            if n == HISTORY:  # drop the oldest
-                for h in range(HISTORY - 1):
-                    hist[a, post, h] = hist[a, post, h + 1]
-                n -= 1
-            hist[a, post, n] = (t << SYN_BITS) | s
-            state[a, post, HIST_LEN] = n + 1
+            for a in range(lo, hi):
+                v[post, a] += w[s, a] * ring[slot, s, a] * (state[REFR_LEFT, post, a] == 0)
+        if syn[s, FLAGS] & PLASTIC:
+            for a in range(lo, hi):
+                if ring[slot, s, a] == 0:
+                    continue
+                last = last_spike[post, a]
+                if training and last != NEVER:  # once per pulse, against the latest post spike
+                    _learn(w, s, a, post, t - last, npar)
+                n = state[HIST_LEN, post, a]
+                if n == HISTORY:  # drop the oldest
+                    for h in range(HISTORY - 1):
+                        hist[a, post, h] = hist[a, post, h + 1]
+                    n -= 1
+                hist[a, post, n] = (t << SYN_BITS) | s
+                state[HIST_LEN, post, a] = n + 1
+        for a in range(lo, hi):
+            ring[slot, s, a] = 0
 
-    # 4. fire: refractory clamp, fire at threshold, or decay toward rest (selects, not branches)
-    for n in range(n_neurons):
-        refractory = state[a, n, REFR_LEFT] > 0
-        fire = not refractory and v[a, n] >= npar[n, THRESHOLD]
-        decayed = v[a, n] + (npar[n, REST] - v[a, n]) * npar[n, DECAY]  # never overshoots: decay < 1
-        v[a, n] = npar[n, REFR_V] if refractory or fire else decayed
-        state[a, n, REFR_LEFT] = int(npar[n, REFR_PERIOD]) if fire else state[a, n, REFR_LEFT] - refractory
-        spiked[a, n] = fire
-        if fire:
-            if training:  # every remembered arrival is paired with this spike
-                for h in range(state[a, n, HIST_LEN]):
-                    s = hist[a, n, h] & ((1 << SYN_BITS) - 1)
-                    _learn(a, s, n, (hist[a, n, h] >> SYN_BITS) - t, npar, w)
-            state[a, n, HIST_LEN] = 0
-            state[a, n, LAST_SPIKE] = t
 
-    # 5. emit: every synapse of a node that spiked schedules a pulse at t + delay. That slot is
-    # empty (delivered and cleared ring-length ticks ago), so a plain store needs no branch.
+@njit(cache=True, inline="always")
+def _fire(lo, hi, t, training, npar, v, w, state, last_spike, hist, spiked):
+    """Phase 4: refractory clamp, fire at threshold (STDP potentiation), or decay toward rest."""
+    for n in range(v.shape[0]):
+        threshold, rest, decay = npar[n, THRESHOLD], npar[n, REST], npar[n, DECAY]
+        refr_v, period = npar[n, REFR_V], np.int32(npar[n, REFR_PERIOD])
+        for a in range(lo, hi):
+            refractory = state[REFR_LEFT, n, a] > 0
+            fire = not refractory and v[n, a] >= threshold
+            decayed = v[n, a] + (rest - v[n, a]) * decay  # never overshoots rest: decay < 1
+            v[n, a] = refr_v if refractory or fire else decayed
+            state[REFR_LEFT, n, a] = period if fire else state[REFR_LEFT, n, a] - refractory
+            last_spike[n, a] = t if fire else last_spike[n, a]
+            spiked[n, a] = fire
+        for a in range(lo, hi):
+            if spiked[n, a] and state[HIST_LEN, n, a] > 0:
+                if training:  # every remembered arrival is paired with this spike
+                    for h in range(state[HIST_LEN, n, a]):
+                        entry = hist[a, n, h]
+                        _learn(w, entry & SYN_MASK, a, n, (entry >> SYN_BITS) - t, npar)
+                state[HIST_LEN, n, a] = 0
+
+
+@njit(cache=True, inline="always")
+def _emit(lo, hi, t, syn, ring, spiked):
+    """Phase 5: every synapse of a node that spiked schedules a pulse at t + delay. That slot is
+    empty (delivered and cleared ring-length ticks ago), so a plain copy needs no branch."""
+    mask = ring.shape[0] - 1  # ring length is a power of two
     for s in range(syn.shape[0]):
-        ring[a, (t + syn[s, DELAY]) & mask, s] = spiked[a, syn[s, PRE]]
+        slot, pre = (t + syn[s, DELAY]) & mask, syn[s, PRE]
+        for a in range(lo, hi):
+            ring[slot, s, a] = spiked[pre, a]
+
+
+@njit(cache=True, inline="always")
+def _step_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked):
+    """One tick for agents lo..hi-1 (unsigned). Arrays have the agent axis last, so each phase is
+    a loop across agents; only events (plastic arrivals, spikes of learning neurons) branch."""
+    t = clock[TICK]
+    training = clock[TRAINING] != 0
+    _inputs_and_feed(lo, hi, t, feed, inpar, v.shape[0], state, spiked)
+    _deliver(lo, hi, t, training, syn, npar, v, w, state, last_spike, hist, ring)
+    _fire(lo, hi, t, training, npar, v, w, state, last_spike, hist, spiked)
+    _emit(lo, hi, t, syn, ring, spiked)
 
 
 @njit(cache=True)
-def _step_serial(feed, clock, syn, npar, inpar, v, w, state, hist, ring, spiked):
-    for a in range(v.shape[0]):
-        _step_agent(a, feed, clock, syn, npar, inpar, v, w, state, hist, ring, spiked)
+def _step_serial(feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked):
+    _step_range(np.uint64(0), np.uint64(v.shape[1]), feed, clock, syn, npar, inpar, v, w, state,
+                last_spike, hist, ring, spiked)
     clock[TICK] += 1
 
 
 @njit(cache=True, parallel=True)
-def _step_parallel(feed, clock, syn, npar, inpar, v, w, state, hist, ring, spiked):
-    for a in prange(v.shape[0]):
-        _step_agent(a, feed, clock, syn, npar, inpar, v, w, state, hist, ring, spiked)
+def _step_parallel(feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked, chunks):
+    agents = v.shape[1]
+    for c in prange(chunks):  # one contiguous block of agents per thread
+        lo, hi = np.uint64(c * agents // chunks), np.uint64((c + 1) * agents // chunks)
+        _step_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked)
     clock[TICK] += 1
 
 
@@ -147,8 +184,9 @@ PARALLEL_FROM = 256  # agents; below this, thread start-up costs more than it sa
 class Engine:
     """A agents of one circuit (same synapses, independent potentials, pulses and weights).
 
-    Per tick: write sensor values into `feed` (shape [A, inputs], NaN = nothing fed), call
-    `step()`, read `spiked` ([A, nodes]: neurons then input neurons), `v` and `w`.
+    Per tick: call `step(feed)` with the sensor values (shape [A, inputs], NaN = nothing fed; or
+    no argument when nothing is fed), then read `spiked` ([A, nodes]: neurons then input
+    neurons), `v` and `w`.
     """
 
     def __init__(self, circuit: Circuit, agents: int = 1, training: bool = True):
@@ -177,30 +215,37 @@ class Engine:
         if self.n_synapses >= 1 << SYN_BITS:
             raise ValueError(f"at most {1 << SYN_BITS} synapses, got {self.n_synapses}")
         A, N, I, S = agents, self.n_neurons, self.n_inputs, self.n_synapses
-        self.feed = np.full((A, I), np.nan)
+        # Internal arrays keep the agent axis last (each phase is a loop across agents); the
+        # public v, w and spiked are [A, ...] views of them.
+        self.no_feed = np.full((A, I), np.nan)  # read-only: the kernel never writes a feed
         self.clock = np.zeros(2, dtype=np.int64)
-        self.v = np.empty((A, N))
-        self.w = np.empty((A, S))
-        self.state = np.empty((A, N + I, 3), dtype=np.int64)
-        self.hist = np.zeros((A, N, HISTORY), dtype=np.int64)
-        self.ring = np.empty((A, ring_len, S), dtype=np.uint8)
-        self._spiked = np.zeros((A, N + I), dtype=np.uint8)
-        self.spiked = self._spiked.view(np.bool_)
-        self._call = _step_parallel if agents >= PARALLEL_FROM else _step_serial
-        self._args = (self.feed, self.clock, self.syn, self.npar, self.inpar, self.v, self.w,
-                      self.state, self.hist, self.ring, self._spiked)
+        self._v = np.empty((N, A))
+        self._w = np.empty((S, A))
+        self.state = np.empty((3, N + I, A), dtype=np.int32)
+        self.last_spike = np.empty((N, A), dtype=np.int64)
+        self.hist = np.zeros((A, N, HISTORY), dtype=np.int64)  # used per event: agent-major
+        self.ring = np.empty((ring_len, S, A), dtype=np.uint8)
+        self._spiked = np.zeros((N + I, A), dtype=np.uint8)
+        self.v = self._v.T  # [A, neurons] membrane potentials
+        self.w = self._w.T  # [A, synapses] weights
+        self.spiked = self._spiked.view(np.bool_).T  # [A, nodes] who spiked in the last tick
+        self._args = (self.clock, self.syn, self.npar, self.inpar, self._v, self._w,
+                      self.state, self.last_spike, self.hist, self.ring, self._spiked)
+        if agents >= PARALLEL_FROM:
+            self._call, self._args = _step_parallel, self._args + (get_num_threads(),)
+        else:
+            self._call = _step_serial
         self.training = training
         self.reset()
 
     def reset(self) -> None:
         """Back to tick 0: potentials at rest, initial weights, nothing in flight."""
         self.clock[TICK] = 0
-        self.feed[:] = np.nan
         N = self.n_neurons
-        self.v[:] = self.npar[:, REST]
+        self.v[:] = self.npar[:N, REST]
         self.w[:] = self.initial_weights
         self.state[:] = 0
-        self.state[:, :N, LAST_SPIKE] = NEVER
+        self.last_spike[:] = NEVER
         self.hist[:] = 0
         self.ring[:] = 0
         self._spiked[:] = 0
@@ -219,20 +264,23 @@ class Engine:
         self.clock[TRAINING] = 1 if on else 0
 
     def step(self, feed: np.ndarray | None = None) -> np.ndarray:
-        """Run one tick. `feed` (optional, [A, inputs]) is copied into self.feed first.
+        """Run one tick with `feed` ([A, inputs] values, NaN = nothing fed; None: nothing at all).
 
         Returns `spiked`, a bool view [A, nodes] that the next step overwrites.
         """
-        if feed is not None:
-            self.set_feed(feed)
-        self._call(*self._args)
+        if feed is None:
+            feed = self.no_feed
+        elif (type(feed) is not np.ndarray or feed.dtype != np.float64 or feed.shape != self.no_feed.shape
+              or not feed.flags.c_contiguous):
+            feed = self._checked_feed(feed)
+        self._call(feed, *self._args)
         return self.spiked
 
-    def set_feed(self, feed) -> None:
-        feed = np.asarray(feed, dtype=np.float64)
-        if feed.shape != self.feed.shape:
-            raise ValueError(f"feed must have shape {self.feed.shape} (agents, inputs), got {feed.shape}")
-        self.feed[:] = feed
+    def _checked_feed(self, feed) -> np.ndarray:
+        feed = np.ascontiguousarray(feed, dtype=np.float64)
+        if feed.shape != self.no_feed.shape:
+            raise ValueError(f"feed must have shape {self.no_feed.shape} (agents, inputs), got {feed.shape}")
+        return feed
 
     def get_weights(self) -> np.ndarray:
         """A copy of all synapse weights, [A, synapses] (checkpoints)."""

@@ -26,9 +26,12 @@ def run_with_events(engine: Engine, ticks: int, events: dict[int, dict[str, floa
     names = engine.circuit.node_names
     spikes = {n: [] for n in names}
     for t in range(ticks):
-        for name, value in events.get(t, {}).items():
-            engine.feed[agent, engine.circuit.input_index(name)] = value
-        s = engine.step()
+        feed = None
+        if t in events:
+            feed = engine.no_feed.copy()
+            for name, value in events[t].items():
+                feed[agent, engine.circuit.input_index(name)] = value
+        s = engine.step(feed)
         for k in np.flatnonzero(s[agent]):
             spikes[names[k]].append(t)
     return spikes

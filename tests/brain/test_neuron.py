@@ -9,6 +9,14 @@ from services.brain.engine import Engine
 from .helpers import run_with_events
 
 
+def first_feed(engine, **values):
+    """A feed for tick 0 with {input name: value}."""
+    feed = engine.no_feed.copy()
+    for name, value in values.items():
+        feed[0, engine.circuit.input_index(name)] = value
+    return feed
+
+
 def one_input(weight, delay=1, inhibitory_weight=None, ntype="regular"):
     doc = {
         "neurons": {"X": ntype},
@@ -23,10 +31,9 @@ def one_input(weight, delay=1, inhibitory_weight=None, ntype="regular"):
 
 def test_decay_curve_toward_rest():
     e = one_input(weight=8.0)
-    e.feed[0, 0] = 0.0  # input spikes at tick 1, pulse arrives at tick 2
     trace = []
-    for _ in range(30):
-        e.step()
+    for t in range(30):
+        e.step(first_feed(e, x_in=0.0) if t == 0 else None)  # input spikes at 1, pulse arrives at 2
         trace.append(e.v[0, 0])
     assert trace[0] == trace[1] == -65.0
     # arrival at tick 2 adds 8, then each tick removes 8 % of the distance to rest
@@ -37,9 +44,7 @@ def test_decay_curve_toward_rest():
 
 def test_decay_from_below_rest_never_overshoots():
     e = one_input(weight=1.0, inhibitory_weight=6.0)
-    e.feed[0, 1] = 0.0  # i_in spikes at 1, I fires at 2, inhibition arrives at X at 3
-    for _ in range(4):
-        e.step()
+    run_with_events(e, 4, {0: {"i_in": 0.0}})  # i_in spikes at 1, I fires at 2, arrives at X at 3
     assert e.v[0, 0] == pytest.approx(-65.0 - 6.0 * 0.92)
     for _ in range(500):
         e.step()
@@ -57,10 +62,9 @@ def test_threshold_crossing(weight, fires):
 @pytest.mark.parametrize("ntype,period,refr_v", [("regular", 3, -75.0), ("pacemaker", 1, -70.0)])
 def test_refractory_clamp_and_length(ntype, period, refr_v):
     e = one_input(weight=20.0, ntype=ntype)
-    e.feed[0, 0] = 0.0  # X fires at tick 2
     v = []
-    for _ in range(3 + period):
-        e.step()
+    for t in range(3 + period):
+        e.step(first_feed(e, x_in=0.0) if t == 0 else None)  # X fires at tick 2
         v.append(e.v[0, 0])
     # clamped from the firing tick through the end of the refractory period
     assert v[2:] == [refr_v] * (period + 1)
@@ -73,9 +77,7 @@ def test_refractory_clamp_and_length(ntype, period, refr_v):
 
 def test_inhibition_floor():
     e = one_input(weight=1.0, inhibitory_weight=50.0)
-    e.feed[0, 1] = 0.0  # i_in spikes at 1, I fires at 2, inhibition arrives at X at 3
-    for _ in range(4):
-        e.step()
+    run_with_events(e, 4, {0: {"i_in": 0.0}})  # i_in spikes at 1, I fires at 2, arrives at X at 3
     # inhibition arrives at tick 3 and is floored at -75; the decay of tick 3 then applies
     assert e.v[0, 0] == pytest.approx(-75.0 + 10.0 * 0.08)
 

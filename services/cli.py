@@ -1,0 +1,41 @@
+"""`spikinglab <command>`: one entry point, each command a module with its own main(argv)."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+COMMANDS = {
+    "conditioning": ("services.brain.conditioning", "classical conditioning demo on fig. 2 and fig. 4"),
+    "bench": (None, "benchmarks: bench engine"),
+}
+BENCHMARKS = {
+    "engine": "bench.engine",
+}
+
+
+def usage() -> str:
+    lines = ["usage: spikinglab <command> [options]   (spikinglab <command> --help for its options)", ""]
+    lines += [f"  {name:14s} {about}" for name, (_, about) in COMMANDS.items()]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] in ("-h", "--help"):
+        print(usage())
+        return
+    name, rest = argv[0], argv[1:]
+    if name == "bench":
+        if not rest or rest[0] not in BENCHMARKS:
+            sys.exit(f"usage: spikinglab bench {{{','.join(BENCHMARKS)}}} [options]")
+        module, rest = BENCHMARKS[rest[0]], rest[1:]
+    elif name in COMMANDS:
+        module = COMMANDS[name][0]
+    else:
+        sys.exit(f"spikinglab: unknown command {name!r}\n\n{usage()}")
+    importlib.import_module(module).main(rest)
+
+
+if __name__ == "__main__":
+    main()
