@@ -64,12 +64,13 @@ class Synapse:
 
 @dataclass(frozen=True)
 class InputNeuron:
-    """A spike source: fed a value v it emits `pulses` pulses, each floor(v) + 1 ticks apart."""
+    """A spike source: fed a value v it emits `pulses` pulses, each after a count of floor(v) + 1
+    ticks (the feed's own tick counts as the first), so the first comes at t + floor(v)."""
 
     name: str
     target: str
     weight: float = 20.0
-    delay: int = 1
+    delay: int = 0  # ticks; 0: the target gets the pulse in the tick it is sent (as in NetLogo)
     pulses: int = 1
     sensor: str | None = None  # the sensor that feeds it, if any
     at_start: float | None = None  # fed once with this value at tick 0 (the pacemaker kick)
@@ -229,15 +230,15 @@ def build_circuit(doc: dict, source: str = "<built>") -> Circuit:
         inp = InputNeuron(
             name=iname, target=target,
             weight=number(entry, "weight", table.get("weight", 20.0)),
-            delay=number(entry, "delay", table.get("delay", 1), integer=True),
+            delay=number(entry, "delay", table.get("delay", 0), integer=True),
             pulses=number(entry, "pulses", table.get("pulses", 1), integer=True),
             sensor=table.get("sensor"),
             at_start=None if "at_start" not in table else number(entry, "at_start", table["at_start"]),
         )
         if inp.weight <= 0:
             fail(entry, f"weight must be > 0, got {inp.weight}")
-        if inp.delay < 1:
-            fail(entry, f"delay must be >= 1 tick, got {inp.delay}")
+        if inp.delay < 0:
+            fail(entry, f"delay must be >= 0 ticks, got {inp.delay}")
         if inp.pulses < 1:
             fail(entry, f"pulses must be >= 1, got {inp.pulses}")
         if inp.at_start is not None and inp.at_start < 0:

@@ -4,9 +4,10 @@ State is a struct of arrays with an agent axis (no per-neuron objects); inside, 
 last so that each phase is one vectorised loop across agents, and the public views `v`, `w` and
 `spiked` are [A, ...]. One tick runs five named phases in a fixed order (docs/tick.md):
 
-  1. inputs   input neurons count down; one whose count reaches 0 spikes
-  2. feed     new sensor values are latched by idle input neurons (latency floor(v) + 1)
-              (1 and 2 run in one loop: each input neuron is independent of the others)
+  1. feed     an idle input neuron latches a sensor value x: it will spike floor(x) + 1 ticks
+              on, counting this one (so at t + floor(x)); a busy one ignores the value
+  2. inputs   input neurons count; one whose count reaches its latency spikes, and its pulse
+              is scheduled on its synapse (delay 0: delivered in this same tick)
   3. deliver  pulses due this tick reach their post neuron: potential change if OPEN,
               STDP depression and history for plastic synapses
   4. fire     each neuron: refractory clamp, or fire at threshold (STDP potentiation), or decay
@@ -38,7 +39,7 @@ PRE, POST, DELAY, FLAGS = 0, 1, 2, 3
 INHIBITORY, PLASTIC = 1, 2
 # node state planes [3, nodes, A] (int32): for neurons ...
 REFR_LEFT, HIST_LEN = 0, 1
-# ... and for input neurons (the nodes after the neurons)
+# ... and for input neurons (the nodes after the neurons): ticks counted, pulses left, latency
 COUNT, LEFT, LATENCY = 0, 1, 2
 # inpar columns: per input neuron
 PULSES, AT_START = 0, 1
@@ -59,28 +60,33 @@ def _learn(w, s, a, post, dt, npar):
 
 
 @njit(cache=True, inline="always")
-def _inputs_and_feed(lo, hi, t, feed, inpar, n_neurons, state, spiked):
-    """Phases 1 (inputs) and 2 (feed), in one loop: each input neuron is independent."""
+def _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, state, ring, spiked):
+    """Phases 1 (feed) and 2 (inputs), in one loop: each input neuron is independent."""
+    mask = ring.shape[0] - 1
+    n_net = syn.shape[0] - feed.shape[1]  # the input neurons' synapses come last, one each
     for i in range(feed.shape[1]):
-        node = n_neurons + i
+        node, s = n_neurons + i, n_net + i
         pulses = np.int32(inpar[i, PULSES])
         start = t == 0 and not math.isnan(inpar[i, AT_START])  # the circuit's own feed at tick 0
+        slot = (t + syn[s, DELAY]) & mask  # delay 0: delivered in this tick's phase 3
         # Feeds arrive at random, so this loop computes every field and selects (no branches).
         for a in range(lo, hi):
-            # 1. inputs: count down; a pulse when the count reaches 0, then restart for the next pulse
-            left = state[LEFT, node, a]
-            count = state[COUNT, node, a] - (left > 0)
-            fired = left > 0 and count == 0
-            left -= fired
-            count = state[LATENCY, node, a] if fired and left > 0 else count
-            spiked[node, a] = fired
-            # 2. feed: an idle input neuron latches x >= 0 (NaN: nothing fed); busy ones ignore it
+            # 1. feed: an idle input neuron latches x >= 0 (NaN: nothing fed); busy ones ignore it
             x = inpar[i, AT_START] if start else feed[a, i]
+            left = state[LEFT, node, a]
             take = left == 0 and x >= 0.0 and x < 1e9  # NaN and inf fail the tests
-            latency = np.int32(x if take else 0.0) + np.int32(1)  # int() is floor() for x >= 0
-            state[LATENCY, node, a] = latency if take else state[LATENCY, node, a]
-            state[COUNT, node, a] = latency if take else count
-            state[LEFT, node, a] = pulses if take else left
+            latency = np.int32(x if take else 0.0) + np.int32(1)  # floor(x) + 1; int() is floor() for x >= 0
+            lat = latency if take else state[LATENCY, node, a]
+            count = np.int32(0) if take else state[COUNT, node, a]
+            left = pulses if take else left
+            # 2. inputs: count this tick; a pulse when the count reaches the latency
+            count += left > 0
+            fired = left > 0 and count == lat
+            state[LATENCY, node, a] = lat
+            state[COUNT, node, a] = np.int32(0) if fired else count
+            state[LEFT, node, a] = left - fired
+            spiked[node, a] = fired
+            ring[slot, s, a] = fired  # empty: delivered and cleared a ring length ago
 
 
 @njit(cache=True, inline="always")
@@ -140,11 +146,12 @@ def _fire(lo, hi, t, training, npar, v, w, state, last_spike, hist, spiked):
 
 
 @njit(cache=True, inline="always")
-def _emit(lo, hi, t, syn, ring, spiked):
-    """Phase 5: every synapse of a node that spiked schedules a pulse at t + delay. That slot is
-    empty (delivered and cleared ring-length ticks ago), so a plain copy needs no branch."""
+def _emit(lo, hi, t, syn, n_inputs, ring, spiked):
+    """Phase 5: every synapse of a neuron that spiked schedules a pulse at t + delay (>= 1). That
+    slot is empty (delivered and cleared a ring length ago), so a plain copy needs no branch.
+    Input neurons sent theirs in phase 2."""
     mask = ring.shape[0] - 1  # ring length is a power of two
-    for s in range(syn.shape[0]):
+    for s in range(syn.shape[0] - n_inputs):
         slot, pre = (t + syn[s, DELAY]) & mask, syn[s, PRE]
         for a in range(lo, hi):
             ring[slot, s, a] = spiked[pre, a]
@@ -156,10 +163,10 @@ def _step_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spike, 
     a loop across agents; only events (plastic arrivals, spikes of learning neurons) branch."""
     t = clock[TICK]
     training = clock[TRAINING] != 0
-    _inputs_and_feed(lo, hi, t, feed, inpar, v.shape[0], state, spiked)
+    _feed_and_inputs(lo, hi, t, feed, inpar, syn, v.shape[0], state, ring, spiked)
     _deliver(lo, hi, t, training, syn, npar, v, w, state, last_spike, hist, ring)
     _fire(lo, hi, t, training, npar, v, w, state, last_spike, hist, spiked)
-    _emit(lo, hi, t, syn, ring, spiked)
+    _emit(lo, hi, t, syn, feed.shape[1], ring, spiked)
 
 
 @njit(cache=True)

@@ -14,7 +14,7 @@ INSECT_SYNAPSES = {
     "H1->H2": (15.0, 2, False, False),
     "H2->H1": (15.0, 3, False, False),
     "H1->REWARD": (3.5, 3, False, False),
-    **{f"{i}->{n}": (20.0, 1, False, False) for i, n in (
+    **{f"{i}->{n}": (20.0, 0, False, False) for i, n in (
         ("smell_black", "BLACK"), ("smell_red", "RED"), ("smell_green", "GREEN"),
         ("nociceptor", "PAIN"), ("reward", "REWARD"), ("kick", "H1"))},
 }
@@ -29,7 +29,7 @@ def test_insect_is_the_circuit_of_the_model():
     assert set(types.values()) == {"regular"}
     assert c.sensors == {"smell_black": 0, "smell_red": 1, "smell_green": 2, "pain": 3, "reward": 4}
     assert c.actuators == {"rotate": "ROTATE", "move": "MOVE"}
-    assert c.inputs[c.input_index("kick")].at_start == 0.0
+    assert c.inputs[c.input_index("kick")].at_start == 1.0
 
 
 @pytest.mark.parametrize("name", ["conditioning", "association", "two_actions"])
@@ -61,6 +61,7 @@ plastic = true
         ('to = "B"', 'to = "Q"', "synapses[0] (A -> Q)", "unknown neuron 'Q'"),
         ('from = "A"', 'from = "Z"', "synapses[0] (Z -> B)", "unknown neuron 'Z'"),
         ("delay = 3", "delay = 0", "synapses[0]", "delay must be >= 1"),
+        ('target = "A"', 'target = "A"\ndelay = -1', "inputs.a_in", "delay must be >= 0"),
         ("delay = 3", "delay = 1.5", "synapses[0]", "whole number"),
         ('B = "regular"', 'B = "fancy"', "neurons.B", "unknown neuron type 'fancy'"),
         ("weight = 5", "weight = 16", "synapses[0] (A -> B)", "out of range [1.0, 15.0]"),

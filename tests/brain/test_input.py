@@ -1,4 +1,8 @@
-"""Input neurons: latency code floor(v) + 1, pulse count, busy-ignore (MODEL.md section 5)."""
+"""Input neurons: latency code, pulse count, busy-ignore (MODEL.md section 5).
+
+Fed v at tick t, an input neuron counts floor(v) + 1 ticks, the feed's own tick being the first,
+so its pulse comes at t + floor(v) and, over its synapse of delay 0, reaches its target then.
+"""
 
 import pytest
 
@@ -13,23 +17,23 @@ def input_engine(pulses=1):
     return Engine(build_circuit(doc))
 
 
-@pytest.mark.parametrize("value,latency", [(0.0, 1), (0.2, 1), (1.0, 2), (2.7, 3), (3.99, 4), (12.0, 13)])
-def test_latency_is_floor_plus_one(value, latency):
+@pytest.mark.parametrize("value,count", [(0.0, 1), (0.2, 1), (1.0, 2), (2.7, 3), (3.99, 4), (12.0, 13)])
+def test_latency_is_a_count_of_floor_plus_one(value, count):
     spikes = run_with_events(input_engine(), 40, {5: {"x_in": value}})
-    assert spikes["x_in"] == [5 + latency]
-    assert spikes["X"] == [5 + latency + 1]  # the input's synapse has delay 1, weight 20
+    assert spikes["x_in"] == [5 + count - 1]  # tick 5 is the first of the count
+    assert spikes["X"] == [5 + count - 1]  # delay 0, weight 20: the target fires in that tick
 
 
 def test_several_pulses_each_after_the_latency():
     spikes = run_with_events(input_engine(pulses=3), 40, {0: {"x_in": 4.5}})
-    assert spikes["x_in"] == [5, 10, 15]
+    assert spikes["x_in"] == [4, 9, 14]
 
 
 def test_feeds_while_busy_are_ignored():
     events = {0: {"x_in": 4.0}, 1: {"x_in": 0.0}, 4: {"x_in": 0.0}, 5: {"x_in": 1.0}}
     spikes = run_with_events(input_engine(), 40, events)
-    # busy from 0 until its pulse at 5; the feed at 5 comes after that pulse and is taken
-    assert spikes["x_in"] == [5, 7]
+    # busy from 0 through its pulse at 4 (feeds come before the count in a tick); idle at 5
+    assert spikes["x_in"] == [4, 6]
 
 
 @pytest.mark.parametrize("value", [float("nan"), float("inf"), -1.0])

@@ -17,7 +17,7 @@ def first_feed(engine, **values):
     return feed
 
 
-def one_input(weight, delay=1, inhibitory_weight=None, ntype="regular"):
+def one_input(weight, delay=0, inhibitory_weight=None, ntype="regular"):
     doc = {
         "neurons": {"X": ntype},
         "inputs": {"x_in": {"target": "X", "weight": weight, "delay": delay}},
@@ -33,18 +33,17 @@ def test_decay_curve_toward_rest():
     e = one_input(weight=8.0)
     trace = []
     for t in range(30):
-        e.step(first_feed(e, x_in=0.0) if t == 0 else None)  # input spikes at 1, pulse arrives at 2
+        e.step(first_feed(e, x_in=0.0) if t == 0 else None)  # the input's pulse arrives at tick 0
         trace.append(e.v[0, 0])
-    assert trace[0] == trace[1] == -65.0
-    # arrival at tick 2 adds 8, then each tick removes 8 % of the distance to rest
-    k = np.arange(28)
+    # the arrival adds 8, then each tick (that one included) removes 8 % of the distance to rest
+    k = np.arange(30)
     expected = -65.0 + 8.0 * 0.92 ** (k + 1)
-    np.testing.assert_allclose(trace[2:], expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(trace, expected, rtol=0, atol=1e-12)
 
 
 def test_decay_from_below_rest_never_overshoots():
     e = one_input(weight=1.0, inhibitory_weight=6.0)
-    run_with_events(e, 4, {0: {"i_in": 0.0}})  # i_in spikes at 1, I fires at 2, arrives at X at 3
+    run_with_events(e, 2, {0: {"i_in": 0.0}})  # I fires at 0, its pulse reaches X at 1
     assert e.v[0, 0] == pytest.approx(-65.0 - 6.0 * 0.92)
     for _ in range(500):
         e.step()
@@ -56,29 +55,29 @@ def test_decay_from_below_rest_never_overshoots():
 def test_threshold_crossing(weight, fires):
     e = one_input(weight=weight)
     spikes = run_with_events(e, 10, {0: {"x_in": 0.0}})
-    assert spikes["X"] == ([2] if fires else [])
+    assert spikes["X"] == ([0] if fires else [])  # fires in the tick the input's pulse arrives
 
 
 @pytest.mark.parametrize("ntype,period,refr_v", [("regular", 3, -75.0), ("pacemaker", 1, -70.0)])
 def test_refractory_clamp_and_length(ntype, period, refr_v):
     e = one_input(weight=20.0, ntype=ntype)
     v = []
-    for t in range(3 + period):
-        e.step(first_feed(e, x_in=0.0) if t == 0 else None)  # X fires at tick 2
+    for t in range(1 + period):
+        e.step(first_feed(e, x_in=0.0) if t == 0 else None)  # X fires at tick 0
         v.append(e.v[0, 0])
     # clamped from the firing tick through the end of the refractory period
-    assert v[2:] == [refr_v] * (period + 1)
-    # a strong pulse during the last refractory tick is ignored; right after, it fires
-    for arrive, fires in ((2 + period, False), (3 + period, True)):
+    assert v == [refr_v] * (period + 1)
+    # a strong pulse in the last refractory tick is ignored; one tick later, it fires
+    for arrive, fires in ((period, False), (period + 1, True)):
         e = one_input(weight=20.0, ntype=ntype)
-        spikes = run_with_events(e, 20, {0: {"x_in": 0.0}, arrive - 2: {"x_in": 0.0}})
+        spikes = run_with_events(e, 20, {0: {"x_in": 0.0}, arrive: {"x_in": 0.0}})
         assert (arrive in spikes["X"]) == fires, (arrive, spikes["X"])
 
 
 def test_inhibition_floor():
     e = one_input(weight=1.0, inhibitory_weight=50.0)
-    run_with_events(e, 4, {0: {"i_in": 0.0}})  # i_in spikes at 1, I fires at 2, arrives at X at 3
-    # inhibition arrives at tick 3 and is floored at -75; the decay of tick 3 then applies
+    run_with_events(e, 2, {0: {"i_in": 0.0}})  # I fires at 0, its pulse reaches X at 1
+    # inhibition arrives at tick 1 and is floored at -75; the decay of tick 1 then applies
     assert e.v[0, 0] == pytest.approx(-75.0 + 10.0 * 0.08)
 
 
@@ -91,8 +90,8 @@ def test_arrival_tick_for_each_delay(delay):
     }
     e = Engine(build_circuit(doc))
     spikes = run_with_events(e, 20, {0: {"a_in": 0.0}})
-    assert spikes["A"] == [2]
-    assert spikes["B"] == [2 + delay]  # fires in the tick the pulse arrives
+    assert spikes["A"] == [0]
+    assert spikes["B"] == [delay]  # fires in the tick the pulse arrives
 
 
 def test_pacemaker_oscillates_and_drives_reward():
@@ -100,9 +99,9 @@ def test_pacemaker_oscillates_and_drives_reward():
 
     e = Engine(load_circuit("insect"))
     spikes = run_with_events(e, 300, {})
-    assert spikes["kick"] == [1]
-    assert spikes["H1"][:3] == [2, 7, 12]  # H1 -> H2 delay 2, H2 -> H1 delay 3: period 5
-    assert spikes["H2"][:3] == [4, 9, 14]
+    assert spikes["kick"] == [1]  # fed 1 at tick 0: floor(1) ticks later
+    assert spikes["H1"][:3] == [1, 6, 11]  # H1 -> H2 delay 2, H2 -> H1 delay 3: period 5
+    assert spikes["H2"][:3] == [3, 8, 13]
     # H1 -> REWARD (3.5 every 5 ticks) alone lifts REWARD to threshold: the insect keeps moving
     assert len(spikes["REWARD"]) > 0 and len(spikes["MOVE"]) == len(spikes["REWARD"])
     assert spikes["PAIN"] == [] and spikes["ROTATE"] == []

@@ -17,11 +17,11 @@ def pairing(dt, **types):
     """One C pulse reaching M at dt ticks relative to M's spike (caused by U); returns the C->M weight."""
     e = Engine(relay_circuit(**types))
     f_u = 100
-    f_c = f_u + dt  # both relays add 2 + 3 ticks, so arrival - spike = f_c - f_u
+    f_c = f_u + dt  # both relays add 3 ticks, so arrival - spike = f_c - f_u
     events = {f_u: {"u_in": 0.0}}
     events.setdefault(f_c, {})["c_in"] = 0.0
     spikes = run_with_events(e, 300, events)
-    assert spikes["M"] == [f_u + 5]
+    assert spikes["M"] == [f_u + 3]
     return e.w[0, e.circuit.synapse_index("C", "M")]
 
 
@@ -76,7 +76,7 @@ def test_history_keeps_the_last_30_arrivals():
     }
     e = Engine(build_circuit(doc))
     spikes = run_with_events(e, 250, {0: {"c_in": 3.0}, 200: {"u_in": 0.0}})
-    assert len(spikes["C"]) == 35 and spikes["M"] == [205]
+    assert len(spikes["C"]) == 35 and spikes["M"] == [203]
     assert e.w[0, 0] == pytest.approx(1 + 30 * 0.1, rel=1e-9)  # 35 would give 4.5
 
 
@@ -91,7 +91,7 @@ def test_history_is_cleared_when_the_post_neuron_fires():
 
 def test_depression_is_applied_once_per_pulse_against_the_latest_spike():
     e = Engine(relay_circuit())
-    # M fires at 105 and 125; C arrives at 130: dt = 5 from the latest spike only
+    # M fires at 103 and 123; C arrives at 128: dt = 5 from the latest spike only
     run_with_events(e, 300, {100: {"u_in": 0.0}, 120: {"u_in": 0.0}, 125: {"c_in": 0.0}})
     assert e.w[0, 0] == pytest.approx(5 - A * math.exp(-5 / 18), rel=1e-12)
 
