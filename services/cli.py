@@ -6,6 +6,8 @@ import importlib
 import sys
 
 COMMANDS = {
+    "brain": ("services.brain.service", "the brain service on the bus"),
+    "world": ("services.world.service", "the world service on the bus"),
     "conditioning": ("services.brain.conditioning", "classical conditioning demo on fig. 2 and fig. 4"),
     "bench": (None, "benchmarks: bench engine"),
 }
@@ -34,7 +36,7 @@ def main(argv: list[str] | None = None) -> None:
         module = COMMANDS[name][0]
     else:
         sys.exit(f"spikinglab: unknown command {name!r}\n\n{usage()}")
-    importlib.import_module(module).main(rest)
+    sys.exit(importlib.import_module(module).main(rest))
 
 
 if __name__ == "__main__":

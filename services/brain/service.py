@@ -1,0 +1,161 @@
+"""The brain service: `spikinglab brain` / `python -m services.brain`.
+
+Reads:  spikinglab/<group>/sensors (Sensors), spikinglab/<group>/control (Control)
+Writes: spikinglab/<group>/motor (Motor), liveliness spikinglab/<group>/alive/brain
+
+Lock-step: every Sensors message of tick t is answered by one Motor message of tick t. The number
+of agents is taken from the first message. A repeated tick (the world re-sends when it heard
+nothing) is answered again from the cache, never stepped twice; an older tick is ignored; tick 0
+after others is a new run and resets the brain. On Control "end" the brain saves its weights
+(--save) and exits.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from services.bus import keys
+from services.bus.schemas import Array, BrainState, Control, Motor, Sensors
+from services.bus.session import Bus, add_bus_args, open_session, wait_for_subscriber
+
+from .brain import Brain
+from .checkpoint import load_weights, save_weights
+from .circuit import CircuitError, load_circuit
+
+log = logging.getLogger("spikinglab.brain")
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="spikinglab brain", description="The spiking-network brain, on the bus.")
+    p.add_argument("--circuit", default="insect", help="circuit name in circuits/ or a .toml path (default insect)")
+    p.add_argument("--a-plus", type=float, help="A+ = A- of the learning neurons (default: the circuit's)")
+    p.add_argument("--no-training", action="store_true", help="weights stay as they are")
+    p.add_argument("--load", type=Path, help="start from the weights in this checkpoint (.npz)")
+    p.add_argument("--save", type=Path, help="write the final weights here (.npz) when the run ends")
+    p.add_argument("--once", action="store_true", help="exit after one run ends (default: serve the next run)")
+    p.add_argument("--publish-state", action="store_true",
+                   help="publish spikes and potentials every tick, weights every --weights-every ticks (recorder); "
+                        "the first tick waits until someone subscribes")
+    p.add_argument("--weights-every", type=int, default=100, help="ticks between weight snapshots (default 100)")
+    add_bus_args(p)
+    return p
+
+
+class BrainNode:
+    """The lock-step logic, without the transport: a Sensors message in, a Motor message out."""
+
+    def __init__(self, circuit, training: bool = True, weights: np.ndarray | None = None):
+        self.circuit, self.training, self.initial_weights = circuit, training, weights
+        self.brain: Brain | None = None
+        self.last_tick = -1
+        self.last_answer: Motor | None = None
+        self.sensor_names: tuple[str, ...] = ()
+
+    def _start(self, message: Sensors) -> None:
+        agents = message.values.shape[0]
+        self.brain = Brain(self.circuit, message.names, tuple(self.circuit.actuators), agents=agents,
+                           training=self.training)
+        if self.initial_weights is not None:  # one agent's weights are given to every agent
+            w = self.initial_weights
+            self.brain.engine.set_weights(w[0] if w.shape[0] == 1 else w)
+        self.sensor_names = message.names
+        log.info("brain for %d agent(s) of circuit %s, sensors %s, training %s", agents, self.circuit.name,
+                 ", ".join(message.names), "on" if self.training else "off")
+
+    def answer(self, message: Sensors) -> Motor | None:
+        """The Motor answer to `message`, or None when it is to be ignored (stale or wrong shape)."""
+        values = message.values.numpy("values", "<f8", 2)
+        if self.brain is None or (message.tick == 0 and self.last_tick >= 0):
+            if self.brain is not None:
+                log.info("tick 0 again: a new run, the brain starts afresh")
+            self._start(message)
+            self.last_tick = -1
+        if message.names != self.sensor_names or values.shape[0] != self.brain.agents:
+            log.warning("ignored sensors for tick %d: %d agents with sensors %s, this brain serves %d with %s",
+                        message.tick, values.shape[0], message.names, self.brain.agents, self.sensor_names)
+            return None
+        if message.tick == self.last_tick:
+            return self.last_answer  # the world asks again: same answer, no second step
+        if message.tick < self.last_tick:
+            return None
+        if self.last_tick >= 0 and message.tick != self.last_tick + 1:
+            log.info("joined at tick %d (last seen %d)", message.tick, self.last_tick)
+        actions = self.brain.step(values)
+        self.last_tick = message.tick
+        self.last_answer = Motor(tick=message.tick, names=self.brain.action_names, actions=Array.of(actions))
+        return self.last_answer
+
+    def state(self, with_weights: bool) -> BrainState:
+        """Spikes and potentials of the last tick; the weights too if asked (else an [A, 0] array)."""
+        engine = self.brain.engine
+        w = engine.w if with_weights else np.zeros((engine.agents, 0))
+        return BrainState(tick=self.last_tick, spiked=Array.of(engine.spiked.view(np.uint8)),
+                          potentials=Array.of(engine.v.astype(np.float32)), weights=Array.of(w))
+
+
+def run(args: argparse.Namespace, session) -> int:
+    try:
+        circuit = load_circuit(args.circuit)
+        if args.a_plus is not None:
+            circuit = circuit.with_learning_rate(args.a_plus)
+        weights = load_weights(args.load, circuit) if args.load else None
+    except (CircuitError, ValueError, OSError) as e:
+        log.error("%s", e)
+        return 2
+    node = BrainNode(circuit, training=not args.no_training, weights=weights)
+    bus = Bus(session, args.group, "brain")
+    try:
+        sensors = bus.inbox(keys.sensors(args.group), Sensors)
+        control = bus.inbox(keys.control(args.group), Control)
+        motor = bus.outbox(keys.motor(args.group))
+        state = bus.outbox(keys.brain_state(args.group)) if args.publish_state else None
+        log.info("brain ready on group %s (%s)", args.group, bus.sender)
+        while True:
+            message = sensors.get(timeout=0.25)
+            if message is not None:
+                if state is not None and node.last_tick < 0:
+                    wait_for_subscriber(state, "a recorder")
+                answer = node.answer(message)
+                if answer is not None:
+                    if state is not None and answer.tick == node.last_tick:
+                        state.put(node.state(with_weights=answer.tick % args.weights_every == 0))
+                    motor.put(answer)
+                continue
+            order = control.get(timeout=0)
+            if order is None:
+                continue
+            if order.command == "training":
+                node.training = bool(order.arg)
+                if node.brain:
+                    node.brain.engine.training = node.training
+                log.info("training %s at tick %d", "on" if node.training else "off", order.tick)
+            elif order.command == "end":
+                log.info("run ended at tick %d", order.tick)
+                if args.save and node.brain is not None:
+                    save_weights(args.save, node.brain.engine, circuit, tick=order.tick)
+                    log.info("weights saved to %s", args.save)
+                if args.once:
+                    return 0
+                node = BrainNode(circuit, training=not args.no_training, weights=weights)
+    finally:
+        bus.close()
+
+
+def main(argv=None) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s brain %(levelname)s %(message)s", stream=sys.stderr)
+    args = parser().parse_args(argv)
+    session = open_session(args)
+    try:
+        return run(args, session)
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,161 @@
+"""Message schemas of the bus: typed, versioned, decoded strictly.
+
+Every message is a msgspec Struct tagged by `kind`, with the schema `version` and the `tick` it
+belongs to. Arrays travel as bytes + dtype + shape (`Array`), never as lists. `decode` accepts a
+message only if it is well formed, of the expected kind and version, and its arrays have the
+dtypes and shapes the kind requires; otherwise it raises BusError with the reason, and nothing of
+the message is used. Evolution: new fields get defaults; a change that old readers cannot take
+bumps VERSION.
+"""
+
+from __future__ import annotations
+
+import math
+
+import msgspec
+import numpy as np
+
+VERSION = 1
+_MAX_ELEMENTS = 1 << 26
+
+
+class BusError(ValueError):
+    """A message was rejected; the text says why."""
+
+
+class Array(msgspec.Struct, frozen=True):
+    dtype: str
+    shape: tuple[int, ...]
+    data: bytes
+
+    @classmethod
+    def of(cls, a) -> "Array":
+        a = np.ascontiguousarray(a)
+        if a.dtype.byteorder == ">":
+            a = a.astype(a.dtype.newbyteorder("<"))
+        return cls(a.dtype.str, tuple(a.shape), a.tobytes())
+
+    def numpy(self, field: str, dtype: str, ndim: int) -> np.ndarray:
+        """The array, checked: dtype, number of dimensions, and byte length agree."""
+        if self.dtype != dtype:
+            raise BusError(f"{field}: dtype {self.dtype!r}, expected {dtype!r}")
+        if len(self.shape) != ndim or any(n < 0 for n in self.shape):
+            raise BusError(f"{field}: shape {list(self.shape)}, expected {ndim} non-negative dimensions")
+        count = math.prod(self.shape)
+        if count > _MAX_ELEMENTS or count * np.dtype(dtype).itemsize != len(self.data):
+            raise BusError(f"{field}: {len(self.data)} bytes do not hold shape {list(self.shape)} of {dtype}")
+        return np.frombuffer(self.data, dtype=dtype).reshape(self.shape)
+
+
+class Message(msgspec.Struct, tag_field="kind", frozen=True, kw_only=True):
+    tick: int
+    version: int = VERSION
+
+    def check(self) -> None:
+        """Kind-specific checks beyond the types; raise BusError."""
+
+
+class Sensors(Message, tag="sensors", kw_only=True):
+    """Sensor values of tick `tick` for A agents: values[a, k] for sensor names[k]; NaN: nothing."""
+
+    names: tuple[str, ...]
+    values: Array
+    training: bool = True
+
+    def check(self):
+        values = self.values.numpy("values", "<f8", 2)
+        if values.shape[1] != len(self.names):
+            raise BusError(f"values has {values.shape[1]} columns for {len(self.names)} sensor names")
+
+
+class Motor(Message, tag="motor", kw_only=True):
+    """Which actions fired in tick `tick`: actions[a, k] != 0 for action names[k]."""
+
+    names: tuple[str, ...]
+    actions: Array
+
+    def check(self):
+        actions = self.actions.numpy("actions", "|u1", 2)
+        if actions.shape[1] != len(self.names):
+            raise BusError(f"actions has {actions.shape[1]} columns for {len(self.names)} action names")
+
+
+class Control(Message, tag="control", kw_only=True):
+    """Run control. command: "end" (the run is over: save and stop) or "training" (arg 0/1)."""
+
+    command: str
+    arg: float = 0.0
+
+    def check(self):
+        if self.command not in ("end", "training"):
+            raise BusError(f"unknown control command {self.command!r}")
+
+
+class BrainState(Message, tag="brain_state", kw_only=True):
+    """The brain after tick `tick`: spikes [A, nodes] (u1), potentials [A, neurons] (f4), weights
+    [A, synapses] (f8; shape (A, 0) in the ticks where they are not sent)."""
+
+    spiked: Array
+    potentials: Array
+    weights: Array
+
+    def check(self):
+        spiked = self.spiked.numpy("spiked", "|u1", 2)
+        for name, arr, dtype in (("potentials", self.potentials, "<f4"), ("weights", self.weights, "<f8")):
+            if arr.numpy(name, dtype, 2).shape[0] != spiked.shape[0]:
+                raise BusError(f"{name} has {arr.shape[0]} agents, spiked has {spiked.shape[0]}")
+
+
+class WorldState(Message, tag="world_state", kw_only=True):
+    """The world after tick `tick`: pos [A, 2], heading [A], events [A, 4] (collision colour, ate,
+    reset, learned), collisions [A], food [A]."""
+
+    pos: Array
+    heading: Array
+    events: Array
+    collisions: Array
+    food: Array
+
+    def check(self):
+        agents = self.pos.numpy("pos", "<f8", 2).shape[0]
+        for name, arr, dtype, ndim in (("heading", self.heading, "<f8", 1), ("events", self.events, "<i8", 2),
+                                       ("collisions", self.collisions, "<i8", 1), ("food", self.food, "<i8", 1)):
+            if arr.numpy(name, dtype, ndim).shape[0] != agents:
+                raise BusError(f"{name} has {arr.shape[0]} agents, pos has {agents}")
+
+
+class WorldMap(Message, tag="world_map", kw_only=True):
+    """The arenas: grid [arenas, width, height] of colour codes, patch (0, 0) at (x_min, y_min)."""
+
+    grid: Array
+    x_min: int
+    y_min: int
+
+    def check(self):
+        self.grid.numpy("grid", "|u1", 3)
+
+
+KINDS = (Sensors, Motor, Control, BrainState, WorldState, WorldMap)
+_encoder = msgspec.msgpack.Encoder()
+_decoder = msgspec.msgpack.Decoder(Sensors | Motor | Control | BrainState | WorldState | WorldMap)
+
+
+def encode(message: Message) -> bytes:
+    return _encoder.encode(message)
+
+
+def decode(payload: bytes, expected: type[Message] | tuple[type[Message], ...] = KINDS) -> Message:
+    """The message in `payload`, or BusError naming what is wrong."""
+    try:
+        message = _decoder.decode(payload)
+    except msgspec.ValidationError as e:
+        raise BusError(f"invalid message: {e}") from None
+    except msgspec.DecodeError as e:
+        raise BusError(f"not a message: {e}") from None
+    if message.version != VERSION:
+        raise BusError(f"schema version {message.version}, this program speaks {VERSION}")
+    if not isinstance(message, expected):
+        names = expected.__name__ if isinstance(expected, type) else "/".join(t.__name__ for t in expected)
+        raise BusError(f"a {type(message).__name__} message where {names} was expected")
+    message.check()
+    return message

@@ -1,0 +1,204 @@
+"""Zenoh sessions, publishers, strict inboxes and liveliness: the only code that imports zenoh.
+
+Every service adds the same options (`add_bus_args`): --connect/--listen endpoints, --zenoh-config
+FILE for anything else (TLS, access control), --group. Multicast scouting is off unless the config
+file turns it on: sessions find each other through the endpoints given.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import queue
+import threading
+import time
+from collections import Counter
+
+import zenoh
+
+from . import keys
+from .schemas import BusError, Message, decode, encode
+
+log = logging.getLogger("spikinglab.bus")
+
+
+def add_bus_args(parser: argparse.ArgumentParser) -> None:
+    bus = parser.add_argument_group("bus")
+    bus.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                     help="endpoint to connect to, e.g. tcp/192.168.1.10:7447 (repeatable)")
+    bus.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                     help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
+    bus.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 config file (TLS, access control, ...)")
+    bus.add_argument("--group", default=keys.DEFAULT_GROUP,
+                     help=f"the insect or population this service belongs to (default {keys.DEFAULT_GROUP})")
+
+
+def make_config(connect=(), listen=(), config_file=None, mode: str = "peer") -> zenoh.Config:
+    if config_file:
+        try:
+            conf = zenoh.Config.from_file(str(config_file))
+        except Exception as e:  # zenoh raises its own error type for a bad file
+            raise SystemExit(f"--zenoh-config {config_file}: {e}") from None
+    else:
+        conf = zenoh.Config()
+        conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("mode", json.dumps(mode))
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    if listen:
+        conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    return conf
+
+
+def open_session(args: argparse.Namespace, mode: str = "peer") -> zenoh.Session:
+    try:
+        return zenoh.open(make_config(args.connect, args.listen, args.zenoh_config, mode))
+    except zenoh.ZError as e:
+        raise SystemExit(f"cannot open the bus session ({mode}; connect {args.connect}, listen {args.listen}): {e}")
+
+
+class Inbox:
+    """A subscriber whose messages are decoded strictly; good ones wait in a queue for the owner's
+    loop, bad ones are counted and logged (key, sender, reason) and dropped whole."""
+
+    def __init__(self, session: zenoh.Session, key: str, kinds, maxsize: int = 0):
+        self.key, self.kinds = key, kinds
+        self.queue: queue.Queue = queue.Queue(maxsize)
+        self.rejected: Counter = Counter()
+        self._sub = session.declare_subscriber(key, self._on_sample)
+
+    def _on_sample(self, sample) -> None:
+        try:
+            message = decode(sample.payload.to_bytes(), self.kinds)
+        except BusError as e:
+            sender = sample.attachment.to_bytes().decode(errors="replace") if sample.attachment else "unknown sender"
+            total = sum(self.rejected.values()) + 1
+            self.rejected[str(e).split(":")[0]] += 1
+            if total <= 20 or total % 1000 == 0:  # a flood must not drown the log
+                log.warning("rejected message on %s from %s: %s (%d rejected so far)", sample.key_expr, sender, e, total)
+            return
+        self.queue.put(message)
+
+    @property
+    def rejected_total(self) -> int:
+        return sum(self.rejected.values())
+
+    def get(self, timeout: float | None = None) -> Message | None:
+        try:
+            return self.queue.get(timeout=timeout)
+        except queue.Empty:
+            return None
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+class Outbox:
+    """A publisher of messages. BLOCK congestion control: no message is dropped when the link is
+    busy (lock-step and recording count on every one); express: sent at once, not batched."""
+
+    def __init__(self, session: zenoh.Session, key: str, sender: str):
+        self.key = key
+        self._sender = sender.encode()
+        self._pub = session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK, express=True)
+
+    def put(self, message: Message) -> None:
+        self._pub.put(encode(message), attachment=self._sender)
+
+    def put_raw(self, payload: bytes) -> None:
+        """Publish bytes as they are (tests use it to inject malformed messages)."""
+        self._pub.put(payload, attachment=self._sender)
+
+    @property
+    def matched(self) -> bool:
+        """Whether a subscriber for this key is known to the session."""
+        status = self._pub.matching_status
+        return bool(getattr(status, "matching", status))
+
+    def close(self) -> None:
+        self._pub.undeclare()
+
+
+class Presence:
+    """Watches the liveliness tokens of one service of a group: how many are alive, and changes."""
+
+    def __init__(self, session: zenoh.Session, group: str, service: str):
+        self.service = service
+        self._alive: set[str] = set()
+        self._changed = threading.Condition()
+        self.events: queue.Queue = queue.Queue()  # ("up" | "down", key)
+        self._sub = session.liveliness().declare_subscriber(keys.alive(group, service), self._on_sample, history=True)
+
+    def _on_sample(self, sample) -> None:
+        key = str(sample.key_expr)
+        up = sample.kind == zenoh.SampleKind.PUT
+        with self._changed:
+            (self._alive.add if up else self._alive.discard)(key)
+            self._changed.notify_all()
+        self.events.put(("up" if up else "down", key))
+
+    @property
+    def alive(self) -> bool:
+        return bool(self._alive)
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Wait until at least one is alive; True if so."""
+        with self._changed:
+            return self._changed.wait_for(lambda: bool(self._alive), timeout)
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+class Bus:
+    """One service's place on the bus: its session, its liveliness token, its inboxes and outboxes."""
+
+    def __init__(self, session: zenoh.Session, group: str, service: str):
+        self.session, self.group, self.service = session, group, service
+        self.sender = f"{service}@{os.getpid()}"
+        self._token = session.liveliness().declare_token(keys.alive(group, service))
+        self._owned: list = []
+
+    def outbox(self, key: str) -> Outbox:
+        box = Outbox(self.session, key, self.sender)
+        self._owned.append(box)
+        return box
+
+    def inbox(self, key: str, kinds, maxsize: int = 0) -> Inbox:
+        box = Inbox(self.session, key, kinds, maxsize)
+        self._owned.append(box)
+        return box
+
+    def presence(self, service: str) -> Presence:
+        watch = Presence(self.session, self.group, service)
+        self._owned.append(watch)
+        return watch
+
+    def close(self) -> None:
+        for item in reversed(self._owned):
+            try:
+                item.close()
+            except Exception:  # already gone with the session: nothing left to release
+                pass
+        self._token.undeclare()
+        self.session.close()
+
+
+def wait_for_subscriber(outbox: Outbox, what: str, presence: Presence | None = None, every: float = 5.0) -> None:
+    """Block until `outbox` has a subscriber (and `presence` is alive), logging every `every` s."""
+    waited = 0.0
+    while not ((presence is None or presence.wait(timeout=every)) and wait_until(lambda: outbox.matched, every)):
+        waited += every
+        log.info("waiting for %s to subscribe to %s (%.0f s)", what, outbox.key, waited)
+
+
+def wait_until(predicate, timeout: float, interval: float = 0.001) -> bool:
+    """Poll `predicate` until true or `timeout` seconds pass (for matching and start-up)."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(interval)
+    return True
