@@ -6,8 +6,10 @@ import importlib
 import sys
 
 COMMANDS = {
+    "run": ("services.run", "train the insect: world and brain as two processes on the bus (the main job)"),
     "brain": ("services.brain.service", "the brain service on the bus"),
     "world": ("services.world.service", "the world service on the bus"),
+    "router": ("services.router", "a Zenoh router, for brain and world on different machines"),
     "conditioning": ("services.brain.conditioning", "classical conditioning demo on fig. 2 and fig. 4"),
     "bench": (None, "benchmarks: bench engine"),
 }

@@ -60,38 +60,68 @@ def open_session(args: argparse.Namespace, mode: str = "peer") -> zenoh.Session:
 
 
 class Inbox:
-    """A subscriber whose messages are decoded strictly; good ones wait in a queue for the owner's
-    loop, bad ones are counted and logged (key, sender, reason) and dropped whole."""
+    """A subscriber whose messages are decoded strictly: good ones are returned by `get()`, bad
+    ones are counted and logged (key, sender, reason) and dropped whole.
 
-    def __init__(self, session: zenoh.Session, key: str, kinds, maxsize: int = 0):
+    The owner's loop blocks in the channel's recv(), the fastest hand-over zenoh-python has
+    (about 0.2 ms per lock-step round trip between two processes, against 0.28 ms through a
+    Python callback and a queue). recv() has no timeout, so a ticker thread wakes it with an
+    empty session-local sample when get()'s timeout passes, and every quarter second otherwise,
+    so that Ctrl-C is seen.
+    """
+
+    WAKE_EVERY = 0.25
+
+    def __init__(self, session: zenoh.Session, key: str, kinds, capacity: int = 100_000):
         self.key, self.kinds = key, kinds
-        self.queue: queue.Queue = queue.Queue(maxsize)
         self.rejected: Counter = Counter()
-        self._sub = session.declare_subscriber(key, self._on_sample)
+        self._session = session
+        self._sub = session.declare_subscriber(key, zenoh.handlers.FifoChannel(capacity))
+        self._deadline: float | None = None  # when the blocked owner wants to be woken
+        self._closed = threading.Event()
+        self._ticker = threading.Thread(target=self._tick, name=f"wake {key}", daemon=True)
+        self._ticker.start()
 
-    def _on_sample(self, sample) -> None:
-        try:
-            message = decode(sample.payload.to_bytes(), self.kinds)
-        except BusError as e:
-            sender = sample.attachment.to_bytes().decode(errors="replace") if sample.attachment else "unknown sender"
-            total = sum(self.rejected.values()) + 1
-            self.rejected[str(e).split(":")[0]] += 1
-            if total <= 20 or total % 1000 == 0:  # a flood must not drown the log
-                log.warning("rejected message on %s from %s: %s (%d rejected so far)", sample.key_expr, sender, e, total)
-            return
-        self.queue.put(message)
+    def _tick(self) -> None:
+        while not self._closed.wait(0.02):
+            deadline = self._deadline
+            if deadline is not None and time.monotonic() >= deadline:
+                self._deadline = None
+                self._session.put(self.key, b"", allowed_destination=zenoh.Locality.SESSION_LOCAL)
+
+    def get(self, timeout: float | None = None) -> Message | None:
+        """The next good message; None once `timeout` seconds pass without one."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            sample = self._sub.try_recv()
+            if sample is None:
+                now = time.monotonic()
+                if deadline is not None and now >= deadline:
+                    return None
+                self._deadline = min(deadline, now + self.WAKE_EVERY) if deadline else now + self.WAKE_EVERY
+                sample = self._sub.recv()
+                self._deadline = None
+            payload = sample.payload.to_bytes()
+            if not payload:  # a wake-up
+                continue
+            try:
+                return decode(payload, self.kinds)
+            except BusError as e:
+                self._reject(sample, e)
+
+    def _reject(self, sample, error: BusError) -> None:
+        sender = sample.attachment.to_bytes().decode(errors="replace") if sample.attachment else "unknown sender"
+        self.rejected[str(error).split(":")[0]] += 1
+        total = self.rejected_total
+        if total <= 20 or total % 1000 == 0:  # a flood must not drown the log
+            log.warning("rejected message on %s from %s: %s (%d rejected so far)", sample.key_expr, sender, error, total)
 
     @property
     def rejected_total(self) -> int:
         return sum(self.rejected.values())
 
-    def get(self, timeout: float | None = None) -> Message | None:
-        try:
-            return self.queue.get(timeout=timeout)
-        except queue.Empty:
-            return None
-
     def close(self) -> None:
+        self._closed.set()
         self._sub.undeclare()
 
 
@@ -166,8 +196,8 @@ class Bus:
         self._owned.append(box)
         return box
 
-    def inbox(self, key: str, kinds, maxsize: int = 0) -> Inbox:
-        box = Inbox(self.session, key, kinds, maxsize)
+    def inbox(self, key: str, kinds) -> Inbox:
+        box = Inbox(self.session, key, kinds)
         self._owned.append(box)
         return box
 

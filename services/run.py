@@ -1,0 +1,203 @@
+"""`spikinglab run`: train the insect with world and brain as separate processes on the bus.
+
+Starts the world and the brain as two processes on an embedded loopback bus (no broker: the
+world listens, the brain listens and connects to it), shows the world's progress, and writes
+runs/<id>/: metrics.json (the world's), weights.npz (the brain's), summary.json and
+collisions.png. Prints where they are.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import logging
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from services.brain.checkpoint import load_weights
+from services.brain.circuit import CircuitError, load_circuit
+from services.world.service import add_world_args, world_from_args
+from services.world.world import MapError
+
+log = logging.getLogger("spikinglab.run")
+PAPER_TABLE_1 = {"0.01": 19_000, "0.02": 15_000, "0.03": 9_000, "0.04": 7_000}
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="spikinglab run", description=__doc__.splitlines()[0])
+    add_world_args(p)
+    p.set_defaults(ticks=100_000)
+    p.add_argument("--circuit", default="insect", help="circuit name in circuits/ or a .toml path (default insect)")
+    p.add_argument("--a-plus", type=float, default=None,
+                   help="A+ = A- of the learning neurons (default: the circuit's, 0.02 for the insect)")
+    p.add_argument("--load", type=Path, help="start the brain from these weights (.npz checkpoint)")
+    p.add_argument("--runs", type=Path, default=Path("runs"), help="where run folders go (default runs/)")
+    p.add_argument("--id", help="name of the run folder (default: date, time and seed)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def service(name: str, args: list, log_file: Path | None) -> subprocess.Popen:
+    out = open(log_file, "w") if log_file else None
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    return subprocess.Popen([sys.executable, "-m", f"services.{name}", *map(str, args)], stdout=out,
+                            stderr=subprocess.STDOUT if out else None, env=env)
+
+
+def stop(process: subprocess.Popen) -> None:
+    if process.poll() is None:
+        process.terminate()
+        try:
+            process.wait(5)
+        except subprocess.TimeoutExpired:
+            process.kill()
+
+
+def tail(path: Path, lines: int = 15) -> str:
+    return "\n".join(path.read_text(errors="replace").splitlines()[-lines:]) if path.exists() else ""
+
+
+def main(argv=None) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
+    args = parser().parse_args(argv)
+    # check everything a user can get wrong before starting any process
+    try:
+        circuit = load_circuit(args.circuit)
+        if args.a_plus is not None:
+            circuit = circuit.with_learning_rate(args.a_plus)
+        world_from_args(args)
+        if args.load:
+            load_weights(args.load, circuit)
+    except (CircuitError, MapError, ValueError, OSError) as e:
+        log.error("spikinglab run: %s", e)
+        return 2
+    run_id = args.id or f"{datetime.datetime.now():%Y%m%d-%H%M%S}-seed{args.seed}"
+    folder = args.runs / run_id
+    folder.mkdir(parents=True, exist_ok=True)
+    world_port, brain_port = free_port(), free_port()
+    world_ep, brain_ep = f"tcp/127.0.0.1:{world_port}", f"tcp/127.0.0.1:{brain_port}"
+
+    world_args = ["--listen", world_ep, "--ticks", args.ticks, "--seed", args.seed, "--agents", args.agents,
+                  "--preset", args.preset, "--learned-after", args.learned_after, "--out", folder]
+    world_args += ["--map", args.map] if args.map else []
+    world_args += ["--shared"] if args.shared else []
+    world_args += ["--no-training"] if args.no_training else []
+    world_args += [] if args.quiet else ["--progress"]
+    brain_args = ["--listen", brain_ep, "--connect", world_ep, "--circuit", args.circuit, "--once",
+                  "--save", folder / "weights.npz"]
+    brain_args += ["--a-plus", args.a_plus] if args.a_plus is not None else []
+    brain_args += ["--no-training"] if args.no_training else []
+    brain_args += ["--load", args.load] if args.load else []
+
+    log.info("run %s: %d ticks, seed %d, %d agent(s), A+ = A- = %s, world %s%s", run_id, args.ticks, args.seed,
+             args.agents, learning_rate(circuit), args.preset, f", map {args.map}" if args.map else "")
+    started = time.time()
+    world = service("world", world_args, folder / "world.log" if args.quiet else None)
+    brain = service("brain", brain_args, folder / "brain.log")
+    try:
+        while world.poll() is None:
+            if brain.poll() is not None:
+                log.error("the brain stopped (exit %s) before the run ended:\n%s", brain.returncode,
+                          tail(folder / "brain.log"))
+                return 1
+            time.sleep(0.1)
+        if world.returncode != 0:
+            log.error("the world stopped with exit %s", world.returncode)
+            return 1
+        brain.wait(30)
+    except KeyboardInterrupt:
+        log.error("interrupted")
+        return 130
+    finally:
+        stop(world)
+        stop(brain)
+    summary = summarise(folder, args, circuit, run_id, time.time() - started)
+    plot(folder, summary)
+    report(folder, summary)
+    return 0
+
+
+def learning_rate(circuit) -> float:
+    rates = {t.a_plus for k in circuit.plastic_synapses for t in [circuit.neuron_types[circuit.synapses[k].post]]}
+    return rates.pop() if len(rates) == 1 else sorted(rates)
+
+
+def summarise(folder: Path, args, circuit, run_id: str, wall_s: float) -> dict:
+    metrics = json.loads((folder / "metrics.json").read_text())
+    weights = load_weights(folder / "weights.npz", circuit)
+    plastic = circuit.plastic_synapses
+    summary = {
+        "run": run_id,
+        "parameters": {"ticks": args.ticks, "seed": args.seed, "agents": args.agents, "a_plus": learning_rate(circuit),
+                       "a_minus": learning_rate(circuit), "circuit": circuit.source, "preset": args.preset,
+                       "map": str(args.map) if args.map else None, "shared_arena": args.shared,
+                       "training": not args.no_training, "learned_after": args.learned_after},
+        "wall_time_s": round(wall_s, 1),
+        "ticks_per_s": metrics["ticks_per_s"],
+        "learning_time": metrics["learning_time"],
+        "learning_time_definition": metrics["learning_time_definition"],
+        "paper_table_1_learning_time": PAPER_TABLE_1,
+        "collisions_per_1000_ticks": metrics["collisions_per_1000_ticks"],
+        "collisions": metrics["collisions"],
+        "food": metrics["food"],
+        "final_weights": {circuit.synapse_label(k): weights[:, k].round(4).tolist() for k in plastic},
+        "all_final_weights": {circuit.synapse_label(k): weights[:, k].tolist() for k in range(weights.shape[1])},
+        "world": metrics["world"],
+    }
+    (folder / "summary.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+def plot(folder: Path, summary: dict) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    bins = np.array(summary["collisions_per_1000_ticks"], dtype=float)  # [agents, bins]
+    fig, ax = plt.subplots(figsize=(8, 4.5), dpi=110)
+    x = (np.arange(bins.shape[1]) + 1) * 1000
+    for row in bins[:20]:
+        ax.plot(x, row, color="tab:gray", alpha=0.3, lw=0.8)
+    ax.plot(x, bins.mean(axis=0), color="tab:red", lw=2, label=f"mean of {bins.shape[0]} agent(s)" if len(bins) > 1 else "collisions")
+    for t in summary["learning_time"][:20]:
+        if t is not None:
+            ax.axvline(t, color="tab:green", ls="--", lw=1)
+    p = summary["parameters"]
+    ax.set(xlabel="tick", ylabel="collision events per 1,000 ticks",
+           title=f"Insect learning to avoid walls and predators (A+ = A- = {p['a_plus']}, seed {p['seed']})")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right")
+    fig.tight_layout()
+    fig.savefig(folder / "collisions.png")
+    plt.close(fig)
+
+
+def report(folder: Path, summary: dict) -> None:
+    bins = np.array(summary["collisions_per_1000_ticks"], dtype=float)
+    q = max(bins.shape[1] // 4, 1)
+    first, last = bins[:, :q].sum(axis=1).mean(), bins[:, -q:].sum(axis=1).mean()
+    w = summary["final_weights"]
+    mean = {k: float(np.mean(v)) for k, v in w.items()}
+    print(f"\ncollisions: {first:.0f} in the first quarter, {last:.0f} in the last quarter "
+          f"({summary['parameters']['ticks']:,} ticks, {summary['ticks_per_s']:,.0f} ticks/s)")
+    print("learning time:", ", ".join("not reached" if t is None else f"{t:,}" for t in summary["learning_time"][:8]),
+          f"(paper: {summary['paper_table_1_learning_time'].get(str(summary['parameters']['a_plus']), 'n/a')})")
+    print("weights:", ", ".join(f"{k} {v:.2f}" for k, v in mean.items()))
+    print(f"\nwritten to {folder}/: summary.json, collisions.png, metrics.json, weights.npz")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
