@@ -11,10 +11,11 @@ COMMANDS = {
     "world": ("services.world.service", "the world service on the bus"),
     "router": ("services.router", "a Zenoh router, for brain and world on different machines"),
     "conditioning": ("services.brain.conditioning", "classical conditioning demo on fig. 2 and fig. 4"),
-    "bench": (None, "benchmarks: bench engine"),
+    "bench": (None, "benchmarks: bench engine | loop"),
 }
 BENCHMARKS = {
     "engine": "bench.engine",
+    "loop": "bench.loop",
 }
 
 
@@ -38,7 +39,8 @@ def main(argv: list[str] | None = None) -> None:
         module = COMMANDS[name][0]
     else:
         sys.exit(f"spikinglab: unknown command {name!r}\n\n{usage()}")
-    sys.exit(importlib.import_module(module).main(rest))
+    code = importlib.import_module(module).main(rest)
+    sys.exit(code if isinstance(code, int) else 0)  # benchmarks return their figures
 
 
 if __name__ == "__main__":

@@ -1,7 +1,8 @@
 """`spikinglab run`: train the insect with world and brain as separate processes on the bus.
 
-Starts the world and the brain as two processes on an embedded loopback bus (no broker: the
-world listens, the brain listens and connects to it), shows the world's progress, and writes
+Starts the world and the brain as two processes on an embedded local bus (no broker: the world
+listens on a Unix socket, the brain listens on its own and connects to the world's), shows the
+world's progress, and writes
 runs/<id>/: metrics.json (the world's), weights.npz (the brain's), summary.json and
 collisions.png. Prints where they are.
 """
@@ -13,15 +14,16 @@ import datetime
 import json
 import logging
 import os
-import socket
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 from services.brain.checkpoint import load_weights
+from services.brain.engine import PARALLEL_FROM
 from services.brain.circuit import CircuitError, load_circuit
 from services.world.service import add_world_args, world_from_args
 from services.world.world import MapError
@@ -44,10 +46,11 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def local_endpoints(*names: str) -> tuple[list[str], tempfile.TemporaryDirectory]:
+    """Unix-socket endpoints for processes on this machine (5-10 % faster lock-step than TCP
+    loopback); the socket files live in a short temporary folder (paths are limited to 108 bytes)."""
+    folder = tempfile.TemporaryDirectory(prefix="spikinglab-")
+    return [f"unixsock-stream/{folder.name}/{n}.sock" for n in names], folder
 
 
 def service(name: str, args: list, log_file: Path | None) -> subprocess.Popen:
@@ -87,8 +90,7 @@ def main(argv=None) -> int:
     run_id = args.id or f"{datetime.datetime.now():%Y%m%d-%H%M%S}-seed{args.seed}"
     folder = args.runs / run_id
     folder.mkdir(parents=True, exist_ok=True)
-    world_port, brain_port = free_port(), free_port()
-    world_ep, brain_ep = f"tcp/127.0.0.1:{world_port}", f"tcp/127.0.0.1:{brain_port}"
+    (world_ep, brain_ep), sockets = local_endpoints("world", "brain")
 
     world_args = ["--listen", world_ep, "--ticks", args.ticks, "--seed", args.seed, "--agents", args.agents,
                   "--preset", args.preset, "--learned-after", args.learned_after, "--out", folder]
@@ -101,6 +103,11 @@ def main(argv=None) -> int:
     brain_args += ["--a-plus", args.a_plus] if args.a_plus is not None else []
     brain_args += ["--no-training"] if args.no_training else []
     brain_args += ["--load", args.load] if args.load else []
+    if args.agents < PARALLEL_FROM and len(os.sched_getaffinity(0)) >= 2:
+        # lock-step latency: world and brain on a core each (a population keeps the brain's threads)
+        first, second = sorted(os.sched_getaffinity(0))[:2]
+        world_args += ["--cpu", first]
+        brain_args += ["--cpu", second]
 
     log.info("run %s: %d ticks, seed %d, %d agent(s), A+ = A- = %s, world %s%s", run_id, args.ticks, args.seed,
              args.agents, learning_rate(circuit), args.preset, f", map {args.map}" if args.map else "")
@@ -124,6 +131,7 @@ def main(argv=None) -> int:
     finally:
         stop(world)
         stop(brain)
+        sockets.cleanup()
     summary = summarise(folder, args, circuit, run_id, time.time() - started)
     plot(folder, summary)
     report(folder, summary)

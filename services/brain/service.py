@@ -136,7 +136,8 @@ def run(args: argparse.Namespace, session) -> int:
                     node.brain.engine.training = node.training
                 log.info("training %s at tick %d", "on" if node.training else "off", order.tick)
             elif order.command == "end":
-                log.info("run ended at tick %d", order.tick)
+                log.info("run ended at tick %d; rejected messages: %d on sensors, %d on control", order.tick,
+                         sensors.rejected_total, control.rejected_total)
                 if args.save and node.brain is not None:
                     save_weights(args.save, node.brain.engine, circuit, tick=order.tick)
                     log.info("weights saved to %s", args.save)

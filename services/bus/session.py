@@ -33,6 +33,8 @@ def add_bus_args(parser: argparse.ArgumentParser) -> None:
     bus.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 config file (TLS, access control, ...)")
     bus.add_argument("--group", default=keys.DEFAULT_GROUP,
                      help=f"the insect or population this service belongs to (default {keys.DEFAULT_GROUP})")
+    bus.add_argument("--cpu", type=int, metavar="N",
+                     help="run this process on CPU N only (a lock-step pair on separate cores is ~30 %% faster)")
 
 
 def make_config(connect=(), listen=(), config_file=None, mode: str = "peer") -> zenoh.Config:
@@ -53,6 +55,11 @@ def make_config(connect=(), listen=(), config_file=None, mode: str = "peer") -> 
 
 
 def open_session(args: argparse.Namespace, mode: str = "peer") -> zenoh.Session:
+    if getattr(args, "cpu", None) is not None:  # before zenoh starts its threads, so they stay there too
+        try:
+            os.sched_setaffinity(0, {args.cpu})
+        except (OSError, AttributeError) as e:
+            log.warning("cannot pin to CPU %d: %s", args.cpu, e)
     try:
         return zenoh.open(make_config(args.connect, args.listen, args.zenoh_config, mode))
     except zenoh.ZError as e:

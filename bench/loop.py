@@ -1,0 +1,71 @@
+"""Closed-loop benchmark: lock-step ticks/s of world + brain.
+
+inprocess: one agent, world and brain in this process (no bus).
+bus:       one agent, world and brain as two processes on a local Zenoh bus (Unix sockets, one
+           CPU each, as `spikinglab run` places them).
+batch:     A = 1000 agents in one message per tick, across the same two processes.
+The last line printed is JSON. Run: `spikinglab bench loop` or `python -m bench.loop`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from services.brain.circuit import load_circuit
+from services.brain.engine import PARALLEL_FROM
+from services.loop import brain_for, closed_loop
+from services.run import local_endpoints
+from services.world.world import World
+
+
+def inprocess(ticks: int) -> float:
+    world = World(seed=1)
+    brain = brain_for(world, load_circuit("insect"))
+    closed_loop(world, brain, 200)  # compile and warm up
+    started = time.perf_counter()
+    closed_loop(world, brain, ticks)
+    return ticks / (time.perf_counter() - started)
+
+
+def over_the_bus(ticks: int, agents: int) -> float:
+    """Ticks/s measured by the world process itself (from its first to its last tick)."""
+    (world_ep, brain_ep), sockets = local_endpoints("world", "brain")
+    with sockets, tempfile.TemporaryDirectory() as tmp:
+        run = [sys.executable, "-m"]
+        pin = ([["--cpu", "0"], ["--cpu", "1"]] if agents < PARALLEL_FROM and os.cpu_count() >= 2 else [[], []])
+        world = subprocess.Popen(run + ["services.world", "--listen", world_ep, "--ticks", str(ticks), "--agents",
+                                        str(agents), "--out", tmp] + pin[0], stderr=subprocess.DEVNULL)
+        brain = subprocess.Popen(run + ["services.brain", "--listen", brain_ep, "--connect", world_ep, "--once"]
+                                 + pin[1], stderr=subprocess.DEVNULL)
+        if world.wait(600) != 0 or brain.wait(60) != 0:
+            raise SystemExit("the world or the brain failed")
+        return json.loads((Path(tmp) / "metrics.json").read_text())["ticks_per_s"]
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(prog="spikinglab bench loop", description=__doc__.splitlines()[0])
+    p.add_argument("--ticks", type=int, default=20_000, help="ticks of the one-agent runs")
+    p.add_argument("--agents", type=int, default=1000)
+    p.add_argument("--batch-ticks", type=int, default=2000)
+    args = p.parse_args(argv)
+    rate = inprocess(args.ticks * 5)
+    print(f"in one process, 1 agent: {rate:,.0f} ticks/s")
+    bus = over_the_bus(args.ticks, 1)
+    print(f"two processes on the bus, 1 agent: {bus:,.0f} ticks/s ({1e6 / bus:.0f} us per lock-step round trip)")
+    batch = over_the_bus(args.batch_ticks, args.agents) * args.agents
+    print(f"two processes on the bus, {args.agents} agents: {batch:,.0f} agent-ticks/s")
+    result = {"inprocess_ticks_per_s": round(rate), "bus_ticks_per_s": round(bus),
+              f"bus_batch{args.agents}_agent_ticks_per_s": round(batch)}
+    print(json.dumps(result))
+    return result
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,67 @@
+"""Message schemas: round trips, and strict rejection of everything malformed."""
+
+import msgspec
+import numpy as np
+import pytest
+
+from services.bus import keys
+from services.bus.schemas import (VERSION, Array, BrainState, BusError, Control, Motor, Sensors, WorldMap,
+                                  WorldState, decode, encode)
+
+A = 3
+GOOD = [
+    Sensors(tick=7, names=("smell_black", "pain"), values=Array.of(np.array([[0.4, np.nan]] * A)), training=False),
+    Motor(tick=7, names=("rotate", "move"), actions=Array.of(np.array([[1, 0]] * A, np.uint8))),
+    Control(tick=40000, command="end"),
+    BrainState(tick=7, spiked=Array.of(np.zeros((A, 15), np.uint8)), potentials=Array.of(np.full((A, 9), -65, np.float32)),
+               weights=Array.of(np.zeros((A, 0)))),
+    WorldState(tick=7, pos=Array.of(np.zeros((A, 2))), heading=Array.of(np.zeros(A)),
+               events=Array.of(np.zeros((A, 4), np.int64)), collisions=Array.of(np.zeros(A, np.int64)),
+               food=Array.of(np.zeros(A, np.int64))),
+    WorldMap(tick=0, grid=Array.of(np.zeros((1, 41, 60), np.uint8)), x_min=80, y_min=1),
+]
+
+
+@pytest.mark.parametrize("message", GOOD, ids=lambda m: type(m).__name__)
+def test_round_trip(message):
+    back = decode(encode(message), type(message))
+    assert back == message and back.version == VERSION
+
+
+def test_arrays_come_back_exactly():
+    values = np.array([[0.2, np.nan, 3.0000000000000004]])
+    m = decode(encode(Sensors(tick=0, names=("a", "b", "c"), values=Array.of(values))), Sensors)
+    np.testing.assert_array_equal(m.values.numpy("values", "<f8", 2), values)
+
+
+raw = msgspec.msgpack.Encoder().encode
+sensors_dict = {"kind": "sensors", "tick": 1, "version": VERSION, "names": ["a"],
+                "values": {"dtype": "<f8", "shape": [1, 1], "data": np.zeros(1).tobytes()}}
+
+
+@pytest.mark.parametrize("payload,reason", [
+    (encode(GOOD[0])[:-5], "not a message: Input data was truncated"),
+    (b"\x00\x01garbage", "invalid message"),
+    (raw({**sensors_dict, "version": VERSION + 1}), f"schema version {VERSION + 1}, this program speaks {VERSION}"),
+    (raw({**sensors_dict, "kind": "teleport"}), "invalid message"),
+    (raw({k: v for k, v in sensors_dict.items() if k != "values"}), "missing required field `values`"),
+    (raw({**sensors_dict, "tick": "soon"}), "Expected `int`, got `str` - at `$.tick`"),
+    (raw({**sensors_dict, "values": {"dtype": "<f4", "shape": [1, 1], "data": b"1234"}}), "values: dtype '<f4', expected '<f8'"),
+    (raw({**sensors_dict, "values": {"dtype": "<f8", "shape": [1, 1], "data": b"1234"}}), "values: 4 bytes do not hold shape [1, 1]"),
+    (raw({**sensors_dict, "values": {"dtype": "<f8", "shape": [1, 2], "data": np.zeros(2).tobytes()}}),
+     "values has 2 columns for 1 sensor names"),
+    (encode(GOOD[1]), "a Motor message where Sensors/Control was expected"),
+    (encode(Control(tick=1, command="dance")), "unknown control command 'dance'"),
+])
+def test_malformed_messages_are_rejected_with_the_reason(payload, reason):
+    with pytest.raises(BusError) as err:
+        decode(payload, (Sensors, Control))
+    assert reason in str(err.value)
+
+
+def test_keys():
+    assert keys.sensors("insect") == "spikinglab/insect/sensors"
+    assert keys.alive("pop7", "brain") == "spikinglab/pop7/alive/brain"
+    for bad in ("a/b", "*", "", "x y"):
+        with pytest.raises(ValueError, match="one key segment"):
+            keys.motor(bad)

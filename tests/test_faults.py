@@ -1,0 +1,126 @@
+"""Faults across real processes: a brain killed and restarted, malformed messages on every topic,
+and brain and world that meet only through a router."""
+
+import json
+import re
+import threading
+import time
+
+import msgspec
+import numpy as np
+
+from services.brain.checkpoint import load_weights
+from services.brain.circuit import load_circuit
+from services.bus import keys
+from services.bus.schemas import VERSION, Array, Control, Motor, Sensors, encode
+from services.loop import brain_for, closed_loop
+from services.world.world import World
+
+from .processes import Watcher, endpoint, finish, free_port, start, wait_for
+
+
+def test_brain_killed_mid_run_world_waits_then_continues(tmp_path):
+    world_port, brain_port = free_port(), free_port()
+    watcher = Watcher([endpoint(world_port)], [keys.world_state("k")])
+    world = start("world", "--group", "k", "--listen", endpoint(world_port), "--ticks", 6000, "--publish-state",
+                  "--out", tmp_path, log=tmp_path / "world.log")
+    brain_args = ("--group", "k", "--listen", endpoint(brain_port), "--connect", endpoint(world_port), "--once")
+    brain = start("brain", *brain_args, log=tmp_path / "brain1.log")
+    try:
+        ticks = watcher.messages[keys.world_state("k")]
+        wait_for(lambda: len(ticks) > 1000, 60, "the run to pass tick 1000")
+        brain.kill()
+        brain.wait()
+        wait_for(lambda: "brain lost at tick" in (tmp_path / "world.log").read_text(), 10, "the world to notice")
+        stalled_at = len(ticks)
+        time.sleep(1.5)
+        assert len(ticks) == stalled_at  # the world waits: no tick without a brain
+        brain = start("brain", *brain_args, log=tmp_path / "brain2.log")
+        assert finish(world, 120, tmp_path / "world.log") == 0
+        assert finish(brain, 30, tmp_path / "brain2.log") == 0
+    finally:
+        brain.kill()
+        world.kill()
+        watcher.close()
+    log = (tmp_path / "world.log").read_text()
+    lost = int(re.search(r"brain lost at tick (\d+)", log).group(1))
+    assert 1000 <= lost < 6000 and f"brain back: continuing at tick {lost}" in log
+    assert [m.tick for m in ticks] == list(range(6000))  # every tick once, none skipped
+    assert json.loads((tmp_path / "metrics.json").read_text())["ticks"] == 6000
+
+
+def garbage(tick: int) -> list[bytes]:
+    """Malformed payloads: truncated, not msgpack, another version, wrong kind, wrong shapes."""
+    good = encode(Sensors(tick=tick, names=("a",), values=Array.of(np.zeros((1, 1)))))
+    raw = msgspec.msgpack.Encoder().encode
+    return [
+        good[: len(good) // 2],
+        b"\xc1\xc1 not a message",
+        raw({"kind": "sensors", "tick": tick, "version": VERSION + 1, "names": [],
+             "values": {"dtype": "<f8", "shape": [1, 0], "data": b""}}),
+        raw({"kind": "motor", "tick": tick, "version": VERSION, "names": ["move"],
+             "actions": {"dtype": "|u1", "shape": [1, 1], "data": b""}}),
+        encode(Control(tick=tick, command="self-destruct")),
+        raw({"kind": "sensors", "tick": "now"}),
+    ]
+
+
+def test_malformed_messages_on_every_topic_are_rejected_and_the_run_goes_on(tmp_path):
+    ticks, seed = 4000, 9
+    world = World(seed=seed)
+    brain = brain_for(world, load_circuit("insect"))
+    closed_loop(world, brain, ticks)  # the run as it must come out, undisturbed
+
+    world_port, brain_port = free_port(), free_port()
+    p_world = start("world", "--listen", endpoint(world_port), "--ticks", ticks, "--seed", seed, "--out", tmp_path,
+                    log=tmp_path / "world.log")
+    p_brain = start("brain", "--listen", endpoint(brain_port), "--connect", endpoint(world_port), "--once",
+                    "--save", tmp_path / "weights.npz", log=tmp_path / "brain.log")
+    injector = Watcher([endpoint(world_port), endpoint(brain_port)], [])
+    stop = threading.Event()
+    topics = [keys.sensors("insect"), keys.motor("insect"), keys.control("insect"),
+              keys.world_state("insect"), keys.brain_state("insect")]
+    publishers = {k: injector.session.declare_publisher(k) for k in topics}
+
+    def inject():
+        k = 0
+        while not stop.is_set():
+            for key, pub in publishers.items():
+                pub.put(garbage(k)[k % 6], attachment=b"injector")
+            k += 1
+            time.sleep(0.002)
+    thread = threading.Thread(target=inject)
+    thread.start()
+    try:
+        assert finish(p_world, 120, tmp_path / "world.log") == 0
+        assert finish(p_brain, 30, tmp_path / "brain.log") == 0
+    finally:
+        stop.set()
+        thread.join()
+        injector.close()
+        p_world.kill()
+        p_brain.kill()
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["rejected_messages"] > 10  # the world's motor inbox rejected what came on motor
+    brain_log = (tmp_path / "brain.log").read_text()
+    counts = re.search(r"rejected messages: (\d+) on sensors, (\d+) on control", brain_log)
+    assert int(counts.group(1)) > 10 and int(counts.group(2)) > 10
+    assert "from injector" in brain_log and "from injector" in (tmp_path / "world.log").read_text()
+    # nothing of them was applied: the run is exactly the undisturbed one
+    assert metrics["collisions"] == world.metrics.collisions.tolist()
+    assert metrics["food"] == world.metrics.food.tolist()
+    np.testing.assert_array_equal(load_weights(tmp_path / "weights.npz", brain.circuit), brain.engine.get_weights())
+
+
+def test_brain_and_world_meet_only_through_a_router(tmp_path):
+    router_port = free_port()
+    router = start("router", "--listen", endpoint(router_port), log=tmp_path / "router.log")
+    try:
+        world = start("world", "--connect", endpoint(router_port), "--ticks", 1500, "--out", tmp_path,
+                      log=tmp_path / "world.log")
+        brain = start("brain", "--connect", endpoint(router_port), "--once", log=tmp_path / "brain.log")
+        assert finish(world, 60, tmp_path / "world.log") == 0
+        assert finish(brain, 30, tmp_path / "brain.log") == 0
+    finally:
+        router.kill()
+    assert json.loads((tmp_path / "metrics.json").read_text())["ticks"] == 1500
