@@ -10,6 +10,7 @@ COMMANDS = {
     "brain": ("services.brain.service", "the brain service on the bus"),
     "world": ("services.world.service", "the world service on the bus"),
     "router": ("services.router", "a Zenoh router, for brain and world on different machines"),
+    "sweep": ("services.sweep", "the paper's Table 1: learning time for A+ = A- over seeds"),
     "conditioning": ("services.brain.conditioning", "classical conditioning demo on fig. 2 and fig. 4"),
     "bench": (None, "benchmarks: bench engine | loop"),
 }

@@ -178,8 +178,12 @@ def plot(folder: Path, summary: dict) -> None:
     fig, ax = plt.subplots(figsize=(8, 4.5), dpi=110)
     x = (np.arange(bins.shape[1]) + 1) * 1000
     for row in bins[:20]:
-        ax.plot(x, row, color="tab:gray", alpha=0.3, lw=0.8)
-    ax.plot(x, bins.mean(axis=0), color="tab:red", lw=2, label=f"mean of {bins.shape[0]} agent(s)" if len(bins) > 1 else "collisions")
+        ax.plot(x, row, color="tab:gray", alpha=0.4, lw=0.8)
+    mean = bins.mean(axis=0)
+    window = min(5, len(mean))  # a rolling mean over 5,000 ticks shows the trend through the noise
+    smooth = np.convolve(mean, np.ones(window) / window, mode="valid")
+    who = f"mean of {bins.shape[0]} agents" if len(bins) > 1 else "one insect"
+    ax.plot(x[window - 1:], smooth, color="tab:red", lw=2.5, label=f"{who}, rolling mean over {window},000 ticks")
     for t in summary["learning_time"][:20]:
         if t is not None:
             ax.axvline(t, color="tab:green", ls="--", lw=1)
