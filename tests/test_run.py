@@ -68,3 +68,20 @@ def test_unknown_command_and_help():
     done = spikinglab("fly")
     assert done.returncode != 0 and "unknown command 'fly'" in done.stderr
     assert "run" in spikinglab("--help").stdout
+
+
+def test_sweep_writes_the_table(tmp_path):
+    done = spikinglab("sweep", "--a-plus", 0.02, 0.04, "--seeds", 2, "--ticks", 4000, "--runs", tmp_path, "--id", "s")
+    assert done.returncode == 0, done.stderr
+    rows = json.loads((tmp_path / "s" / "table.json").read_text())
+    assert [r["a_plus"] for r in rows] == [0.02, 0.04] and all(len(r["learning_time"]) == 2 for r in rows)
+    assert "| 0.04 | 7,000 |" in (tmp_path / "s" / "table.md").read_text()
+    assert (tmp_path / "s" / "learning.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_benchmarks_run_and_end_with_json():
+    done = spikinglab("bench", "engine", "--ticks", 2000, "--batch-ticks", 20, "--repeats", 1)
+    assert done.returncode == 0, done.stderr
+    figures = json.loads(done.stdout.strip().splitlines()[-1])
+    assert set(figures) == {"single_ticks_per_s", "batch1000_agent_ticks_per_s"}
+    assert spikinglab("bench", "nothing").returncode != 0
