@@ -9,6 +9,7 @@ COMMANDS = {
     "run": ("services.run", "train the insect: world and brain as two processes on the bus (the main job)"),
     "brain": ("services.brain.service", "the brain service on the bus"),
     "world": ("services.world.service", "the world service on the bus"),
+    "record": ("services.recorder.service", "record a run to a Rerun file (.rrd)"),
     "router": ("services.router", "a Zenoh router, for brain and world on different machines"),
     "sweep": ("services.sweep", "the paper's Table 1: learning time for A+ = A- over seeds"),
     "conditioning": ("services.brain.conditioning", "classical conditioning demo on fig. 2 and fig. 4"),

@@ -43,6 +43,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--runs", type=Path, default=Path("runs"), help="where run folders go (default runs/)")
     p.add_argument("--id", help="name of the run folder (default: date, time and seed)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-record", action="store_true", help="no Rerun recording (recording.rrd)")
+    p.add_argument("--detail", default="0", help="agents recorded in detail: raster, potentials, ... (default 0)")
     return p
 
 
@@ -109,28 +111,43 @@ def main(argv=None) -> int:
         world_args += ["--cpu", first]
         brain_args += ["--cpu", second]
 
+    recorder = None
+    if not args.no_record:  # world and brain publish their state; they wait for the recorder to listen
+        world_args.append("--publish-state")
+        brain_args.append("--publish-state")
     log.info("run %s: %d ticks, seed %d, %d agent(s), A+ = A- = %s, world %s%s", run_id, args.ticks, args.seed,
              args.agents, learning_rate(circuit), args.preset, f", map {args.map}" if args.map else "")
     started = time.time()
+    if not args.no_record:
+        recorder = service("recorder", ["--connect", world_ep, "--connect", brain_ep, "--out",
+                                        folder / "recording.rrd", "--detail", args.detail], folder / "recorder.log")
     world = service("world", world_args, folder / "world.log" if args.quiet else None)
     brain = service("brain", brain_args, folder / "brain.log")
+    recorder_ok = True
     try:
         while world.poll() is None:
             if brain.poll() is not None:
                 log.error("the brain stopped (exit %s) before the run ended:\n%s", brain.returncode,
                           tail(folder / "brain.log"))
                 return 1
+            if recorder is not None and recorder_ok and recorder.poll() is not None:
+                recorder_ok = False  # the recording is lost from here on, the run is not
+                log.warning("the recorder stopped (exit %s); the run goes on without it:\n%s",
+                            recorder.returncode, tail(folder / "recorder.log"))
             time.sleep(0.1)
         if world.returncode != 0:
             log.error("the world stopped with exit %s", world.returncode)
             return 1
-        brain.wait(30)
+        brain.wait(60)
+        if recorder is not None:
+            recorder.wait(120)
     except KeyboardInterrupt:
         log.error("interrupted")
         return 130
     finally:
-        stop(world)
-        stop(brain)
+        for process in (world, brain, recorder):
+            if process is not None:
+                stop(process)
         sockets.cleanup()
     summary = summarise(folder, args, circuit, run_id, time.time() - started)
     plot(folder, summary)
@@ -208,7 +225,12 @@ def report(folder: Path, summary: dict) -> None:
     print("learning time:", ", ".join("not reached" if t is None else f"{t:,}" for t in summary["learning_time"][:8]),
           f"(paper: {summary['paper_table_1_learning_time'].get(str(summary['parameters']['a_plus']), 'n/a')})")
     print("weights:", ", ".join(f"{k} {v:.2f}" for k, v in mean.items()))
-    print(f"\nwritten to {folder}/: summary.json, collisions.png, metrics.json, weights.npz")
+    files = "summary.json, collisions.png, metrics.json, weights.npz"
+    if (folder / "recording.rrd").exists():
+        files += ", recording.rrd"
+    print(f"\nwritten to {folder}/: {files}")
+    if (folder / "recording.rrd").exists():
+        print(f"replay it: .venv/bin/rerun {folder / 'recording.rrd'}")
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ import numpy as np
 from services.brain.checkpoint import load_weights
 from services.brain.circuit import load_circuit
 from services.bus import keys
+from services.bus.schemas import BrainLayout
 from services.loop import brain_for, closed_loop
 from services.world.world import World, params_for
 
@@ -44,7 +45,8 @@ def test_same_seed_same_run_in_one_process_and_across_the_bus(tmp_path):
         watcher.close()
     assert watcher.bad == []
     world_states = watcher.messages[keys.world_state("det")]
-    brain_states = watcher.messages[keys.brain_state("det")]
+    layout, *brain_states = watcher.messages[keys.brain_state("det")]
+    assert isinstance(layout, BrainLayout) and layout.nodes == load_circuit("insect").node_names
     assert [m.tick for m in world_states] == list(range(TICKS))  # every tick, in order, none lost
     assert [m.tick for m in brain_states] == list(range(TICKS))
     bus_pos = np.array([m.pos.numpy("pos", "<f8", 2) for m in world_states])

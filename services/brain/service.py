@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from services.bus import keys
-from services.bus.schemas import Array, BrainState, Control, Motor, Sensors
+from services.bus.schemas import Array, BrainLayout, BrainState, Control, Motor, Sensors
 from services.bus.session import Bus, add_bus_args, open_session, wait_for_subscriber
 
 from .brain import Brain
@@ -99,6 +99,12 @@ class BrainNode:
                           potentials=Array.of(engine.v.astype(np.float32)), weights=Array.of(w))
 
 
+def layout(circuit, tick: int) -> BrainLayout:
+    return BrainLayout(tick=tick, circuit=circuit.name, nodes=circuit.node_names, neurons=len(circuit.neuron_names),
+                       synapses=tuple(circuit.synapse_label(k) for k in range(len(circuit.synapses))),
+                       plastic=tuple(circuit.plastic_synapses))
+
+
 def run(args: argparse.Namespace, session) -> int:
     try:
         circuit = load_circuit(args.circuit)
@@ -121,6 +127,7 @@ def run(args: argparse.Namespace, session) -> int:
             if message is not None:
                 if state is not None and node.last_tick < 0:
                     wait_for_subscriber(state, "a recorder")
+                    state.put(layout(circuit, message.tick))
                 answer = node.answer(message)
                 if answer is not None:
                     if state is not None and answer.tick == node.last_tick:

@@ -106,17 +106,37 @@ class BrainState(Message, tag="brain_state", kw_only=True):
                 raise BusError(f"{name} has {arr.shape[0]} agents, spiked has {spiked.shape[0]}")
 
 
+class BrainLayout(Message, tag="brain_layout", kw_only=True):
+    """What the brain's arrays mean, sent once before its first state: node names (neurons first,
+    then input neurons), the number of neurons, synapse labels "PRE->POST", the plastic ones."""
+
+    circuit: str
+    nodes: tuple[str, ...]
+    neurons: int
+    synapses: tuple[str, ...]
+    plastic: tuple[int, ...]
+
+    def check(self):
+        if not 0 < self.neurons <= len(self.nodes):
+            raise BusError(f"{self.neurons} neurons among {len(self.nodes)} nodes")
+        if any(not 0 <= k < len(self.synapses) for k in self.plastic):
+            raise BusError("a plastic synapse index is out of range")
+
+
 class WorldState(Message, tag="world_state", kw_only=True):
     """The world after tick `tick`: pos [A, 2], heading [A], events [A, 4] (collision colour, ate,
-    reset, learned), collisions [A], food [A]."""
+    reset, learned), collisions [A], food [A], and the patches that changed in this tick, changes
+    [K, 4] (arena, x index, y index, new colour)."""
 
     pos: Array
     heading: Array
     events: Array
     collisions: Array
     food: Array
+    changes: Array
 
     def check(self):
+        self.changes.numpy("changes", "<i8", 2)
         agents = self.pos.numpy("pos", "<f8", 2).shape[0]
         for name, arr, dtype, ndim in (("heading", self.heading, "<f8", 1), ("events", self.events, "<i8", 2),
                                        ("collisions", self.collisions, "<i8", 1), ("food", self.food, "<i8", 1)):
@@ -135,9 +155,9 @@ class WorldMap(Message, tag="world_map", kw_only=True):
         self.grid.numpy("grid", "|u1", 3)
 
 
-KINDS = (Sensors, Motor, Control, BrainState, WorldState, WorldMap)
+KINDS = (Sensors, Motor, Control, BrainState, BrainLayout, WorldState, WorldMap)
 _encoder = msgspec.msgpack.Encoder()
-_decoder = msgspec.msgpack.Decoder(Sensors | Motor | Control | BrainState | WorldState | WorldMap)
+_decoder = msgspec.msgpack.Decoder(Sensors | Motor | Control | BrainState | BrainLayout | WorldState | WorldMap)
 
 
 def encode(message: Message) -> bytes:

@@ -157,7 +157,7 @@ def run(args: argparse.Namespace, session) -> int:
                 m = world.metrics
                 state.put(WorldState(tick=t, pos=Array.of(world.pos), heading=Array.of(world.heading),
                                      events=Array.of(world.events), collisions=Array.of(m.collisions),
-                                     food=Array.of(m.food)))
+                                     food=Array.of(m.food), changes=Array.of(world.changes())))
             progress.update(t + 1)
         elapsed = time.perf_counter() - started
         progress.close(args.ticks)

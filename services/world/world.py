@@ -223,14 +223,20 @@ class World:
         )
         self._bin = np.zeros(A, np.int64)
         self.events = np.zeros((A, 4), np.int64)  # this tick: collision colour, ate, reset, learned
+        self.eaten = np.full((A, 2), -1, np.int64)  # this tick: grid index of the food eaten, or -1
 
     def sense(self) -> np.ndarray:
         """Vision then touch for tick self.tick; returns the sensors [A, len(SENSORS)] (NaN: nothing)."""
         m = self.metrics
         _sense(self.grid, self.arena_of, self.pos, self.heading, self.fpar, self.kind, self.training,
-               self.tick, self.sensors, self.last_patch, self.events, m.collisions, m.collisions_by_colour,
-               m.food, m.distance, m.last_collision, m.learned_at, self._bin)
+               self.tick, self.sensors, self.last_patch, self.events, self.eaten, m.collisions,
+               m.collisions_by_colour, m.food, m.distance, m.last_collision, m.learned_at, self._bin)
         return self.sensors
+
+    def changes(self) -> np.ndarray:
+        """The patches that changed in this tick's sense(): rows (arena, x index, y index, colour)."""
+        who = np.flatnonzero(self.eaten[:, 0] >= 0)
+        return np.column_stack([self.arena_of[who], self.eaten[who], np.full(len(who), EMPTY)]).astype(np.int64)
 
     def act(self, actions: np.ndarray) -> None:
         """Apply the actions [A, len(ACTIONS)] (nonzero: that actuator spiked), check the boundary."""
@@ -267,7 +273,7 @@ def _colour_at(grid, g, x, y, fpar):
 
 
 @njit(cache=True)
-def _sense(grid, arena_of, pos, heading, fpar, kind, training, t, sensors, last_patch, events,
+def _sense(grid, arena_of, pos, heading, fpar, kind, training, t, sensors, last_patch, events, eaten,
            collisions, by_colour, food, distance, last_collision, learned_at, bins):
     steps = int(round(fpar[VIEW] / fpar[RAY_STEP]))
     for a in range(pos.shape[0]):
@@ -276,6 +282,7 @@ def _sense(grid, arena_of, pos, heading, fpar, kind, training, t, sensors, last_
             sensors[a, k] = np.nan
         for k in range(events.shape[1]):
             events[a, k] = 0
+        eaten[a, 0] = eaten[a, 1] = -1
         h = math.radians(heading[a])
         dx, dy = math.sin(h), math.cos(h)
         # vision: the first non-empty patch along the heading, sampled every ray_step
@@ -308,6 +315,7 @@ def _sense(grid, arena_of, pos, heading, fpar, kind, training, t, sensors, last_
             sensors[a, REWARD] = fpar[REWARD_VALUE]
             ix, iy = patch // grid.shape[2], patch % grid.shape[2]
             grid[g, ix, iy] = EMPTY
+            eaten[a, 0], eaten[a, 1] = ix, iy
             food[a] += 1
             events[a, EV_ATE] = 1
         last_patch[a] = patch

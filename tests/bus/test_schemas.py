@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from services.bus import keys
-from services.bus.schemas import (VERSION, Array, BrainState, BusError, Control, Motor, Sensors, WorldMap,
+from services.bus.schemas import (VERSION, Array, BrainLayout, BrainState, BusError, Control, Motor, Sensors, WorldMap,
                                   WorldState, decode, encode)
 
 A = 3
@@ -17,7 +17,8 @@ GOOD = [
                weights=Array.of(np.zeros((A, 0)))),
     WorldState(tick=7, pos=Array.of(np.zeros((A, 2))), heading=Array.of(np.zeros(A)),
                events=Array.of(np.zeros((A, 4), np.int64)), collisions=Array.of(np.zeros(A, np.int64)),
-               food=Array.of(np.zeros(A, np.int64))),
+               food=Array.of(np.zeros(A, np.int64)), changes=Array.of(np.zeros((0, 4), np.int64))),
+    BrainLayout(tick=0, circuit="insect", nodes=("A", "B", "a_in"), neurons=2, synapses=("A->B", "a_in->A"), plastic=(0,)),
     WorldMap(tick=0, grid=Array.of(np.zeros((1, 41, 60), np.uint8)), x_min=80, y_min=1),
 ]
 

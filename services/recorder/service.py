@@ -1,0 +1,104 @@
+"""The recorder service: `spikinglab record` / `python -m services.recorder`.
+
+Reads:  everything under spikinglab/<group>/ (one strict inbox), and the liveliness of the world
+        and the brain
+Writes: a Rerun recording (.rrd) with its default layout; optionally also to a live viewer
+        (--viewer URL) or serves one (--serve); liveliness spikinglab/<group>/alive/recorder
+
+It ends when the world sends Control "end" (or on Ctrl-C / SIGTERM), flushing what it has; a
+recorder that is killed leaves a file that is readable up to its last flush.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import logging
+import signal
+import sys
+import time
+from pathlib import Path
+
+import rerun as rr
+
+from services.bus import keys
+from services.bus.schemas import KINDS, Control
+from services.bus.session import Bus, add_bus_args, open_session
+
+from .recorder import Recorder, blueprint
+
+log = logging.getLogger("spikinglab.recorder")
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="spikinglab record", description="Record a run to a Rerun file.")
+    p.add_argument("--out", type=Path, help="the .rrd file (default runs/<date>-<time>/recording.rrd)")
+    p.add_argument("--viewer", metavar="URL", help="also stream to a running viewer, e.g. rerun+http://127.0.0.1:9876/proxy")
+    p.add_argument("--serve", action="store_true", help="also serve the recording for viewers to connect (gRPC)")
+    p.add_argument("--detail", default="0", help="agents with raster, potentials, weights, ray, trail (default 0)")
+    p.add_argument("--flush-every", type=int, default=1000, help="ticks per batch written (default 1,000)")
+    p.add_argument("--forever", action="store_true", help="keep recording after the run's end")
+    add_bus_args(p)
+    return p
+
+
+def run(args: argparse.Namespace, session) -> int:
+    out = args.out or Path("runs") / f"{datetime.datetime.now():%Y%m%d-%H%M%S}" / "recording.rrd"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    detail = tuple(int(a) for a in args.detail.split(",") if a.strip())
+    rec = rr.RecordingStream("spikinglab", recording_id=f"{args.group}-{out.parent.name}")
+    sinks = [rr.FileSink(str(out))]
+    if args.viewer:
+        sinks.append(rr.GrpcSink(args.viewer))
+    rec.set_sinks(*sinks, default_blueprint=blueprint(detail[0] if detail else 0))
+    if args.serve:
+        log.info("serving the recording at %s", rec.serve_grpc(default_blueprint=blueprint(detail[0] if detail else 0)))
+    bus = Bus(session, args.group, "recorder")
+    recorder = Recorder(rec, detail=detail, flush_every=args.flush_every)
+    inbox = bus.inbox(f"{keys.PREFIX}/{args.group}/**", KINDS)
+    watched = {name: bus.presence(name) for name in ("world", "brain")}
+    recorder.event(f"recorder started on group {args.group}, writing {out}")
+    log.info("recording group %s to %s", args.group, out)
+    rejected, last_flush = 0, time.monotonic()
+    try:
+        while True:
+            message = inbox.get(timeout=0.25)
+            for name, presence in watched.items():  # services coming and going
+                while not presence.events.empty():
+                    change, _ = presence.events.get()
+                    if recorder.first_tick is not None or change == "up":
+                        recorder.event(f"{name} {'is there' if change == 'up' else 'lost'}",
+                                       "INFO" if change == "up" else "WARN")
+            if inbox.rejected_total != rejected:
+                reasons = ", ".join(f"{n} x {r}" for r, n in inbox.rejected.items())
+                recorder.event(f"rejected messages so far: {inbox.rejected_total} ({reasons})", "WARN")
+                rejected = inbox.rejected_total
+            if message is not None:
+                recorder.on(message)
+                if isinstance(message, Control) and message.command == "end" and not args.forever:
+                    break
+            if time.monotonic() - last_flush > 2.0:  # a killed recorder loses at most this much
+                recorder.flush()
+                last_flush = time.monotonic()
+    finally:
+        recorder.close()
+        rec.flush()
+        rec.disconnect()
+        bus.close()
+        log.info("recording written to %s (ticks %s..%s)", out, recorder.first_tick, recorder.last_tick)
+    return 0
+
+
+def main(argv=None) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s recorder %(levelname)s %(message)s", stream=sys.stderr)
+    args = parser().parse_args(argv)
+    signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
+    session = open_session(args)
+    try:
+        return run(args, session)
+    except KeyboardInterrupt:
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
