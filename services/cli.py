@@ -10,6 +10,7 @@ COMMANDS = {
     "brain": ("services.brain.service", "the brain service on the bus"),
     "world": ("services.world.service", "the world service on the bus"),
     "record": ("services.recorder.service", "record a run to a Rerun file (.rrd)"),
+    "screenshot": ("services.recorder.screenshot", "a PNG of a recording's replay, rendered headless"),
     "router": ("services.router", "a Zenoh router, for brain and world on different machines"),
     "sweep": ("services.sweep", "the paper's Table 1: learning time for A+ = A- over seeds"),
     "conditioning": ("services.brain.conditioning", "classical conditioning demo on fig. 2 and fig. 4"),

@@ -91,12 +91,14 @@ class BrainNode:
         self.last_answer = Motor(tick=message.tick, names=self.brain.action_names, actions=Array.of(actions))
         return self.last_answer
 
-    def state(self, with_weights: bool) -> BrainState:
-        """Spikes and potentials of the last tick; the weights too if asked (else an [A, 0] array)."""
+    def state(self, with_weights: bool, final: bool = False) -> BrainState:
+        """Spikes and potentials of the last tick, the weights too if asked (else [A, 0]). `final`:
+        only the weights after the last tick (spikes and potentials [A, 0], already sent)."""
         engine = self.brain.engine
         w = engine.w if with_weights else np.zeros((engine.agents, 0))
-        return BrainState(tick=self.last_tick, spiked=Array.of(engine.spiked.view(np.uint8)),
-                          potentials=Array.of(engine.v.astype(np.float32)), weights=Array.of(w))
+        spiked = engine.spiked.view(np.uint8) if not final else np.zeros((engine.agents, 0), np.uint8)
+        v = engine.v.astype(np.float32) if not final else np.zeros((engine.agents, 0), np.float32)
+        return BrainState(tick=self.last_tick, spiked=Array.of(spiked), potentials=Array.of(v), weights=Array.of(w))
 
 
 def layout(circuit, tick: int) -> BrainLayout:
@@ -130,9 +132,9 @@ def run(args: argparse.Namespace, session) -> int:
                     state.put(layout(circuit, message.tick))
                 answer = node.answer(message)
                 if answer is not None:
+                    motor.put(answer)  # first: the world waits for it; the recorder does not
                     if state is not None and answer.tick == node.last_tick:
                         state.put(node.state(with_weights=answer.tick % args.weights_every == 0))
-                    motor.put(answer)
                 continue
             order = control.get(timeout=0)
             if order is None:
@@ -143,6 +145,8 @@ def run(args: argparse.Namespace, session) -> int:
                     node.brain.engine.training = node.training
                 log.info("training %s at tick %d", "on" if node.training else "off", order.tick)
             elif order.command == "end":
+                if state is not None and node.brain is not None:  # the final weights, for the record
+                    state.put(node.state(with_weights=True, final=True))
                 log.info("run ended at tick %d; rejected messages: %d on sensors, %d on control", order.tick,
                          sensors.rejected_total, control.rejected_total)
                 if args.save and node.brain is not None:

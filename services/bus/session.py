@@ -128,7 +128,10 @@ class Inbox:
         return sum(self.rejected.values())
 
     def close(self) -> None:
+        # join the ticker: a daemon thread still inside a zenoh call when Python finalises is
+        # force-exited mid Rust frame, and glibc aborts ("FATAL: exception not rethrown")
         self._closed.set()
+        self._ticker.join(timeout=2)
         self._sub.undeclare()
 
 

@@ -39,6 +39,11 @@ def blueprint(detail: int = 0) -> rrb.Blueprint:
     """World view beside spike raster, potentials, weights and the learning curve."""
     recent = [rrb.VisibleTimeRange("tick", start=rrb.TimeRangeBoundary.cursor_relative(seq=-300),
                                    end=rrb.TimeRangeBoundary.cursor_relative())]
+    whole = [rrb.VisibleTimeRange("tick", start=rrb.TimeRangeBoundary.infinite(),
+                                  end=rrb.TimeRangeBoundary.infinite())]
+    # the whole run on the x axis, not linked to the raster's 300-tick window
+    all_ticks = rrb.archetypes.TimeAxis(link=rrb.components.LinkAxis.Independent, view_range=rrb.components.TimeRange(
+        start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite()))
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
@@ -50,8 +55,9 @@ def blueprint(detail: int = 0) -> rrb.Blueprint:
                 rrb.TimeSeriesView(name="spike raster", origin=f"/brain/agent{detail}/spikes", time_ranges=recent),
                 rrb.TimeSeriesView(name="membrane potentials", origin=f"/brain/agent{detail}/potentials",
                                    time_ranges=recent),
-                rrb.TimeSeriesView(name="plastic weights", origin=f"/brain/agent{detail}/weights"),
-                rrb.TimeSeriesView(name="learning", origin="/learning"),
+                rrb.TimeSeriesView(name="plastic weights", origin=f"/brain/agent{detail}/weights", time_ranges=whole,
+                                   axis_x=all_ticks),
+                rrb.TimeSeriesView(name="learning", origin="/learning", time_ranges=whole, axis_x=all_ticks),
             ),
             column_shares=[1, 1],
         ),
@@ -166,12 +172,13 @@ class Recorder:
 
     def on_brain_state(self, m: BrainState) -> None:
         spiked = m.spiked.numpy("spiked", "|u1", 2)
-        if self.spike_counts is None or self.spike_counts.shape != spiked.shape:
-            self.spike_counts = np.zeros(spiked.shape, np.int64)
-        self.spike_counts += spiked
         rows = [a for a in self.detail if a < len(spiked)]
-        self.b["spikes"].append((m.tick, spiked[rows].copy()))
-        self.b["potentials"].append((m.tick, m.potentials.numpy("potentials", "<f4", 2)[rows].copy()))
+        if spiked.shape[1]:  # (a final weights snapshot has no spikes and potentials)
+            if self.spike_counts is None or self.spike_counts.shape != spiked.shape:
+                self.spike_counts = np.zeros(spiked.shape, np.int64)
+            self.spike_counts += spiked
+            self.b["spikes"].append((m.tick, spiked[rows].copy()))
+            self.b["potentials"].append((m.tick, m.potentials.numpy("potentials", "<f4", 2)[rows].copy()))
         weights = m.weights.numpy("weights", "<f8", 2)
         if weights.shape[1]:
             self.b["weights"].append((m.tick, weights[rows].copy()))
@@ -194,7 +201,7 @@ class Recorder:
         self._flushed_to = self.last_tick
         if b["pose"]:
             self._flush_world(b["pose"], b["sensors"])
-        if b["spikes"]:
+        if b["spikes"] or b["weights"]:
             self._flush_brain(b["spikes"], b["potentials"], b["weights"])
         if b["bins"]:
             ticks = np.array([r[0] for r in b["bins"]])
@@ -276,18 +283,20 @@ class Recorder:
                 radii=np.full(len(strips), 0.1, np.float32)).partition(counts))
 
     def _flush_brain(self, spikes, potentials, weights) -> None:
-        ticks = np.array([s[0] for s in spikes])
-        spiked = np.stack([s[1] for s in spikes])  # [T, detail, nodes]
-        names = self.layout.nodes if self.layout else tuple(f"n{k}" for k in range(spiked.shape[2]))
-        for i, a in enumerate(self.detail[: spiked.shape[1]]):
+        shown = len(spikes[0][1]) if spikes else len(weights[0][1])
+        for i, a in enumerate(self.detail[:shown]):
             base = f"/brain/agent{a}"
-            for k, name in enumerate(names):
-                when = ticks[spiked[:, i, k] > 0]
-                if len(when):  # the raster row: the node's index, only in the ticks it spiked
-                    self._columns(f"{base}/spikes/{k:02d}_{name}", when,
-                                  rr.Scalars.columns(scalars=np.full(len(when), len(names) - k, np.float64)))
-            pot = np.stack([p[1][i] for p in potentials]).astype(np.float64)
-            self._columns(f"{base}/potentials", [p[0] for p in potentials], rr.Scalars.columns(scalars=pot))
+            if spikes:
+                ticks = np.array([s[0] for s in spikes])
+                spiked = np.stack([s[1][i] for s in spikes])  # [T, nodes]
+                names = self.layout.nodes if self.layout else tuple(f"n{k}" for k in range(spiked.shape[1]))
+                for k, name in enumerate(names):
+                    when = ticks[spiked[:, k] > 0]
+                    if len(when):  # the raster row: the node's row number, only in the ticks it spiked
+                        self._columns(f"{base}/spikes/{k:02d}_{name}", when,
+                                      rr.Scalars.columns(scalars=np.full(len(when), len(names) - k, np.float64)))
+                pot = np.stack([p[1][i] for p in potentials]).astype(np.float64)
+                self._columns(f"{base}/potentials", [p[0] for p in potentials], rr.Scalars.columns(scalars=pot))
             if weights and self.layout is not None:
                 w = np.stack([x[1][i][list(self.layout.plastic)] for x in weights])
                 self._columns(f"{base}/weights", [x[0] for x in weights], rr.Scalars.columns(scalars=w))

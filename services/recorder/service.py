@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import logging
+import os
 import signal
 import sys
 import time
@@ -38,6 +39,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--detail", default="0", help="agents with raster, potentials, weights, ray, trail (default 0)")
     p.add_argument("--flush-every", type=int, default=1000, help="ticks per batch written (default 1,000)")
     p.add_argument("--forever", action="store_true", help="keep recording after the run's end")
+    p.add_argument("--nice", type=int, default=10, help="scheduling priority increment (default 10: after world and brain)")
     add_bus_args(p)
     return p
 
@@ -66,9 +68,10 @@ def run(args: argparse.Namespace, session) -> int:
             for name, presence in watched.items():  # services coming and going
                 while not presence.events.empty():
                     change, _ = presence.events.get()
-                    if recorder.first_tick is not None or change == "up":
-                        recorder.event(f"{name} {'is there' if change == 'up' else 'lost'}",
-                                       "INFO" if change == "up" else "WARN")
+                    # stamped with the tick the recorder has got to, which can trail the run
+                    recorder.event(f"{name} {'is on the bus' if change == 'up' else 'left the bus'} "
+                                   f"(seen while recording tick {max(recorder.last_tick, 0)})",
+                                   "INFO" if change == "up" else "WARN")
             if inbox.rejected_total != rejected:
                 reasons = ", ".join(f"{n} x {r}" for r, n in inbox.rejected.items())
                 recorder.event(f"rejected messages so far: {inbox.rejected_total} ({reasons})", "WARN")
@@ -93,6 +96,7 @@ def main(argv=None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s recorder %(levelname)s %(message)s", stream=sys.stderr)
     args = parser().parse_args(argv)
     signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
+    os.nice(args.nice)  # behind the lock-step pair: it buffers (losslessly) and catches up
     session = open_session(args)
     try:
         return run(args, session)

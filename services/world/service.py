@@ -98,6 +98,13 @@ class Progress:
             self.bar.close()
 
 
+def state_of(world: World, t: int) -> WorldState:
+    """Tick t as the recorder sees it: poses after the actions, this tick's events and changes."""
+    m = world.metrics
+    return WorldState(tick=t, pos=Array.of(world.pos), heading=Array.of(world.heading), events=Array.of(world.events),
+                      collisions=Array.of(m.collisions), food=Array.of(m.food), changes=Array.of(world.changes()))
+
+
 def metrics_of(world: World, ticks: int, elapsed: float) -> dict:
     m, p = world.metrics, world.params
     return {
@@ -135,9 +142,9 @@ def run(args: argparse.Namespace, session) -> int:
                 WorldMap(tick=0, grid=Array.of(world.grid), x_min=world.params.x_min, y_min=world.params.y_min))
         progress = Progress(world, args.ticks, args.progress)
         started = time.perf_counter()
+        request = Sensors(tick=0, names=SENSORS, values=Array.of(world.sense()), training=world.training)
+        sensors.put(request)
         for t in range(args.ticks):
-            request = Sensors(tick=t, names=SENSORS, values=Array.of(world.sense()), training=world.training)
-            sensors.put(request)
             actions = None
             while actions is None:
                 answer = motor.get(timeout=RESEND_AFTER)
@@ -153,11 +160,13 @@ def run(args: argparse.Namespace, session) -> int:
                         log.warning("ignored motor for tick %d: %d agents, the world has %d",
                                     t, answer.actions.shape[0], world.agents)
             world.act(actions)
-            if state is not None:
-                m = world.metrics
-                state.put(WorldState(tick=t, pos=Array.of(world.pos), heading=Array.of(world.heading),
-                                     events=Array.of(world.events), collisions=Array.of(m.collisions),
-                                     food=Array.of(m.food), changes=Array.of(world.changes())))
+            report = state_of(world, t) if state is not None else None  # before the next sense()
+            if t + 1 < args.ticks:  # the brain's next tick first: the recorder can wait
+                request = Sensors(tick=t + 1, names=SENSORS, values=Array.of(world.sense()),
+                                  training=world.training)
+                sensors.put(request)
+            if report is not None:
+                state.put(report)
             progress.update(t + 1)
         elapsed = time.perf_counter() - started
         progress.close(args.ticks)
