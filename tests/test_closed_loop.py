@@ -45,7 +45,7 @@ def test_same_seed_same_run_in_one_process_and_across_the_bus(tmp_path):
         watcher.close()
     assert watcher.bad == []
     world_states = watcher.messages[keys.world_state("det")]
-    layout, *brain_states = watcher.messages[keys.brain_state("det")]
+    layout, *brain_states, final = watcher.messages[keys.brain_state("det")]
     assert isinstance(layout, BrainLayout) and layout.nodes == load_circuit("insect").node_names
     assert [m.tick for m in world_states] == list(range(TICKS))  # every tick, in order, none lost
     assert [m.tick for m in brain_states] == list(range(TICKS))
@@ -54,3 +54,5 @@ def test_same_seed_same_run_in_one_process_and_across_the_bus(tmp_path):
     np.testing.assert_array_equal(bus_pos, pos)  # bit for bit
     np.testing.assert_array_equal(bus_spikes, spikes)
     np.testing.assert_array_equal(load_weights(tmp_path / "weights.npz", load_circuit("insect")), weights)
+    assert final.tick == TICKS - 1 and final.spiked.shape == (AGENTS, 0)  # the final weights snapshot
+    np.testing.assert_array_equal(final.weights.numpy("weights", "<f8", 2), weights)

@@ -79,8 +79,8 @@ class Inbox:
 
     WAKE_EVERY = 0.25
 
-    def __init__(self, session: zenoh.Session, key: str, kinds, capacity: int = 100_000):
-        self.key, self.kinds = key, kinds
+    def __init__(self, session: zenoh.Session, key: str, kinds, capacity: int = 100_000, skip: tuple[str, ...] = ()):
+        self.key, self.kinds, self.skip = key, kinds, tuple(f"/{k}" for k in skip)
         self.rejected: Counter = Counter()
         self._session = session
         self._sub = session.declare_subscriber(key, zenoh.handlers.FifoChannel(capacity))
@@ -108,6 +108,8 @@ class Inbox:
                 self._deadline = min(deadline, now + self.WAKE_EVERY) if deadline else now + self.WAKE_EVERY
                 sample = self._sub.recv()
                 self._deadline = None
+            if self.skip and str(sample.key_expr).endswith(self.skip):
+                continue  # a key the owner does not want decoded (matched by a wildcard)
             payload = sample.payload.to_bytes()
             if not payload:  # a wake-up
                 continue
@@ -206,8 +208,8 @@ class Bus:
         self._owned.append(box)
         return box
 
-    def inbox(self, key: str, kinds) -> Inbox:
-        box = Inbox(self.session, key, kinds)
+    def inbox(self, key: str, kinds, skip: tuple[str, ...] = ()) -> Inbox:
+        box = Inbox(self.session, key, kinds, skip=skip)
         self._owned.append(box)
         return box
 

@@ -80,6 +80,7 @@ class Recorder:
         self._flushed_to = -1
         self._collisions_at_bin = None
         self.last_weights: np.ndarray | None = None  # [agents, synapses] at the last snapshot
+        self.brain_done = False  # the brain's final weights snapshot has arrived
         self._trail: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # agent -> (ticks, positions)
         self._reset_buffers()
         rec.log("/world/map", rr.AnnotationContext([(c, name, rgb) for c, name, rgb in PATCH_COLOURS]), static=True)
@@ -157,7 +158,7 @@ class Recorder:
         self.b["sensors"].append((m.tick, m.names, values[[a for a in self.detail if a < len(values)]].copy()))
 
     def on_motor(self, m: Motor) -> None:
-        pass  # the actions show in the raster (ROTATE, MOVE) and in the trajectory
+        pass  # the actions are the ROTATE and MOVE spikes of the raster (the service skips them)
 
     def on_brain_layout(self, m: BrainLayout) -> None:
         self.layout = m
@@ -180,6 +181,7 @@ class Recorder:
             self.b["spikes"].append((m.tick, spiked[rows].copy()))
             self.b["potentials"].append((m.tick, m.potentials.numpy("potentials", "<f4", 2)[rows].copy()))
         weights = m.weights.numpy("weights", "<f8", 2)
+        self.brain_done = not spiked.shape[1]  # the final snapshot comes after the brain's last tick
         if weights.shape[1]:
             self.b["weights"].append((m.tick, weights[rows].copy()))
             self.last_weights = weights.copy()

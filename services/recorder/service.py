@@ -29,6 +29,7 @@ from services.bus.session import Bus, add_bus_args, open_session
 from .recorder import Recorder, blueprint
 
 log = logging.getLogger("spikinglab.recorder")
+END_GRACE = 5.0  # seconds to wait after the run's end for the brain's last messages
 
 
 def parser() -> argparse.ArgumentParser:
@@ -57,11 +58,13 @@ def run(args: argparse.Namespace, session) -> int:
         log.info("serving the recording at %s", rec.serve_grpc(default_blueprint=blueprint(detail[0] if detail else 0)))
     bus = Bus(session, args.group, "recorder")
     recorder = Recorder(rec, detail=detail, flush_every=args.flush_every)
-    inbox = bus.inbox(f"{keys.PREFIX}/{args.group}/**", KINDS)
+    # motor is skipped: the actions are the ROTATE and MOVE spikes, recorded in the raster
+    inbox = bus.inbox(f"{keys.PREFIX}/{args.group}/**", KINDS, skip=("motor",))
     watched = {name: bus.presence(name) for name in ("world", "brain")}
     recorder.event(f"recorder started on group {args.group}, writing {out}")
     log.info("recording group %s to %s", args.group, out)
-    rejected, last_flush = 0, time.monotonic()
+    rejected, last_flush, ending = 0, time.monotonic(), None
+    received, first_at = 0, time.monotonic()
     try:
         while True:
             message = inbox.get(timeout=0.25)
@@ -77,9 +80,16 @@ def run(args: argparse.Namespace, session) -> int:
                 recorder.event(f"rejected messages so far: {inbox.rejected_total} ({reasons})", "WARN")
                 rejected = inbox.rejected_total
             if message is not None:
+                if received == 0:
+                    first_at = time.monotonic()
+                received += 1
                 recorder.on(message)
                 if isinstance(message, Control) and message.command == "end" and not args.forever:
-                    break
+                    ending = time.monotonic() + END_GRACE
+            # the world's "end" can overtake the brain's last states (another link): wait for the
+            # brain's final snapshot, which it sends only after it got "end" itself
+            if ending and (recorder.brain_done or recorder.spike_counts is None or time.monotonic() > ending):
+                break
             if time.monotonic() - last_flush > 2.0:  # a killed recorder loses at most this much
                 recorder.flush()
                 last_flush = time.monotonic()
@@ -88,7 +98,9 @@ def run(args: argparse.Namespace, session) -> int:
         rec.flush()
         rec.disconnect()
         bus.close()
-        log.info("recording written to %s (ticks %s..%s)", out, recorder.first_tick, recorder.last_tick)
+        took = max(time.monotonic() - first_at, 1e-9)
+        log.info("recording written to %s (ticks %s..%s): %d messages in %.1f s, %.0f messages/s",
+                 out, recorder.first_tick, recorder.last_tick, received, took, received / took)
     return 0
 
 

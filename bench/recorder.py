@@ -1,0 +1,70 @@
+"""Recorder benchmark: a one-agent lock-step run with and without the recorder.
+
+Prints the loop's ticks/s both ways, the recorder's throughput (messages/s), its lag (how long
+after the world's last tick the file was complete) and the file size. The last line is JSON.
+Run: `spikinglab bench recorder` or `python -m bench.recorder`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from services.run import local_endpoints
+
+
+def one_run(ticks: int, record: bool, folder: Path) -> dict:
+    (world_ep, brain_ep), sockets = local_endpoints("world", "brain")
+    py = [sys.executable, "-m"]
+    state = ["--publish-state"] if record else []
+    with sockets:
+        recorder = None
+        if record:
+            recorder = subprocess.Popen(py + ["services.recorder", "--connect", world_ep, "--connect", brain_ep,
+                                              "--out", str(folder / "recording.rrd")],
+                                        stderr=open(folder / "recorder.log", "w"))
+        world = subprocess.Popen(py + ["services.world", "--listen", world_ep, "--ticks", str(ticks), "--out",
+                                       str(folder), "--cpu", "0"] + state, stderr=subprocess.DEVNULL)
+        brain = subprocess.Popen(py + ["services.brain", "--listen", brain_ep, "--connect", world_ep, "--once",
+                                       "--cpu", "1"] + state, stderr=subprocess.DEVNULL)
+        world.wait()
+        world_done = time.monotonic()
+        brain.wait(60)
+        result = {"ticks_per_s": json.loads((folder / "metrics.json").read_text())["ticks_per_s"]}
+        if recorder is not None:
+            recorder.wait(300)
+            result["lag_s"] = round(time.monotonic() - world_done, 2)
+            line = (folder / "recorder.log").read_text()
+            found = re.search(r"(\d+) messages in ([\d.]+) s, (\d+) messages/s", line)
+            result["messages"], result["messages_per_s"] = int(found.group(1)), int(found.group(3))
+            result["file_mb"] = round((folder / "recording.rrd").stat().st_size / 1e6, 2)
+    return result
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(prog="spikinglab bench recorder", description=__doc__.splitlines()[0])
+    p.add_argument("--ticks", type=int, default=30_000)
+    args = p.parse_args(argv)
+    with tempfile.TemporaryDirectory() as a, tempfile.TemporaryDirectory() as b:
+        plain = one_run(args.ticks, False, Path(a))
+        recorded = one_run(args.ticks, True, Path(b))
+    print(f"lock-step, 1 agent, {args.ticks:,} ticks: {plain['ticks_per_s']:,.0f} ticks/s without the recorder, "
+          f"{recorded['ticks_per_s']:,.0f} with it")
+    print(f"recorder: {recorded['messages']:,} messages at {recorded['messages_per_s']:,} messages/s "
+          f"({recorded['messages_per_s'] / 3:,.0f} ticks/s of 3 messages), file complete {recorded['lag_s']} s "
+          f"after the last tick, {recorded['file_mb']} MB")
+    result = {"loop_ticks_per_s": round(plain["ticks_per_s"]), "recorded_loop_ticks_per_s": round(recorded["ticks_per_s"]),
+              "recorder_messages_per_s": recorded["messages_per_s"], "recorder_lag_s": recorded["lag_s"],
+              "recording_mb": recorded["file_mb"]}
+    print(json.dumps(result))
+    return result
+
+
+if __name__ == "__main__":
+    main()

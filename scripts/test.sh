@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# Set up and run the whole test suite on a fresh machine: the system packages the headless-viewer
+# screenshot test needs (Mesa's software Vulkan driver), a virtual environment, then pytest.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+if command -v apt-get >/dev/null && command -v dpkg >/dev/null; then
+    missing=()
+    for package in libvulkan1 mesa-vulkan-drivers; do
+        dpkg -s "$package" >/dev/null 2>&1 || missing+=("$package")
+    done
+    if [ ${#missing[@]} -gt 0 ]; then
+        sudo=""
+        [ "$(id -u)" -ne 0 ] && sudo="sudo"
+        $sudo apt-get update -qq
+        DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq "${missing[@]}" >/dev/null
+    fi
+fi
+python3 -m venv .venv
+.venv/bin/pip install -q -e '.[test]'
+.venv/bin/python -m pytest "$@"

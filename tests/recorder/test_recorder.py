@@ -1,0 +1,167 @@
+"""The recorder: a run's .rrd read back holds what the world and the brain did."""
+
+import json
+import re
+import subprocess
+import sys
+import time
+from collections import defaultdict
+
+import numpy as np
+import pytest
+from rerun.chunk import RrdReader
+
+from services.brain.checkpoint import load_weights
+from services.brain.circuit import load_circuit
+from services.loop import brain_for, closed_loop
+from services.world.world import World, generate_map, params_for
+
+from ..processes import ROOT, Watcher, finish, start, wait_for
+
+TICKS, SEED = 3000, 3
+
+
+def read(path):
+    """{entity: {column: [values per row]}} with rows of all chunks in tick order; static data
+    (styles, annotation contexts) under "<entity> static"."""
+    rows = defaultdict(lambda: defaultdict(list))
+    for chunk in RrdReader(str(path)).stream():
+        batch = chunk.to_record_batch()
+        entity = chunk.entity_path if "tick" in batch.schema.names else f"{chunk.entity_path} static"
+        for name in batch.schema.names:
+            if name == "tick" or (":" in name and not name.startswith("rerun.")):  # not log_time, row ids
+                rows[entity][name] += batch.column(name).to_pylist()
+    out = {}
+    for entity, cols in rows.items():
+        if "tick" in cols and all(t is not None for t in cols["tick"]):
+            order = np.argsort(cols["tick"], kind="stable")
+            cols = {k: [v[i] for i in order] for k, v in cols.items()}
+        out[entity] = cols
+    return out
+
+
+@pytest.fixture(scope="module")
+def recorded_run(tmp_path_factory):
+    runs = tmp_path_factory.mktemp("runs")
+    done = subprocess.run([sys.executable, "-m", "services.cli", "run", "--ticks", str(TICKS), "--seed", str(SEED),
+                           "--a-plus", "0.04", "--runs", str(runs), "--id", "r", "--quiet"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "replay it: " in done.stdout
+    world = World(params_for("paper"), seed=SEED)
+    brain = brain_for(world, load_circuit("insect").with_learning_rate(0.04))
+    pos, spikes = [], np.zeros(len(brain.circuit.node_names), np.int64)
+
+    def keep(t):
+        pos.append(world.pos[0].copy())
+        spikes[:] += brain.engine.spiked[0]
+    closed_loop(world, brain, TICKS, keep)
+    return runs / "r", read(runs / "r" / "recording.rrd"), np.array(pos), spikes, world
+
+
+def view(xy, params):
+    return np.column_stack([xy[:, 0] - params.x_min + 0.5, (params.height - 1) - (xy[:, 1] - params.y_min) + 0.5])
+
+
+def test_map_and_positions_are_the_worlds(recorded_run):
+    folder, data, pos, _, world = recorded_run
+    images = data["/world/map"]
+    first = np.frombuffer(bytes(images["SegmentationImage:buffer"][0][0]), np.uint8)
+    grid0 = generate_map(world.params, SEED)
+    np.testing.assert_array_equal(first.reshape(grid0.shape[1], grid0.shape[0]), grid0[:, ::-1].T)
+    # food eaten: the last frame is the world's grid at the end
+    last = np.frombuffer(bytes(images["SegmentationImage:buffer"][-1][0]), np.uint8)
+    np.testing.assert_array_equal(last.reshape(grid0.shape[1], grid0.shape[0]), world.grid[0][:, ::-1].T)
+    assert len(images["tick"]) == world.metrics.food[0] + 1  # one frame per food eaten
+    insects = data["/world/insects"]
+    assert insects["tick"] == list(range(TICKS))  # every tick, none dropped
+    recorded = np.array([p[0] for p in insects["Points2D:positions"]])
+    np.testing.assert_allclose(recorded, view(pos, world.params), atol=1e-4)  # float32 in the file
+
+
+def test_spikes_weights_and_learning_curve_are_the_brains(recorded_run):
+    folder, data, _, spikes, world = recorded_run
+    circuit = load_circuit("insect")
+    for k, name in enumerate(circuit.node_names):
+        raster = data.get(f"/brain/agent0/spikes/{k:02d}_{name}", {}).get("tick", [])
+        assert len([t for t in raster if t is not None]) == spikes[k], name
+    weights = data["/brain/agent0/weights"]
+    assert weights["tick"][-1] == TICKS - 1 and weights["tick"][0] == 0
+    saved = load_weights(folder / "weights.npz", circuit)[0, circuit.plastic_synapses]
+    np.testing.assert_array_equal(weights["Scalars:scalars"][-1], saved)
+    potentials = data["/brain/agent0/potentials"]
+    assert len(potentials["tick"]) == TICKS and len(potentials["Scalars:scalars"][0]) == len(circuit.neuron_names)
+    curve = data["/learning/collisions_per_1000"]
+    metrics = json.loads((folder / "metrics.json").read_text())
+    assert [v[0] for v in curve["Scalars:scalars"]] == metrics["collisions_per_1000_ticks"][0]
+    texts = [t[0] for t in data["/events"]["TextLog:text"]]
+    assert f"run ended at tick {TICKS}" in texts
+    assert RrdReader(str(folder / "recording.rrd")).blueprints  # the layout is in the file
+
+
+def test_screenshot_of_the_replay_is_not_blank(recorded_run, tmp_path):
+    from matplotlib.image import imread
+
+    folder = recorded_run[0]
+    done = subprocess.run([sys.executable, "-m", "services.cli", "screenshot", str(folder / "recording.rrd"),
+                           "--out", str(tmp_path / "replay.png"), "--tick", "2500"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=180)
+    assert done.returncode == 0, done.stderr[-2000:]
+    image = imread(tmp_path / "replay.png")[..., :3]
+    assert image.shape[0] >= 800 and image.shape[1] >= 1400
+    assert image.std() > 0.05  # not one flat colour
+    # the map is drawn: predator red and food green pixels are there
+    red = (image[..., 0] > 0.75) & (image[..., 1] < 0.3) & (image[..., 2] < 0.3)
+    green = (image[..., 1] > 0.6) & (image[..., 0] < 0.4) & (image[..., 2] < 0.45)
+    assert red.sum() > 500 and green.sum() > 500
+
+
+def test_a_killed_recorder_leaves_a_readable_file(tmp_path):
+    from .. processes import endpoint, free_port
+
+    world_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
+    recorder = start("recorder", "--connect", world_ep, "--connect", brain_ep, "--out", tmp_path / "rec.rrd",
+                     "--flush-every", 500, log=tmp_path / "recorder.log")
+    world = start("world", "--listen", world_ep, "--ticks", 20000, "--publish-state", log=tmp_path / "world.log")
+    brain = start("brain", "--listen", brain_ep, "--connect", world_ep, "--once", "--publish-state",
+                  log=tmp_path / "brain.log")
+    try:
+        wait_for(lambda: (tmp_path / "rec.rrd").exists() and (tmp_path / "rec.rrd").stat().st_size > 200_000, 60,
+                 "some of the run in the file")
+        recorder.kill()
+        assert finish(world, 120, tmp_path / "world.log") == 0  # the run goes on without it
+        assert finish(brain, 30, tmp_path / "brain.log") == 0
+    finally:
+        for p in (recorder, world, brain):
+            p.kill()
+    data = read(tmp_path / "rec.rrd")  # no footer: still readable
+    ticks = data["/world/insects"]["tick"]
+    assert ticks[0] == 0 and 500 <= len(ticks) < 20000
+    assert ticks == list(range(len(ticks)))  # complete up to where it stopped
+
+
+def test_a_late_recorder_says_from_which_tick_it_has_data(tmp_path):
+    from .. processes import endpoint, free_port
+
+    world_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
+    early = Watcher([world_ep, brain_ep], ["spikinglab/insect/world/state", "spikinglab/insect/brain/state"])
+    world = start("world", "--listen", world_ep, "--ticks", 8000, "--publish-state", log=tmp_path / "world.log")
+    brain = start("brain", "--listen", brain_ep, "--connect", world_ep, "--once", "--publish-state",
+                  log=tmp_path / "brain.log")
+    try:
+        wait_for(lambda: len(early.messages["spikinglab/insect/world/state"]) > 1500, 60, "the run to get going")
+        recorder = start("recorder", "--connect", world_ep, "--connect", brain_ep, "--out", tmp_path / "late.rrd",
+                         log=tmp_path / "recorder.log")
+        assert finish(world, 120, tmp_path / "world.log") == 0
+        assert finish(recorder, 60, tmp_path / "recorder.log") == 0
+    finally:
+        early.close()
+        world.kill()
+        brain.kill()
+    data = read(tmp_path / "late.rrd")
+    texts = [t[0] for t in data["/events"]["TextLog:text"]]
+    late = [t for t in texts if "the recorder started late" in t]
+    assert len(late) == 1
+    start_tick = int(re.search(r"recording starts at tick (\d+)", late[0]).group(1))
+    assert 1500 < start_tick < 8000
+    assert data["/world/insects"]["tick"][0] >= start_tick - 1
