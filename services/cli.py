@@ -9,6 +9,7 @@ COMMANDS = {
     "run": ("services.run", "train the insect: world and brain as two processes on the bus (the main job)"),
     "brain": ("services.brain.service", "the brain service on the bus"),
     "world": ("services.world.service", "the world service on the bus"),
+    "gateway": ("services.ev3_gateway.service", "the robot side: a LEGO EV3 (or a simulated one) on the bus"),
     "record": ("services.recorder.service", "record a run to a Rerun file (.rrd)"),
     "screenshot": ("services.recorder.screenshot", "a PNG of a recording's replay, rendered headless"),
     "router": ("services.router", "a Zenoh router, for brain and world on different machines"),

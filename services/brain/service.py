@@ -13,7 +13,9 @@ after others is a new run and resets the brain. On Control "end" the brain saves
 from __future__ import annotations
 
 import argparse
+import json
 import logging
+import signal
 import sys
 import time
 from pathlib import Path
@@ -43,6 +45,13 @@ def parser() -> argparse.ArgumentParser:
                    help="publish spikes and potentials every tick, weights every --weights-every ticks (recorder); "
                         "the first tick waits until someone subscribes")
     p.add_argument("--weights-every", type=int, default=100, help="ticks between weight snapshots (default 100)")
+    free = p.add_argument_group("free-running (robot)")
+    free.add_argument("--clock", type=float, default=0, metavar="HZ",
+                      help="tick on this clock with the latest sensor reading, motor spikes as events "
+                           "(robot mode, e.g. 1000); default 0: lock-step with a world")
+    free.add_argument("--stale-after", type=float, default=0.5,
+                      help="seconds after which a reading no longer counts as sensed (default 0.5)")
+    free.add_argument("--stats", type=Path, help="write the achieved tick rate and lateness here (JSON) at the end")
     add_bus_args(p)
     return p
 
@@ -118,6 +127,11 @@ def run(args: argparse.Namespace, session) -> int:
         return 2
     node = BrainNode(circuit, training=not args.no_training, weights=weights)
     bus = Bus(session, args.group, "brain")
+    if args.clock:
+        try:
+            return run_free(args, bus, node)
+        finally:
+            bus.close()
     try:
         sensors = bus.inbox(keys.sensors(args.group), Sensors)
         control = bus.inbox(keys.control(args.group), Control)
@@ -159,9 +173,81 @@ def run(args: argparse.Namespace, session) -> int:
         bus.close()
 
 
+def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
+    """Robot mode: tick at --clock Hz with the latest reading; a Motor message only when an action fired.
+
+    Each tick is due at start + k / Hz (no drift); the loop sleeps until shortly before that and
+    spins the rest, because a plain sleep wakes up to ~0.1 ms late, more under load.
+    """
+    sensors = bus.inbox(keys.sensors(args.group), Sensors)
+    control = bus.inbox(keys.control(args.group), Control)
+    motor = bus.outbox(keys.motor(args.group))
+    state = bus.outbox(keys.brain_state(args.group)) if args.publish_state else None
+    latest, latest_at = None, 0.0
+    log.info("brain ready on group %s (%s), free-running at %g Hz; waiting for sensors", args.group, bus.sender,
+             args.clock)
+    while latest is None:  # the first reading tells the sensors and the number of agents
+        latest = sensors.get(timeout=0.25)
+    latest_at = time.monotonic()
+    node._start(latest)
+    engine, brain = node.brain.engine, node.brain
+    nothing = np.full(latest.values.shape, np.nan)
+    if state is not None:
+        wait_for_subscriber(state, "a recorder")
+        state.put(layout(node.circuit, 0))
+    period = 1.0 / args.clock
+    lateness = []
+    started = next_at = time.monotonic()
+    tick = 0
+    try:
+        while True:
+            message = sensors.get(timeout=0)
+            while message is not None:  # keep only the newest
+                latest, latest_at = message, time.monotonic()
+                message = sensors.get(timeout=0)
+            now = time.monotonic()
+            fresh = now - latest_at < args.stale_after
+            values = latest.values.numpy("values", "<f8", 2) if fresh else nothing
+            actions = brain.step(values)
+            node.last_tick = tick
+            if actions.any():
+                motor.put(Motor(tick=tick, names=brain.action_names, actions=Array.of(actions)))
+            if state is not None:
+                state.put(node.state(with_weights=tick % args.weights_every == 0))
+            if tick % 100 == 0:
+                order = control.get(timeout=0)
+                if order is not None and order.command == "end":
+                    break
+                if order is not None and order.command == "training":
+                    engine.training = bool(order.arg)
+            tick += 1
+            next_at += period
+            gap = next_at - time.monotonic()
+            if gap > 0.0003:
+                time.sleep(gap - 0.0003)
+            while time.monotonic() < next_at:
+                pass
+            lateness.append(time.monotonic() - next_at)
+    except KeyboardInterrupt:
+        pass
+    elapsed = time.monotonic() - started
+    late_ms = np.array(lateness) * 1000 if lateness else np.zeros(1)
+    stats = {"ticks": tick, "hz": round(tick / elapsed, 1), "late_ms_median": round(float(np.median(late_ms)), 4),
+             "late_ms_p99": round(float(np.percentile(late_ms, 99)), 4), "late_ms_max": round(float(late_ms.max()), 3),
+             "rejected": sensors.rejected_total}
+    log.info("free-running brain stopped after %d ticks: %.1f Hz, lateness median %.3f ms, p99 %.3f ms",
+             tick, stats["hz"], stats["late_ms_median"], stats["late_ms_p99"])
+    if args.stats:
+        args.stats.write_text(json.dumps(stats))
+    if args.save:
+        save_weights(args.save, engine, node.circuit, tick=tick)
+    return 0
+
+
 def main(argv=None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s brain %(levelname)s %(message)s", stream=sys.stderr)
     args = parser().parse_args(argv)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # terminate like Ctrl-C: save, report, close
     session = open_session(args)
     try:
         return run(args, session)

@@ -16,6 +16,10 @@ import msgspec
 import numpy as np
 
 VERSION = 1
+# The insect's senses and actions: what a world or a robot gateway publishes and takes. The brain
+# binds them to its circuit by name (circuit files: `sensor = ...`, [actuators]).
+INSECT_SENSORS = ("smell_black", "smell_red", "smell_green", "pain", "reward")
+INSECT_ACTIONS = ("rotate", "move")
 _MAX_ELEMENTS = 1 << 26
 
 

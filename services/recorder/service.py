@@ -107,7 +107,7 @@ def run(args: argparse.Namespace, session) -> int:
 def main(argv=None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s recorder %(levelname)s %(message)s", stream=sys.stderr)
     args = parser().parse_args(argv)
-    signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # terminate like Ctrl-C: flush and close
     os.nice(args.nice)  # behind the lock-step pair: it buffers (losslessly) and catches up
     session = open_session(args)
     try:

@@ -19,15 +19,15 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from services.bus.schemas import INSECT_ACTIONS, INSECT_SENSORS
+
 EMPTY, BLACK, RED, GREEN = 0, 1, 2, 3
 COLOUR_NAMES = {EMPTY: "empty", BLACK: "black", RED: "red", GREEN: "green"}
-# Sensor columns the world publishes, in this order (the circuit binds them by name).
-SENSORS = ("smell_black", "smell_red", "smell_green", "pain", "reward")
-SMELL_OF = {BLACK: 0, RED: 1, GREEN: 2}
-PAIN, REWARD = 3, 4
-# Action columns the world takes.
-ACTIONS = ("rotate", "move")
-ROTATE, MOVE = 0, 1
+# Sensor columns the world publishes and action columns it takes (the bus's names; the circuit
+# binds them by name).
+SENSORS, ACTIONS = INSECT_SENSORS, INSECT_ACTIONS
+PAIN, REWARD = SENSORS.index("pain"), SENSORS.index("reward")
+ROTATE, MOVE = ACTIONS.index("rotate"), ACTIONS.index("move")
 
 
 def world_actions(names, actions: np.ndarray) -> np.ndarray:

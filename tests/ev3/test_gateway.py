@@ -1,0 +1,63 @@
+"""Brain (free-running), gateway (ev3 backend -> the fake brick) and recorder as real processes."""
+
+import json
+import signal
+import time
+
+from services.ev3_gateway.fake_brick import FakeBrick
+
+from ..processes import endpoint, finish, free_port, start, wait_for
+from ..recorder.test_recorder import read
+
+
+def test_robot_chain_senses_moves_survives_a_lost_link_and_stops_without_a_brain(tmp_path):
+    gateway_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
+    with FakeBrick() as brick:
+        recorder = start("recorder", "--connect", gateway_ep, "--connect", brain_ep, "--out", tmp_path / "robot.rrd",
+                         log=tmp_path / "recorder.log")
+        gateway = start("ev3_gateway", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json",
+                        log=tmp_path / "gateway.log")
+        brain = start("brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", 1000, "--publish-state",
+                      "--stats", tmp_path / "brain.json", log=tmp_path / "brain.log")
+        processes = [recorder, gateway, brain]
+        try:
+            # the pacemaker keeps the insect walking: MOVE spikes -> forward 500 ms on both drive motors
+            wait_for(lambda: any(c.kind == "time_sync" and c.turn == 0 for c in brick.commands), 60, "a forward")
+            forward = next(c for c in brick.commands if c.kind == "time_sync" and c.turn == 0)
+            assert (forward.ports, forward.ms, forward.speed) == (0b0110, 500, 50)
+            assert not any(c.turn for c in brick.commands)  # nothing hurts: no spin yet
+
+            brick.set(colour=5)  # red under the colour sensor
+            time.sleep(1.0)
+            brick.set(colour=6, distance_cm=3.0)  # an obstacle 3 cm ahead: pain -> ROTATE -> spin
+            wait_for(lambda: any(c.turn == 200 for c in brick.commands), 10, "a spin")
+            brick.set(distance_cm=100.0)
+
+            reads = brick.reads
+            brick.disconnect()  # the link breaks: reported, and the gateway connects again
+            log = tmp_path / "gateway.log"
+            wait_for(lambda: "robot link lost" in log.read_text() and "robot linked again" in log.read_text(), 30,
+                     "the gateway to reconnect")
+            wait_for(lambda: brick.reads > reads + 100, 10, "polls on the new link")
+            assert brick.connections == 2 and brain.poll() is None  # the brain kept running
+
+            brain.send_signal(signal.SIGKILL)  # the brain dies: the gateway stops the motors
+            killed_at = time.monotonic()
+            wait_for(lambda: any(c.kind == "stop" and c.at > killed_at for c in brick.commands), 5, "a stop")
+            stop = next(c for c in brick.commands if c.kind == "stop" and c.at > killed_at)
+            assert stop.at - killed_at < 0.25
+            assert "motors stopped: the brain's liveliness token is gone" in log.read_text()
+
+            gateway.send_signal(signal.SIGTERM)
+            recorder.send_signal(signal.SIGTERM)
+            assert finish(gateway, 30, log) == 0
+            assert finish(recorder, 60, tmp_path / "recorder.log") == 0
+        finally:
+            for p in processes:
+                p.kill()
+    stats = json.loads((tmp_path / "gateway.json").read_text())
+    assert stats["link_losses"] == 1 and stats["commands"] > 0 and stats["polls"] > 1000
+    data = read(tmp_path / "robot.rrd")
+    spikes = {name: len(data.get(f"/brain/agent0/spikes/{k:02d}_{name}", {}).get("tick", []))
+              for k, name in enumerate(("BLACK", "RED", "GREEN"))}
+    assert spikes["RED"] > 50 and spikes["BLACK"] == spikes["GREEN"] == 0  # red reached the RED afferent
