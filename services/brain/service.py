@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import signal
 import sys
 import time
@@ -52,6 +53,9 @@ def parser() -> argparse.ArgumentParser:
     free.add_argument("--stale-after", type=float, default=0.5,
                       help="seconds after which a reading no longer counts as sensed (default 0.5)")
     free.add_argument("--stats", type=Path, help="write the achieved tick rate and lateness here (JSON) at the end")
+    free.add_argument("--no-realtime", action="store_true",
+                      help="do not ask for real-time scheduling of the clock thread (asked by default; needs "
+                           "root or CAP_SYS_NICE on Linux, else the normal scheduler is used)")
     add_bus_args(p)
     return p
 
@@ -173,6 +177,17 @@ def run(args: argparse.Namespace, session) -> int:
         bus.close()
 
 
+def realtime_clock() -> None:
+    """SCHED_FIFO for this (the clock's) thread only: the kernel then runs it the moment its sleep
+    ends instead of after the time slice of whatever else shares its core (zenoh's threads do). It
+    sleeps most of each tick, so those threads still run."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))
+        log.info("clock thread on real-time scheduling (SCHED_FIFO)")
+    except (OSError, AttributeError) as e:
+        log.info("clock thread on the normal scheduler (real-time not permitted: %s)", e)
+
+
 def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
     """Robot mode: tick at --clock Hz with the latest reading; a Motor message only when an action fired.
 
@@ -195,16 +210,17 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
     if state is not None:
         wait_for_subscriber(state, "a recorder")
         state.put(layout(node.circuit, 0))
+    if not args.no_realtime:
+        realtime_clock()
     period = 1.0 / args.clock
     lateness = []
     started = next_at = time.monotonic()
     tick = 0
     try:
         while True:
-            message = sensors.get(timeout=0)
-            while message is not None:  # keep only the newest
+            message = sensors.latest()  # only the newest reading counts
+            if message is not None:
                 latest, latest_at = message, time.monotonic()
-                message = sensors.get(timeout=0)
             now = time.monotonic()
             fresh = now - latest_at < args.stale_after
             values = latest.values.numpy("values", "<f8", 2) if fresh else nothing

@@ -118,6 +118,22 @@ class Inbox:
             except BusError as e:
                 self._reject(sample, e)
 
+    def latest(self) -> Message | None:
+        """The newest good message waiting, without blocking; the older ones are dropped undecoded
+        (a free-running loop wants the current reading, not the history)."""
+        waiting = []
+        while (sample := self._sub.try_recv()) is not None:
+            waiting.append(sample)
+        for sample in reversed(waiting):
+            payload = sample.payload.to_bytes()
+            if not payload or (self.skip and str(sample.key_expr).endswith(self.skip)):
+                continue
+            try:
+                return decode(payload, self.kinds)
+            except BusError as e:
+                self._reject(sample, e)
+        return None
+
     def _reject(self, sample, error: BusError) -> None:
         sender = sample.attachment.to_bytes().decode(errors="replace") if sample.attachment else "unknown sender"
         self.rejected[str(error).split(":")[0]] += 1

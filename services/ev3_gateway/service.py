@@ -64,6 +64,8 @@ def parser() -> argparse.ArgumentParser:
                    help="value fed for pain and reward (default 0: a spike in the tick it is read)")
     m.add_argument("--motor-timeout", type=float, default=0.25,
                    help="stop when no command came this long after the last one ended (default 0.25 s)")
+    p.add_argument("--max-polls", type=float, default=0, metavar="PER_S",
+                   help="poll at most this often (default 0: as fast as the link allows)")
     p.add_argument("--duration", type=float, default=0, help="stop after this many seconds (default: run until Ctrl-C)")
     p.add_argument("--stats", type=Path, help="write polls, commands, stops and link losses here (JSON) at the end")
     add_bus_args(p)
@@ -138,7 +140,12 @@ class Gateway:
         tick = 0
         names = INSECT_SENSORS
         args = self.args
+        interval = 1.0 / args.max_polls if args.max_polls else 0.0
+        next_at = time.monotonic()
         while not self.done.is_set():
+            if interval:
+                next_at += interval
+                time.sleep(max(0.0, next_at - time.monotonic()))
             if not self.linked.is_set():
                 self.connect()
                 continue
