@@ -30,7 +30,7 @@ def service(name: str, *args) -> subprocess.Popen:
 
 
 def polls_per_s(seconds: float) -> float:
-    with FakeBrick() as brick, tempfile.TemporaryDirectory() as tmp:
+    with FakeBrick(), tempfile.TemporaryDirectory() as tmp:
         (gateway_ep,), sockets = local_endpoints("gateway")
         with sockets:
             gateway = service("services.ev3_gateway", "--listen", gateway_ep, "--duration", seconds, "--stats",

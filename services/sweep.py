@@ -44,7 +44,7 @@ def sweep_one(a_plus: float, seeds: int, ticks: int, preset: str, learned_after:
 
 
 def table(rows: list[dict], learned_after: int) -> str:
-    lines = [f"| A+ = A- | paper | median learning time | quartiles | reached | collisions, first -> last quarter |",
+    lines = ["| A+ = A- | paper | median learning time | quartiles | reached | collisions, first -> last quarter |",
              "|---|---|---|---|---|---|"]
     def tick(x, ticks):
         return f"{x:,.0f}" if x is not None else f"> {ticks:,}"

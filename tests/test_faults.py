@@ -12,7 +12,7 @@ import numpy as np
 from services.brain.checkpoint import load_weights
 from services.brain.circuit import load_circuit
 from services.bus import keys
-from services.bus.schemas import VERSION, Array, Control, Motor, Sensors, encode
+from services.bus.schemas import VERSION, Array, Control, Sensors, encode
 from services.loop import brain_for, closed_loop
 from services.world.world import World
 

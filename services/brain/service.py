@@ -16,7 +16,6 @@ import argparse
 import json
 import logging
 import os
-import signal
 import sys
 import time
 from pathlib import Path
@@ -25,7 +24,7 @@ import numpy as np
 
 from services.bus import keys
 from services.bus.schemas import Array, BrainLayout, BrainState, Control, Motor, Sensors
-from services.bus.session import Bus, add_bus_args, open_session, wait_for_subscriber
+from services.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 
 from .brain import Brain
 from .checkpoint import load_weights, save_weights
@@ -261,14 +260,7 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
 
 
 def main(argv=None) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s brain %(levelname)s %(message)s", stream=sys.stderr)
-    args = parser().parse_args(argv)
-    signal.signal(signal.SIGTERM, signal.default_int_handler)  # terminate like Ctrl-C: save, report, close
-    session = open_session(args)
-    try:
-        return run(args, session)
-    except KeyboardInterrupt:
-        return 130
+    return service_main("brain", parser(), run, argv)
 
 
 if __name__ == "__main__":

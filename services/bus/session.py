@@ -12,6 +12,8 @@ import json
 import logging
 import os
 import queue
+import signal
+import sys
 import threading
 import time
 from collections import Counter
@@ -242,6 +244,22 @@ class Bus:
                 pass
         self._token.undeclare()
         self.session.close()
+
+
+def service_main(name: str, parser: argparse.ArgumentParser, run, argv=None, interrupted: int = 130,
+                 prepare=None) -> int:
+    """The common start of a service: logging, its options, SIGTERM handled like Ctrl-C (the
+    service saves, flushes or reports on its way out), the session, then run(args, session)."""
+    logging.basicConfig(level=logging.INFO, format=f"%(asctime)s {name} %(levelname)s %(message)s", stream=sys.stderr)
+    args = parser.parse_args(argv)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    if prepare is not None:
+        prepare(args)
+    session = open_session(args)
+    try:
+        return run(args, session)
+    except KeyboardInterrupt:
+        return interrupted
 
 
 def wait_for_subscriber(outbox: Outbox, what: str, presence: Presence | None = None, every: float = 5.0) -> None:

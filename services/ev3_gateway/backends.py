@@ -50,6 +50,17 @@ class Wiring:
     speed: int = 50
     spin_speed: int = 30
 
+    def __post_init__(self):
+        motors = self.motors.upper()
+        if len(motors) != 2 or len(set(motors)) != 2 or not set(motors) <= set(PORT_BITS):
+            raise ValueError(f"--motors must name two different motor ports of A, B, C, D, got {self.motors!r}")
+        ports = {"touch": self.touch, "colour": self.colour, "ultrasonic": self.ultrasonic}
+        if len(set(ports.values())) != 3 or not all(1 <= p <= 4 for p in ports.values()):
+            raise ValueError(f"the three sensors need three different ports of 1-4, got {ports}")
+        for name, value in (("--speed", self.speed), ("--spin-speed", self.spin_speed)):
+            if not -100 <= value <= 100:
+                raise ValueError(f"{name} must be within -100..100, got {value}")
+
     @property
     def motor_bits(self) -> int:
         return sum(PORT_BITS[p] for p in self.motors.upper())

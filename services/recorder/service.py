@@ -15,7 +15,6 @@ import argparse
 import datetime
 import logging
 import os
-import signal
 import sys
 import time
 from pathlib import Path
@@ -24,7 +23,7 @@ import rerun as rr
 
 from services.bus import keys
 from services.bus.schemas import KINDS, Control
-from services.bus.session import Bus, add_bus_args, open_session
+from services.bus.session import Bus, add_bus_args, service_main
 
 from .recorder import Recorder, blueprint
 
@@ -105,15 +104,8 @@ def run(args: argparse.Namespace, session) -> int:
 
 
 def main(argv=None) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s recorder %(levelname)s %(message)s", stream=sys.stderr)
-    args = parser().parse_args(argv)
-    signal.signal(signal.SIGTERM, signal.default_int_handler)  # terminate like Ctrl-C: flush and close
-    os.nice(args.nice)  # behind the lock-step pair: it buffers (losslessly) and catches up
-    session = open_session(args)
-    try:
-        return run(args, session)
-    except KeyboardInterrupt:
-        return 0
+    # os.nice: behind the lock-step pair; the recorder buffers (losslessly) and catches up
+    return service_main("recorder", parser(), run, argv, interrupted=0, prepare=lambda args: os.nice(args.nice))
 
 
 if __name__ == "__main__":

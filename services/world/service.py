@@ -23,7 +23,7 @@ import numpy as np
 
 from services.bus import keys
 from services.bus.schemas import Array, Control, Motor, Sensors, WorldMap, WorldState
-from services.bus.session import Bus, add_bus_args, open_session, wait_for_subscriber
+from services.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 
 from .world import PRESETS, SENSORS, MapError, World, map_world, params_for, world_actions
 
@@ -184,13 +184,7 @@ def run(args: argparse.Namespace, session) -> int:
 
 
 def main(argv=None) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s world %(levelname)s %(message)s", stream=sys.stderr)
-    args = parser().parse_args(argv)
-    session = open_session(args)
-    try:
-        return run(args, session)
-    except KeyboardInterrupt:
-        return 130
+    return service_main("world", parser(), run, argv)
 
 
 if __name__ == "__main__":

@@ -5,7 +5,6 @@ import math
 import struct
 import time
 
-import numpy as np
 import pytest
 from ev3_dc import GVX, LCX
 

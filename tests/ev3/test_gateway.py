@@ -61,3 +61,26 @@ def test_robot_chain_senses_moves_survives_a_lost_link_and_stops_without_a_brain
     spikes = {name: len(data.get(f"/brain/agent0/spikes/{k:02d}_{name}", {}).get("tick", []))
               for k, name in enumerate(("BLACK", "RED", "GREEN"))}
     assert spikes["RED"] > 50 and spikes["BLACK"] == spikes["GREEN"] == 0  # red reached the RED afferent
+
+
+def test_the_brain_drives_a_simulated_ev3(tmp_path):
+    gateway_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
+    gateway = start("ev3_gateway", "--backend", "sim", "--listen", gateway_ep, "--duration", 4, "--stats",
+                    tmp_path / "gateway.json", log=tmp_path / "gateway.log")
+    brain = start("brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", 1000, log=tmp_path / "brain.log")
+    try:
+        assert finish(gateway, 60, tmp_path / "gateway.log") == 0
+    finally:
+        brain.kill()
+        gateway.kill()
+    stats = json.loads((tmp_path / "gateway.json").read_text())
+    assert stats["polls"] > 100 and stats["commands"] > 3 and stats["link_losses"] == 0
+
+
+def test_wrong_wiring_is_refused_before_anything_starts(tmp_path):
+    bad = start("ev3_gateway", "--motors", "BX", log=tmp_path / "bad.log")
+    assert finish(bad, 30, tmp_path / "bad.log") == 2
+    assert "--motors must name two different motor ports of A, B, C, D, got 'BX'" in (tmp_path / "bad.log").read_text()
+    bad = start("ev3_gateway", "--touch-port", 3, "--colour-port", 3, log=tmp_path / "bad2.log")
+    assert finish(bad, 30, tmp_path / "bad2.log") == 2
+    assert "three different ports" in (tmp_path / "bad2.log").read_text()
