@@ -68,6 +68,11 @@ class Watcher:
         self.session.close()
 
 
+def ticks_in(states: list) -> list[int]:
+    """The ticks covered by a list of WorldState (or BrainState) batches."""
+    return [m.tick + k for m in states for k in range((m.pos if hasattr(m, "pos") else m.spiked).shape[0])]
+
+
 def wait_for(predicate, timeout: float, what: str) -> None:
     deadline = time.monotonic() + timeout
     while not predicate():

@@ -16,7 +16,7 @@ from services.bus.schemas import VERSION, Array, Control, Sensors, encode
 from services.loop import brain_for, closed_loop
 from services.world.world import World
 
-from .processes import Watcher, endpoint, finish, free_port, start, wait_for
+from .processes import Watcher, endpoint, finish, free_port, start, ticks_in, wait_for
 
 
 def test_brain_killed_mid_run_world_waits_then_continues(tmp_path):
@@ -27,14 +27,14 @@ def test_brain_killed_mid_run_world_waits_then_continues(tmp_path):
     brain_args = ("--group", "k", "--listen", endpoint(brain_port), "--connect", endpoint(world_port), "--once")
     brain = start("brain", *brain_args, log=tmp_path / "brain1.log")
     try:
-        ticks = watcher.messages[keys.world_state("k")]
-        wait_for(lambda: len(ticks) > 1000, 60, "the run to pass tick 1000")
+        states = watcher.messages[keys.world_state("k")]
+        wait_for(lambda: len(ticks_in(states)) > 1000, 60, "the run to pass tick 1000")
         brain.kill()
         brain.wait()
         wait_for(lambda: "brain lost at tick" in (tmp_path / "world.log").read_text(), 10, "the world to notice")
-        stalled_at = len(ticks)
+        stalled_at = len(ticks_in(states))
         time.sleep(1.5)
-        assert len(ticks) == stalled_at  # the world waits: no tick without a brain
+        assert len(ticks_in(states)) == stalled_at  # the world waits: no tick without a brain
         brain = start("brain", *brain_args, log=tmp_path / "brain2.log")
         assert finish(world, 120, tmp_path / "world.log") == 0
         assert finish(brain, 30, tmp_path / "brain2.log") == 0
@@ -45,7 +45,7 @@ def test_brain_killed_mid_run_world_waits_then_continues(tmp_path):
     log = (tmp_path / "world.log").read_text()
     lost = int(re.search(r"brain lost at tick (\d+)", log).group(1))
     assert 1000 <= lost < 6000 and f"brain back: continuing at tick {lost}" in log
-    assert [m.tick for m in ticks] == list(range(6000))  # every tick once, none skipped
+    assert ticks_in(states) == list(range(6000))  # every tick once, none skipped
     assert json.loads((tmp_path / "metrics.json").read_text())["ticks"] == 6000
 
 

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from services.bus import keys
-from services.bus.schemas import Array, BrainLayout, BrainState, Control, Motor, Sensors
+from services.bus.schemas import Array, BrainLayout, BrainState, Control, Motor, Sensors, TickBatch
 from services.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 
 from .brain import Brain
@@ -31,6 +31,7 @@ from .checkpoint import load_weights, save_weights
 from .circuit import CircuitError, load_circuit
 
 log = logging.getLogger("spikinglab.brain")
+STATE_BATCH = 50  # ticks per BrainState message (one put per 50 ticks keeps recording off the loop's back)
 
 
 def parser() -> argparse.ArgumentParser:
@@ -42,9 +43,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--save", type=Path, help="write the final weights here (.npz) when the run ends")
     p.add_argument("--once", action="store_true", help="exit after one run ends (default: serve the next run)")
     p.add_argument("--publish-state", action="store_true",
-                   help="publish spikes and potentials every tick, weights every --weights-every ticks (recorder); "
-                        "the first tick waits until someone subscribes")
-    p.add_argument("--weights-every", type=int, default=100, help="ticks between weight snapshots (default 100)")
+                   help=f"publish spikes and potentials of every tick, and the weights, in batches of {STATE_BATCH} "
+                        "ticks (recorder); the first tick waits until someone subscribes")
     free = p.add_argument_group("free-running (robot)")
     free.add_argument("--clock", type=float, default=0, metavar="HZ",
                       help="tick on this clock with the latest sensor reading, motor spikes as events "
@@ -65,6 +65,8 @@ class BrainNode:
     def __init__(self, circuit, training: bool = True, weights: np.ndarray | None = None):
         self.circuit, self.training, self.initial_weights = circuit, training, weights
         self.brain: Brain | None = None
+        self.batch = TickBatch(STATE_BATCH)  # spikes and potentials not yet published
+        self.stepped = False  # whether the last answer() stepped the brain (not a repeat)
         self.last_tick = -1
         self.last_answer: Motor | None = None
         self.sensor_names: tuple[str, ...] = ()
@@ -82,6 +84,7 @@ class BrainNode:
 
     def answer(self, message: Sensors) -> Motor | None:
         """The Motor answer to `message`, or None when it is to be ignored (stale or wrong shape)."""
+        self.stepped = False
         values = message.values.numpy("values", "<f8", 2)
         if self.brain is None or (message.tick == 0 and self.last_tick >= 0):
             if self.brain is not None:
@@ -99,18 +102,25 @@ class BrainNode:
         if self.last_tick >= 0 and message.tick != self.last_tick + 1:
             log.info("joined at tick %d (last seen %d)", message.tick, self.last_tick)
         actions = self.brain.step(values)
-        self.last_tick = message.tick
+        self.last_tick, self.stepped = message.tick, True
         self.last_answer = Motor(tick=message.tick, names=self.brain.action_names, actions=Array.of(actions))
         return self.last_answer
 
-    def state(self, with_weights: bool, final: bool = False) -> BrainState:
-        """Spikes and potentials of the last tick, the weights too if asked (else [A, 0]). `final`:
-        only the weights after the last tick (spikes and potentials [A, 0], already sent)."""
+    def keep_state(self) -> None:
+        """Note this tick's spikes and potentials for the next BrainState batch."""
         engine = self.brain.engine
-        w = engine.w if with_weights else np.zeros((engine.agents, 0))
-        spiked = engine.spiked.view(np.uint8) if not final else np.zeros((engine.agents, 0), np.uint8)
-        v = engine.v.astype(np.float32) if not final else np.zeros((engine.agents, 0), np.float32)
-        return BrainState(tick=self.last_tick, spiked=Array.of(spiked), potentials=Array.of(v), weights=Array.of(w))
+        self.batch.add(self.last_tick, spiked=engine.spiked.view(np.uint8), potentials=engine.v.astype(np.float32))
+
+    def state_message(self, final: bool = False) -> BrainState:
+        """The ticks noted so far (possibly none, for a final one) and the weights now."""
+        engine = self.brain.engine
+        first, rows = self.batch.take()
+        if first is None:
+            first = self.last_tick + 1
+            rows = {"spiked": np.zeros((0, engine.agents, engine.spiked.shape[1]), np.uint8),
+                    "potentials": np.zeros((0, engine.agents, engine.n_neurons), np.float32)}
+        return BrainState(tick=first, spiked=Array.of(rows["spiked"]), potentials=Array.of(rows["potentials"]),
+                          weights=Array.of(engine.w), final=final)
 
 
 def layout(circuit, tick: int) -> BrainLayout:
@@ -150,8 +160,10 @@ def run(args: argparse.Namespace, session) -> int:
                 answer = node.answer(message)
                 if answer is not None:
                     motor.put(answer)  # first: the world waits for it; the recorder does not
-                    if state is not None and answer.tick == node.last_tick:
-                        state.put(node.state(with_weights=answer.tick % args.weights_every == 0))
+                    if state is not None and node.stepped:
+                        node.keep_state()
+                        if node.batch.full:
+                            state.put(node.state_message())
                 continue
             order = control.get(timeout=0)
             if order is None:
@@ -162,8 +174,8 @@ def run(args: argparse.Namespace, session) -> int:
                     node.brain.engine.training = node.training
                 log.info("training %s at tick %d", "on" if node.training else "off", order.tick)
             elif order.command == "end":
-                if state is not None and node.brain is not None:  # the final weights, for the record
-                    state.put(node.state(with_weights=True, final=True))
+                if state is not None and node.brain is not None:  # the rest, and the final weights
+                    state.put(node.state_message(final=True))
                 log.info("run ended at tick %d; rejected messages: %d on sensors, %d on control", order.tick,
                          sensors.rejected_total, control.rejected_total)
                 if args.save and node.brain is not None:
@@ -228,7 +240,9 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
             if actions.any():
                 motor.put(Motor(tick=tick, names=brain.action_names, actions=Array.of(actions)))
             if state is not None:
-                state.put(node.state(with_weights=tick % args.weights_every == 0))
+                node.keep_state()
+                if node.batch.full:
+                    state.put(node.state_message())
             if tick % 100 == 0:
                 order = control.get(timeout=0)
                 if order is not None and order.command == "end":
@@ -245,6 +259,8 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
             lateness.append(time.monotonic() - next_at)
     except KeyboardInterrupt:
         pass
+    if state is not None:
+        state.put(node.state_message(final=True))
     elapsed = time.monotonic() - started
     late_ms = np.array(lateness) * 1000 if lateness else np.zeros(1)
     stats = {"ticks": tick, "hz": round(tick / elapsed, 1), "late_ms_median": round(float(np.median(late_ms)), 4),

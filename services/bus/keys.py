@@ -30,18 +30,23 @@ def control(group: str) -> str:
 
 
 def brain_state(group: str) -> str:
-    """Brain -> recorder: spikes, potentials, weights."""
-    return f"{PREFIX}/{_check(group)}/brain/state"
+    """Brain -> recorder: the layout once, then batches of spikes, potentials and weights."""
+    return f"{PREFIX}/{_check(group)}/state/brain"
 
 
 def world_state(group: str) -> str:
-    """World -> recorder: poses, events, metrics."""
-    return f"{PREFIX}/{_check(group)}/world/state"
+    """World -> recorder: batches of poses, sensors, events and map changes."""
+    return f"{PREFIX}/{_check(group)}/state/world"
 
 
 def world_map(group: str) -> str:
-    """World -> recorder: the arena grid, sent again whenever it changes."""
-    return f"{PREFIX}/{_check(group)}/world/map"
+    """World -> recorder: the arena grid, at the start."""
+    return f"{PREFIX}/{_check(group)}/state/map"
+
+
+def state(group: str) -> str:
+    """Everything a recorder needs, and nothing of the lock-step traffic (sensors, motor)."""
+    return f"{PREFIX}/{_check(group)}/state/**"
 
 
 def alive(group: str, service: str) -> str:

@@ -15,7 +15,7 @@ import math
 import msgspec
 import numpy as np
 
-VERSION = 1
+VERSION = 2  # 2: brain and world states come in batches of consecutive ticks
 # The insect's senses and actions: what a world or a robot gateway publishes and takes. The brain
 # binds them to its circuit by name (circuit files: `sensor = ...`, [actuators]).
 INSECT_SENSORS = ("smell_black", "smell_red", "smell_green", "pain", "reward")
@@ -96,18 +96,21 @@ class Control(Message, tag="control", kw_only=True):
 
 
 class BrainState(Message, tag="brain_state", kw_only=True):
-    """The brain after tick `tick`: spikes [A, nodes] (u1), potentials [A, neurons] (f4), weights
-    [A, synapses] (f8; shape (A, 0) in the ticks where they are not sent)."""
+    """The brain over T consecutive ticks from `tick`: spikes [T, A, nodes] (u1), potentials
+    [T, A, neurons] (f4), and the weights [A, synapses] (f8) after the batch's last tick. `final`:
+    the last batch of the run."""
 
     spiked: Array
     potentials: Array
     weights: Array
+    final: bool = False
 
     def check(self):
-        spiked = self.spiked.numpy("spiked", "|u1", 2)
-        for name, arr, dtype in (("potentials", self.potentials, "<f4"), ("weights", self.weights, "<f8")):
-            if arr.numpy(name, dtype, 2).shape[0] != spiked.shape[0]:
-                raise BusError(f"{name} has {arr.shape[0]} agents, spiked has {spiked.shape[0]}")
+        spiked = self.spiked.numpy("spiked", "|u1", 3)
+        if self.potentials.numpy("potentials", "<f4", 3).shape[:2] != spiked.shape[:2]:
+            raise BusError(f"potentials cover {self.potentials.shape[:2]} ticks x agents, spiked {spiked.shape[:2]}")
+        if self.weights.numpy("weights", "<f8", 2).shape[0] != spiked.shape[1]:
+            raise BusError(f"weights have {self.weights.shape[0]} agents, spiked has {spiked.shape[1]}")
 
 
 class BrainLayout(Message, tag="brain_layout", kw_only=True):
@@ -128,24 +131,32 @@ class BrainLayout(Message, tag="brain_layout", kw_only=True):
 
 
 class WorldState(Message, tag="world_state", kw_only=True):
-    """The world after tick `tick`: pos [A, 2], heading [A], events [A, 4] (collision colour, ate,
-    reset, learned), collisions [A], food [A], and the patches that changed in this tick, changes
-    [K, 4] (arena, x index, y index, new colour)."""
+    """The world over T consecutive ticks from `tick`: what each tick sensed, sensors [T, A, S]
+    (NaN: nothing; the names as in Sensors), then after its actions pos [T, A, 2], heading [T, A],
+    events [T, A, 4] (collision colour, ate, reset, learned), collisions [T, A], food [T, A]; and
+    the patches that changed, changes [K, 5] (tick, arena, x index, y index, new colour).
+    `final`: the last batch of the run."""
 
+    sensor_names: tuple[str, ...]
+    sensors: Array
     pos: Array
     heading: Array
     events: Array
     collisions: Array
     food: Array
     changes: Array
+    final: bool = False
 
     def check(self):
         self.changes.numpy("changes", "<i8", 2)
-        agents = self.pos.numpy("pos", "<f8", 2).shape[0]
-        for name, arr, dtype, ndim in (("heading", self.heading, "<f8", 1), ("events", self.events, "<i8", 2),
-                                       ("collisions", self.collisions, "<i8", 1), ("food", self.food, "<i8", 1)):
-            if arr.numpy(name, dtype, ndim).shape[0] != agents:
-                raise BusError(f"{name} has {arr.shape[0]} agents, pos has {agents}")
+        shape = self.pos.numpy("pos", "<f8", 3).shape[:2]
+        if self.sensors.numpy("sensors", "<f8", 3).shape != (*shape, len(self.sensor_names)):
+            raise BusError(f"sensors have shape {list(self.sensors.shape)} for {list(shape)} ticks x agents and "
+                           f"{len(self.sensor_names)} sensor names")
+        for name, arr, dtype, ndim in (("heading", self.heading, "<f8", 2), ("events", self.events, "<i8", 3),
+                                       ("collisions", self.collisions, "<i8", 2), ("food", self.food, "<i8", 2)):
+            if arr.numpy(name, dtype, ndim).shape[:2] != shape:
+                raise BusError(f"{name} covers {arr.shape[:2]} ticks x agents, pos {shape}")
 
 
 class WorldMap(Message, tag="world_map", kw_only=True):
@@ -157,6 +168,30 @@ class WorldMap(Message, tag="world_map", kw_only=True):
 
     def check(self):
         self.grid.numpy("grid", "|u1", 3)
+
+
+class TickBatch:
+    """Arrays of consecutive ticks, collected until there are `size` of them; `take()` gives the
+    first tick and each array stacked on a leading tick axis (for BrainState and WorldState)."""
+
+    def __init__(self, size: int):
+        self.size, self.first = size, None
+        self.rows: dict[str, list] = {}
+
+    def add(self, tick: int, **arrays) -> None:
+        if self.first is None:
+            self.first = tick
+        for name, value in arrays.items():
+            self.rows.setdefault(name, []).append(np.array(value, copy=True))
+
+    @property
+    def full(self) -> bool:
+        return self.first is not None and len(next(iter(self.rows.values()))) >= self.size
+
+    def take(self) -> tuple[int, dict[str, np.ndarray]]:
+        first, rows = self.first, self.rows
+        self.first, self.rows = None, {}
+        return first, {name: np.stack(values) for name, values in rows.items()}
 
 
 KINDS = (Sensors, Motor, Control, BrainState, BrainLayout, WorldState, WorldMap)

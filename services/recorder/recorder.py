@@ -13,7 +13,8 @@ ticks, never one log call per value. What goes where:
   /brain/agent<a>/potentials        membrane potentials of all neurons
   /brain/agent<a>/weights           plastic weights, every N ticks
   /learning/collisions_per_1000, /learning/food    the learning curve (mean over agents)
-  /events                    text: start, training on/off, brain lost/back, rejected messages, ...
+  /events                    text: start, world and brain on or off the bus, learning reached,
+                             rejected messages, run ended
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from services.bus.schemas import BrainLayout, BrainState, Control, Motor, Sensors, WorldMap, WorldState
+from services.bus.schemas import BrainLayout, BrainState, WorldMap, WorldState
 
 EMPTY, BLACK, RED, GREEN = 0, 1, 2, 3
 PATCH_COLOURS = [(EMPTY, "floor", (24, 24, 28)), (BLACK, "wall", (215, 215, 215)),
@@ -80,7 +81,9 @@ class Recorder:
         self._flushed_to = -1
         self._collisions_at_bin = None
         self.last_weights: np.ndarray | None = None  # [agents, synapses] at the last snapshot
-        self.brain_done = False  # the brain's final weights snapshot has arrived
+        self.brain_done = False  # the brain's final batch has arrived
+        self.world_done = False  # the world's final batch has arrived
+        self._announced = False  # whether "recording starts at tick N" was said
         self._trail: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # agent -> (ticks, positions)
         self._reset_buffers()
         rec.log("/world/map", rr.AnnotationContext([(c, name, rgb) for c, name, rgb in PATCH_COLOURS]), static=True)
@@ -105,16 +108,13 @@ class Recorder:
 
     # --- messages ---------------------------------------------------------------------------------
     def on(self, message) -> None:
-        handler = {WorldMap: self.on_world_map, WorldState: self.on_world_state, Sensors: self.on_sensors,
-                   BrainState: self.on_brain_state, BrainLayout: self.on_brain_layout, Control: self.on_control,
-                   Motor: self.on_motor}[type(message)]
+        handler = {WorldMap: self.on_world_map, WorldState: self.on_world_state, BrainState: self.on_brain_state,
+                   BrainLayout: self.on_brain_layout}[type(message)]
         if message.tick >= 0 and not isinstance(message, (BrainLayout, WorldMap)):
-            if self.first_tick is None:
-                self.first_tick = message.tick
-                if message.tick > 0:
-                    self.event(f"recording starts at tick {message.tick}: the recorder started late",
-                               "WARN", message.tick)
-            self.last_tick = max(self.last_tick, message.tick)
+            # the earliest tick held; said once, at the first flush (a batch may start earlier than
+            # the message that happened to come first)
+            self.first_tick = message.tick if self.first_tick is None else min(self.first_tick, message.tick)
+            self.last_tick = max(self.last_tick, message.tick)  # batches move it on further
         handler(message)
         if self.last_tick - self._flushed_to >= self.flush_every:
             self.flush()
@@ -124,41 +124,45 @@ class Recorder:
         self.x_min, self.y_min = m.x_min, m.y_min
         self._log_map(m.tick)
 
+    @property
+    def arena_shown(self) -> int:
+        """The arena drawn: the first detail agent's (all agents share arena 0 when shared)."""
+        return min(self.detail[0], self.grid.shape[0] - 1)
+
     def _log_map(self, tick: int) -> None:
-        arena = min(self.detail[0], self.grid.shape[0] - 1) if self.grid.shape[0] > 1 else 0
         self.rec.set_time("tick", sequence=tick)
-        self.rec.log("/world/map", rr.SegmentationImage(self.grid[arena][:, ::-1].T.copy()))
+        self.rec.log("/world/map", rr.SegmentationImage(self.grid[self.arena_shown][:, ::-1].T.copy()))
 
     def on_world_state(self, m: WorldState) -> None:
-        t = m.tick
-        pos, heading = m.pos.numpy("pos", "<f8", 2), m.heading.numpy("heading", "<f8", 1)
-        events = m.events.numpy("events", "<i8", 2)
-        self.agents = len(pos)
-        self.b["pose"].append((t, pos.copy(), heading.copy()))
+        """A batch of consecutive ticks."""
+        sensed = m.sensors.numpy("sensors", "<f8", 3)
+        pos, heading = m.pos.numpy("pos", "<f8", 3), m.heading.numpy("heading", "<f8", 2)
+        events, food = m.events.numpy("events", "<i8", 3), m.food.numpy("food", "<i8", 2)
+        collisions = m.collisions.numpy("collisions", "<i8", 2)
         changes = m.changes.numpy("changes", "<i8", 2)
-        if len(changes) and self.grid is not None:
-            shown = min(self.detail[0], self.grid.shape[0] - 1) if self.grid.shape[0] > 1 else 0
-            for arena, ix, iy, colour in changes:
-                self.grid[arena, ix, iy] = colour
-            if (changes[:, 0] == shown).any():
-                self.b["map_ticks"].append(t)
-                self._log_map(t)
-        collisions = m.collisions.numpy("collisions", "<i8", 1)
+        self.agents = pos.shape[1]
+        self.last_tick = max(self.last_tick, m.tick + len(pos) - 1)
         if self._collisions_at_bin is None:
-            self._collisions_at_bin = np.zeros_like(collisions)
-        if (t + 1) % 1000 == 0:  # the learning curve, per 1,000 ticks like the world's own bins
-            self.b["bins"].append((t, float((collisions - self._collisions_at_bin).mean()),
-                                   float(m.food.numpy("food", "<i8", 1).mean())))
-            self._collisions_at_bin = collisions.copy()
-        for a in np.flatnonzero(events[:, 3]):
-            self.event(f"agent {a} learned: no collision for the required run of ticks (tick {t})", "INFO", t)
-
-    def on_sensors(self, m: Sensors) -> None:
-        values = m.values.numpy("values", "<f8", 2)
-        self.b["sensors"].append((m.tick, m.names, values[[a for a in self.detail if a < len(values)]].copy()))
-
-    def on_motor(self, m: Motor) -> None:
-        pass  # the actions are the ROTATE and MOVE spikes of the raster (the service skips them)
+            self._collisions_at_bin = np.zeros(self.agents, np.int64)
+        detail_rows = [a for a in self.detail if a < self.agents]
+        for k in range(len(pos)):
+            t = m.tick + k
+            self.b["pose"].append((t, pos[k], heading[k]))
+            self.b["sensors"].append((t, m.sensor_names, sensed[k][detail_rows]))
+            mine = changes[changes[:, 0] == t]
+            if len(mine) and self.grid is not None:
+                for _, arena, ix, iy, colour in mine:
+                    self.grid[arena, ix, iy] = colour
+                if (mine[:, 1] == self.arena_shown).any():
+                    self._log_map(t)
+            if (t + 1) % 1000 == 0:  # the learning curve, per 1,000 ticks like the world's own bins
+                self.b["bins"].append((t, float((collisions[k] - self._collisions_at_bin).mean()), float(food[k].mean())))
+                self._collisions_at_bin = collisions[k].copy()
+            for a in np.flatnonzero(events[k, :, 3]):
+                self.event(f"agent {a} learned: no collision for the required run of ticks (tick {t})", "INFO", t)
+        if m.final:
+            self.world_done = True
+            self.event(f"run ended at tick {m.tick + len(pos)}", "INFO", m.tick + len(pos))
 
     def on_brain_layout(self, m: BrainLayout) -> None:
         self.layout = m
@@ -172,25 +176,23 @@ class Recorder:
             self.rec.log(f"{base}/weights", rr.SeriesLines(names=[m.synapses[k] for k in m.plastic]), static=True)
 
     def on_brain_state(self, m: BrainState) -> None:
-        spiked = m.spiked.numpy("spiked", "|u1", 2)
-        rows = [a for a in self.detail if a < len(spiked)]
-        if spiked.shape[1]:  # (a final weights snapshot has no spikes and potentials)
-            if self.spike_counts is None or self.spike_counts.shape != spiked.shape:
-                self.spike_counts = np.zeros(spiked.shape, np.int64)
-            self.spike_counts += spiked
-            self.b["spikes"].append((m.tick, spiked[rows].copy()))
-            self.b["potentials"].append((m.tick, m.potentials.numpy("potentials", "<f4", 2)[rows].copy()))
+        """A batch of consecutive ticks, and the weights after its last one."""
+        spiked = m.spiked.numpy("spiked", "|u1", 3)
+        potentials = m.potentials.numpy("potentials", "<f4", 3)
+        agents = spiked.shape[1]
+        rows = [a for a in self.detail if a < agents]
+        if self.spike_counts is None or self.spike_counts.shape != spiked.shape[1:]:
+            self.spike_counts = np.zeros(spiked.shape[1:], np.int64)
+        self.spike_counts += spiked.sum(axis=0, dtype=np.int64)
+        for k in range(len(spiked)):
+            self.b["spikes"].append((m.tick + k, spiked[k][rows]))
+            self.b["potentials"].append((m.tick + k, potentials[k][rows]))
+        last = m.tick + len(spiked) - 1
+        self.last_tick = max(self.last_tick, last)
         weights = m.weights.numpy("weights", "<f8", 2)
-        self.brain_done = not spiked.shape[1]  # the final snapshot comes after the brain's last tick
-        if weights.shape[1]:
-            self.b["weights"].append((m.tick, weights[rows].copy()))
-            self.last_weights = weights.copy()
-
-    def on_control(self, m: Control) -> None:
-        if m.command == "end":
-            self.event(f"run ended at tick {m.tick}", "INFO", m.tick)
-        elif m.command == "training":
-            self.event(f"training {'on' if m.arg else 'off'}", "INFO", m.tick)
+        self.b["weights"].append((last, weights[rows]))
+        self.last_weights = weights.copy()
+        self.brain_done = m.final
 
     def event(self, text: str, level: str = "INFO", tick: int | None = None) -> None:
         self.rec.set_time("tick", sequence=max(tick if tick is not None else self.last_tick, 0))
@@ -201,6 +203,11 @@ class Recorder:
         """Send everything buffered as columns, one call per entity."""
         b, self.b = self.b, defaultdict(list)
         self._flushed_to = self.last_tick
+        if not self._announced and self.first_tick is not None:
+            self._announced = True
+            if self.first_tick > 0:
+                self.event(f"recording starts at tick {self.first_tick}: the recorder started late", "WARN",
+                           self.first_tick)
         if b["pose"]:
             self._flush_world(b["pose"], b["sensors"])
         if b["spikes"] or b["weights"]:

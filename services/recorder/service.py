@@ -1,11 +1,12 @@
 """The recorder service: `spikinglab record` / `python -m services.recorder`.
 
-Reads:  everything under spikinglab/<group>/ (one strict inbox), and the liveliness of the world
-        and the brain
+Reads:  spikinglab/<group>/state/** (the world's and the brain's state batches, the map, the
+        brain's layout; one strict inbox), and the liveliness of the world and the brain
 Writes: a Rerun recording (.rrd) with its default layout; optionally also to a live viewer
         (--viewer URL) or serves one (--serve); liveliness spikinglab/<group>/alive/recorder
 
-It ends when the world sends Control "end" (or on Ctrl-C / SIGTERM), flushing what it has; a
+It ends when the world and the brain have sent their final batches (or on Ctrl-C / SIGTERM),
+flushing what it has; a
 recorder that is killed leaves a file that is readable up to its last flush.
 """
 
@@ -22,7 +23,7 @@ from pathlib import Path
 import rerun as rr
 
 from services.bus import keys
-from services.bus.schemas import KINDS, Control
+from services.bus.schemas import BrainLayout, BrainState, WorldMap, WorldState
 from services.bus.session import Bus, add_bus_args, service_main
 
 from .recorder import Recorder, blueprint
@@ -57,8 +58,8 @@ def run(args: argparse.Namespace, session) -> int:
         log.info("serving the recording at %s", rec.serve_grpc(default_blueprint=blueprint(detail[0] if detail else 0)))
     bus = Bus(session, args.group, "recorder")
     recorder = Recorder(rec, detail=detail, flush_every=args.flush_every)
-    # motor is skipped: the actions are the ROTATE and MOVE spikes, recorded in the raster
-    inbox = bus.inbox(f"{keys.PREFIX}/{args.group}/**", KINDS, skip=("motor",))
+    # only the state streams: the lock-step messages (sensors, motor) never come to the recorder
+    inbox = bus.inbox(keys.state(args.group), (WorldMap, WorldState, BrainState, BrainLayout))
     watched = {name: bus.presence(name) for name in ("world", "brain")}
     recorder.event(f"recorder started on group {args.group}, writing {out}")
     log.info("recording group %s to %s", args.group, out)
@@ -83,11 +84,12 @@ def run(args: argparse.Namespace, session) -> int:
                     first_at = time.monotonic()
                 received += 1
                 recorder.on(message)
-                if isinstance(message, Control) and message.command == "end" and not args.forever:
+                if getattr(message, "final", False) and not args.forever and ending is None:
                     ending = time.monotonic() + END_GRACE
-            # the world's "end" can overtake the brain's last states (another link): wait for the
-            # brain's final snapshot, which it sends only after it got "end" itself
-            if ending and (recorder.brain_done or recorder.spike_counts is None or time.monotonic() > ending):
+            # the run is over when every stream that came has sent its final batch (the world's and
+            # the brain's come on different links, in either order)
+            if ending and ((recorder.world_done or recorder.agents == 0) and
+                           (recorder.brain_done or recorder.spike_counts is None) or time.monotonic() > ending):
                 break
             if time.monotonic() - last_flush > 2.0:  # a killed recorder loses at most this much
                 recorder.flush()

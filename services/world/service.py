@@ -22,13 +22,14 @@ from pathlib import Path
 import numpy as np
 
 from services.bus import keys
-from services.bus.schemas import Array, Control, Motor, Sensors, WorldMap, WorldState
+from services.bus.schemas import Array, Control, Motor, Sensors, TickBatch, WorldMap, WorldState
 from services.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 
 from .world import PRESETS, SENSORS, MapError, World, map_world, params_for, world_actions
 
 log = logging.getLogger("spikinglab.world")
 RESEND_AFTER = 1.0  # seconds without an answer before the sensors are sent again
+STATE_BATCH = 50  # ticks per WorldState message (one put per 50 ticks keeps recording off the loop's back)
 
 
 def parser() -> argparse.ArgumentParser:
@@ -98,11 +99,22 @@ class Progress:
             self.bar.close()
 
 
-def state_of(world: World, t: int) -> WorldState:
+def keep_state(batch: TickBatch, changes: list, world: World, t: int) -> None:
     """Tick t as the recorder sees it: poses after the actions, this tick's events and changes."""
     m = world.metrics
-    return WorldState(tick=t, pos=Array.of(world.pos), heading=Array.of(world.heading), events=Array.of(world.events),
-                      collisions=Array.of(m.collisions), food=Array.of(m.food), changes=Array.of(world.changes()))
+    batch.add(t, sensors=world.sensors, pos=world.pos, heading=world.heading, events=world.events,
+              collisions=m.collisions, food=m.food)
+    for row in world.changes():
+        changes.append((t, *row))
+
+
+def state_message(batch: TickBatch, changes: list, final: bool) -> WorldState:
+    first, a = batch.take()
+    rows = np.array(changes, np.int64).reshape(-1, 5)
+    changes.clear()
+    return WorldState(tick=first, sensor_names=SENSORS, sensors=Array.of(a["sensors"]), pos=Array.of(a["pos"]),
+                      heading=Array.of(a["heading"]), events=Array.of(a["events"]), collisions=Array.of(a["collisions"]),
+                      food=Array.of(a["food"]), changes=Array.of(rows), final=final)
 
 
 def metrics_of(world: World, ticks: int, elapsed: float) -> dict:
@@ -141,6 +153,7 @@ def run(args: argparse.Namespace, session) -> int:
             bus.outbox(keys.world_map(args.group)).put(
                 WorldMap(tick=0, grid=Array.of(world.grid), x_min=world.params.x_min, y_min=world.params.y_min))
         progress = Progress(world, args.ticks, args.progress)
+        batch, changes = TickBatch(STATE_BATCH), []
         started = time.perf_counter()
         request = Sensors(tick=0, names=SENSORS, values=Array.of(world.sense()), training=world.training)
         sensors.put(request)
@@ -160,13 +173,14 @@ def run(args: argparse.Namespace, session) -> int:
                         log.warning("ignored motor for tick %d: %d agents, the world has %d",
                                     t, answer.actions.shape[0], world.agents)
             world.act(actions)
-            report = state_of(world, t) if state is not None else None  # before the next sense()
+            if state is not None:  # this tick's poses, events and changes, before the next sense()
+                keep_state(batch, changes, world, t)
             if t + 1 < args.ticks:  # the brain's next tick first: the recorder can wait
                 request = Sensors(tick=t + 1, names=SENSORS, values=Array.of(world.sense()),
                                   training=world.training)
                 sensors.put(request)
-            if report is not None:
-                state.put(report)
+            if state is not None and (batch.full or t + 1 == args.ticks):
+                state.put(state_message(batch, changes, final=t + 1 == args.ticks))
             progress.update(t + 1)
         elapsed = time.perf_counter() - started
         progress.close(args.ticks)

@@ -11,11 +11,12 @@ import pytest
 from rerun.chunk import RrdReader
 
 from services.brain.checkpoint import load_weights
+from services.bus import keys
 from services.brain.circuit import load_circuit
 from services.loop import brain_for, closed_loop
 from services.world.world import World, generate_map, params_for
 
-from ..processes import ROOT, Watcher, finish, start, wait_for
+from ..processes import ROOT, Watcher, finish, start, ticks_in, wait_for
 
 TICKS, SEED = 3000, 3
 
@@ -85,7 +86,7 @@ def test_spikes_weights_and_learning_curve_are_the_brains(recorded_run):
         raster = data.get(f"/brain/agent0/spikes/{k:02d}_{name}", {}).get("tick", [])
         assert len([t for t in raster if t is not None]) == spikes[k], name
     weights = data["/brain/agent0/weights"]
-    assert weights["tick"][-1] == TICKS - 1 and weights["tick"][0] == 0
+    assert weights["tick"][-1] == TICKS - 1 and weights["tick"][0] == 49  # after each batch of 50 ticks
     saved = load_weights(folder / "weights.npz", circuit)[0, circuit.plastic_synapses]
     np.testing.assert_array_equal(weights["Scalars:scalars"][-1], saved)
     potentials = data["/brain/agent0/potentials"]
@@ -143,13 +144,14 @@ def test_a_late_recorder_says_from_which_tick_it_has_data(tmp_path):
     from .. processes import endpoint, free_port
 
     world_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
-    early = Watcher([world_ep, brain_ep], ["spikinglab/insect/world/state", "spikinglab/insect/brain/state"])
+    early = Watcher([world_ep, brain_ep], [keys.world_state("insect"), keys.brain_state("insect")])
     # long enough (several seconds) for the late recorder to start up before the run ends
     world = start("world", "--listen", world_ep, "--ticks", 30000, "--publish-state", log=tmp_path / "world.log")
     brain = start("brain", "--listen", brain_ep, "--connect", world_ep, "--once", "--publish-state",
                   log=tmp_path / "brain.log")
     try:
-        wait_for(lambda: len(early.messages["spikinglab/insect/world/state"]) > 1500, 60, "the run to get going")
+        wait_for(lambda: len(ticks_in(early.messages[keys.world_state("insect")])) > 1500, 60,
+                 "the run to get going")
         recorder = start("recorder", "--connect", world_ep, "--connect", brain_ep, "--out", tmp_path / "late.rrd",
                          log=tmp_path / "recorder.log")
         assert finish(world, 120, tmp_path / "world.log") == 0
@@ -164,4 +166,4 @@ def test_a_late_recorder_says_from_which_tick_it_has_data(tmp_path):
     assert len(late) == 1
     start_tick = int(re.search(r"recording starts at tick (\d+)", late[0]).group(1))
     assert 1500 < start_tick < 30000
-    assert data["/world/insects"]["tick"][0] >= start_tick - 1
+    assert data["/world/insects"]["tick"][0] >= start_tick  # no data before the tick it names
