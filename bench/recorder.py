@@ -47,6 +47,44 @@ def one_run(ticks: int, record: bool, folder: Path) -> dict:
     return result
 
 
+def alone(ticks: int) -> float:
+    """Ticks/s the recorder decodes and writes when fed a run's state messages as fast as it takes them."""
+    import rerun as rr
+
+    from services.brain.circuit import load_circuit
+    from services.brain.service import STATE_BATCH, BrainNode, layout
+    from services.bus.schemas import Array, Sensors, WorldMap, decode, encode
+    from services.recorder.recorder import Recorder, blueprint
+    from services.world.service import keep_state, state_message
+    from services.world.world import SENSORS, World, world_actions
+    from services.bus.schemas import TickBatch
+
+    circuit, world = load_circuit("insect"), World(seed=1)
+    node = BrainNode(circuit)
+    messages = [encode(WorldMap(tick=0, grid=Array.of(world.grid), x_min=80, y_min=1)), encode(layout(circuit, 0))]
+    batch, changes = TickBatch(STATE_BATCH), []
+    values = world.sense()
+    for t in range(ticks):
+        answer = node.answer(Sensors(tick=t, names=SENSORS, values=Array.of(values)))
+        node.keep_state()
+        world.act(world_actions(answer.names, answer.actions.numpy("actions", "|u1", 2)))
+        keep_state(batch, changes, world, t)
+        if batch.full or t + 1 == ticks:
+            messages.append(encode(state_message(batch, changes, final=t + 1 == ticks)))
+            messages.append(encode(node.state_message(final=t + 1 == ticks)))
+        values = world.sense()
+    with tempfile.TemporaryDirectory() as tmp:
+        rec = rr.RecordingStream("bench", recording_id="bench")
+        rec.save(str(Path(tmp) / "alone.rrd"), default_blueprint=blueprint(0))
+        recorder = Recorder(rec)
+        started = time.perf_counter()
+        for payload in messages:
+            recorder.on(decode(payload))
+        recorder.close()
+        rec.flush()
+        return ticks / (time.perf_counter() - started)
+
+
 def main(argv=None) -> dict:
     p = argparse.ArgumentParser(prog="spikinglab bench recorder", description=__doc__.splitlines()[0])
     p.add_argument("--ticks", type=int, default=30_000)
@@ -61,6 +99,9 @@ def main(argv=None) -> dict:
     result = {"loop_ticks_per_s": round(plain["ticks_per_s"]), "recorded_loop_ticks_per_s": round(recorded["ticks_per_s"]),
               "recorder_messages": recorded["messages"], "recorder_lag_s": recorded["lag_s"],
               "recording_mb": recorded["file_mb"]}
+    capacity = alone(args.ticks)
+    print(f"the recorder alone (decode, buffer, write {args.ticks:,} ticks fed at once): {capacity:,.0f} ticks/s")
+    result["recorder_alone_ticks_per_s"] = round(capacity)
     print(json.dumps(result))
     return result
 
