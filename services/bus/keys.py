@@ -52,7 +52,3 @@ def state(group: str) -> str:
 def alive(group: str, service: str) -> str:
     """Liveliness token of a service (brain, world, gateway, recorder) of a group."""
     return f"{PREFIX}/{_check(group)}/alive/{_check(service)}"
-
-
-def everything(group: str = "*") -> str:
-    return f"{PREFIX}/{group}/**"

@@ -81,8 +81,8 @@ class Inbox:
 
     WAKE_EVERY = 0.25
 
-    def __init__(self, session: zenoh.Session, key: str, kinds, capacity: int = 100_000, skip: tuple[str, ...] = ()):
-        self.key, self.kinds, self.skip = key, kinds, tuple(f"/{k}" for k in skip)
+    def __init__(self, session: zenoh.Session, key: str, kinds, capacity: int = 100_000):
+        self.key, self.kinds = key, kinds
         self.rejected: Counter = Counter()
         self._session = session
         self._sub = session.declare_subscriber(key, zenoh.handlers.FifoChannel(capacity))
@@ -110,8 +110,6 @@ class Inbox:
                 self._deadline = min(deadline, now + self.WAKE_EVERY) if deadline else now + self.WAKE_EVERY
                 sample = self._sub.recv()
                 self._deadline = None
-            if self.skip and str(sample.key_expr).endswith(self.skip):
-                continue  # a key the owner does not want decoded (matched by a wildcard)
             payload = sample.payload.to_bytes()
             if not payload:  # a wake-up
                 continue
@@ -128,7 +126,7 @@ class Inbox:
             waiting.append(sample)
         for sample in reversed(waiting):
             payload = sample.payload.to_bytes()
-            if not payload or (self.skip and str(sample.key_expr).endswith(self.skip)):
+            if not payload:
                 continue
             try:
                 return decode(payload, self.kinds)
@@ -166,10 +164,6 @@ class Outbox:
 
     def put(self, message: Message) -> None:
         self._pub.put(encode(message), attachment=self._sender)
-
-    def put_raw(self, payload: bytes) -> None:
-        """Publish bytes as they are (tests use it to inject malformed messages)."""
-        self._pub.put(payload, attachment=self._sender)
 
     @property
     def matched(self) -> bool:
@@ -226,8 +220,8 @@ class Bus:
         self._owned.append(box)
         return box
 
-    def inbox(self, key: str, kinds, skip: tuple[str, ...] = ()) -> Inbox:
-        box = Inbox(self.session, key, kinds, skip=skip)
+    def inbox(self, key: str, kinds) -> Inbox:
+        box = Inbox(self.session, key, kinds)
         self._owned.append(box)
         return box
 

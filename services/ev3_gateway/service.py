@@ -99,7 +99,6 @@ class Gateway:
         self.busy_until = 0.0  # when the running motor command ends
         self.stopped = True  # no motor command is running (or it was stopped)
         self.stats = {"polls": 0, "commands": 0, "safety_stops": 0, "link_losses": 0, "rejected": 0}
-        self.first_command_at: list[float] = []  # time of every command sent (benchmarks)
 
     def call(self, what: str, *args) -> bool:
         """A backend call under the lock; a link failure is noted for the poll loop to repair."""
@@ -184,7 +183,6 @@ class Gateway:
                 if sent:
                     self.busy_until, self.stopped = now + ms / 1000, False
                     self.stats["commands"] += 1
-                    self.first_command_at.append(now)
             elif not self.stopped and now > self.busy_until + args.motor_timeout:
                 self.safety_stop(f"no motor command within {args.motor_timeout * 1000:.0f} ms after the last ended")
 

@@ -80,7 +80,6 @@ class Recorder:
         self.agents = 0
         self._flushed_to = -1
         self._collisions_at_bin = None
-        self.last_weights: np.ndarray | None = None  # [agents, synapses] at the last snapshot
         self.brain_done = False  # the brain's final batch has arrived
         self.world_done = False  # the world's final batch has arrived
         self._announced = False  # whether "recording starts at tick N" was said
@@ -191,7 +190,6 @@ class Recorder:
         self.last_tick = max(self.last_tick, last)
         weights = m.weights.numpy("weights", "<f8", 2)
         self.b["weights"].append((last, weights[rows]))
-        self.last_weights = weights.copy()
         self.brain_done = m.final
 
     def event(self, text: str, level: str = "INFO", tick: int | None = None) -> None:

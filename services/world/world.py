@@ -22,7 +22,6 @@ from numba import njit
 from services.bus.schemas import INSECT_ACTIONS, INSECT_SENSORS
 
 EMPTY, BLACK, RED, GREEN = 0, 1, 2, 3
-COLOUR_NAMES = {EMPTY: "empty", BLACK: "black", RED: "red", GREEN: "green"}
 # Sensor columns the world publishes and action columns it takes (the bus's names; the circuit
 # binds them by name).
 SENSORS, ACTIONS = INSECT_SENSORS, INSECT_ACTIONS
