@@ -6,7 +6,7 @@ import importlib
 import sys
 
 COMMANDS = {
-    "run": ("services.run", "train the insect: world and brain as two processes on the bus (the main job)"),
+    "run": ("services.run", "train the insect: world, brain and recorder as processes on the bus (the main job)"),
     "brain": ("services.brain.service", "the brain service on the bus"),
     "world": ("services.world.service", "the world service on the bus"),
     "gateway": ("services.ev3_gateway.service", "the robot side: a LEGO EV3 (or a simulated one) on the bus"),
