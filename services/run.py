@@ -155,8 +155,9 @@ def main(argv=None) -> int:
     return 0
 
 
-def learning_rate(circuit) -> float:
-    rates = {t.a_plus for k in circuit.plastic_synapses for t in [circuit.neuron_types[circuit.synapses[k].post]]}
+def learning_rate(circuit, which: str = "a_plus") -> float | list[float]:
+    """A+ (or A-) of the neurons that learn: one number, or the sorted values if they differ."""
+    rates = {getattr(circuit.neuron_types[circuit.synapses[k].post], which) for k in circuit.plastic_synapses}
     return rates.pop() if len(rates) == 1 else sorted(rates)
 
 
@@ -167,7 +168,7 @@ def summarise(folder: Path, args, circuit, run_id: str, wall_s: float) -> dict:
     summary = {
         "run": run_id,
         "parameters": {"ticks": args.ticks, "seed": args.seed, "agents": args.agents, "a_plus": learning_rate(circuit),
-                       "a_minus": learning_rate(circuit), "circuit": circuit.source, "preset": args.preset,
+                       "a_minus": learning_rate(circuit, "a_minus"), "circuit": circuit.source, "preset": args.preset,
                        "map": str(args.map) if args.map else None, "shared_arena": args.shared,
                        "training": not args.no_training, "learned_after": args.learned_after},
         "wall_time_s": round(wall_s, 1),
