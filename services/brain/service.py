@@ -69,16 +69,16 @@ class BrainNode:
         self.stepped = False  # whether the last answer() stepped the brain (not a repeat)
         self.last_tick = -1
         self.last_answer: Motor | None = None
-        self.sensor_names: tuple[str, ...] = ()
 
-    def _start(self, message: Sensors) -> None:
+    def start(self, message: Sensors) -> None:
+        """A fresh brain for the sensors and agents of `message` (a new run)."""
         agents = message.values.shape[0]
         self.brain = Brain(self.circuit, message.names, tuple(self.circuit.actuators), agents=agents,
                            training=self.training)
         if self.initial_weights is not None:  # one agent's weights are given to every agent
             w = self.initial_weights
             self.brain.engine.set_weights(w[0] if w.shape[0] == 1 else w)
-        self.sensor_names = message.names
+        self.batch = TickBatch(STATE_BATCH)  # nothing of a previous run goes into this one's batches
         log.info("brain for %d agent(s) of circuit %s, sensors %s, training %s", agents, self.circuit.name,
                  ", ".join(message.names), "on" if self.training else "off")
 
@@ -89,11 +89,11 @@ class BrainNode:
         if self.brain is None or (message.tick == 0 and self.last_tick >= 0):
             if self.brain is not None:
                 log.info("tick 0 again: a new run, the brain starts afresh")
-            self._start(message)
+            self.start(message)
             self.last_tick = -1
-        if message.names != self.sensor_names or values.shape[0] != self.brain.agents:
+        if message.names != self.brain.sensor_names or values.shape[0] != self.brain.agents:
             log.warning("ignored sensors for tick %d: %d agents with sensors %s, this brain serves %d with %s",
-                        message.tick, values.shape[0], message.names, self.brain.agents, self.sensor_names)
+                        message.tick, values.shape[0], message.names, self.brain.agents, self.brain.sensor_names)
             return None
         if message.tick == self.last_tick:
             return self.last_answer  # the world asks again: same answer, no second step
@@ -215,7 +215,7 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
     while latest is None:  # the first reading tells the sensors and the number of agents
         latest = sensors.get(timeout=0.25)
     latest_at = time.monotonic()
-    node._start(latest)
+    node.start(latest)
     engine, brain = node.brain.engine, node.brain
     nothing = np.full(latest.values.shape, np.nan)
     if state is not None:
