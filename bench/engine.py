@@ -2,6 +2,7 @@
 
 single: ticks/s of one agent through Engine.step(feed), the per-tick call a closed loop makes.
 batch:  agent-ticks/s of A = 1000 agents stepped together.
+Both for each semantics (phased, netlogo with its random order), on the same feeds.
 The last line printed is JSON. Run: `spikinglab bench engine` or `python -m bench.engine`.
 """
 
@@ -15,7 +16,7 @@ import time
 import numpy as np
 
 from services.brain.circuit import load_circuit
-from services.brain.engine import Engine
+from services.brain.engine import SEMANTICS, Engine
 
 FEED_PROBABILITY = 0.3  # chance per tick that a sensor feeds its input neuron a value in [0, 4)
 
@@ -50,25 +51,30 @@ def main(argv=None) -> dict:
     args = parser.parse_args(argv)
 
     circuit = load_circuit("insect").with_learning_rate(0.04)
-    rng = np.random.default_rng(0)
-    t0 = time.perf_counter()
-    single = Engine(circuit)
-    single.step()
-    batch = Engine(circuit, agents=args.agents)
-    batch.step()
-    print(f"compile/load: {time.perf_counter() - t0:.2f} s (cached after the first run)")
+    result = {}
+    for semantics in SEMANTICS:
+        rng = np.random.default_rng(0)
+        t0 = time.perf_counter()
+        single = Engine(circuit, semantics=semantics)
+        single.step()
+        batch = Engine(circuit, agents=args.agents, semantics=semantics)
+        batch.step()
+        print(f"{semantics}: compile/load {time.perf_counter() - t0:.2f} s (cached after the first run)")
 
-    feeds = random_feeds(rng, circuit, args.ticks, 1)
-    single_rate = best_rate(single, feeds, args.repeats)
-    print(f"single agent: {single_rate:,.0f} ticks/s ({1e6 / single_rate:.2f} us per step)")
+        feeds = random_feeds(rng, circuit, args.ticks, 1)
+        single_rate = best_rate(single, feeds, args.repeats)
+        print(f"{semantics}: single agent {single_rate:,.0f} ticks/s ({1e6 / single_rate:.2f} us per step)")
 
-    feeds = random_feeds(rng, circuit, args.batch_ticks, args.agents)
-    batch_rate = best_rate(batch, feeds, args.repeats, agents=args.agents)
-    print(f"A = {args.agents}: {batch_rate:,.0f} agent-ticks/s on {os.cpu_count()} cores")
-    spikes = int(batch.run(feeds[:100]).sum())
-    print(f"(spikes per agent per tick: {spikes / args.agents / 100:.2f}; training on)")
-
-    result = {"single_ticks_per_s": round(single_rate), f"batch{args.agents}_agent_ticks_per_s": round(batch_rate)}
+        feeds = random_feeds(rng, circuit, args.batch_ticks, args.agents)
+        batch_rate = best_rate(batch, feeds, args.repeats, agents=args.agents)
+        spikes = int(batch.run(feeds[:100]).sum())
+        print(f"{semantics}: A = {args.agents} {batch_rate:,.0f} agent-ticks/s on {os.cpu_count()} cores "
+              f"({spikes / args.agents / 100:.2f} spikes per agent per tick; training on)")
+        prefix = "" if semantics == "phased" else f"{semantics}_"
+        result[f"{prefix}single_ticks_per_s"] = round(single_rate)
+        result[f"{prefix}batch{args.agents}_agent_ticks_per_s"] = round(batch_rate)
+    ratio = result[f"netlogo_batch{args.agents}_agent_ticks_per_s"] / result[f"batch{args.agents}_agent_ticks_per_s"]
+    print(f"netlogo / phased at A = {args.agents}: {ratio:.2f}")
     print(json.dumps(result))
     return result
 

@@ -13,8 +13,14 @@ last so that each phase is one vectorised loop across agents, and the public vie
   4. fire     each neuron: refractory clamp, or fire at threshold (STDP potentiation), or decay
   5. emit     every synapse of a node that spiked schedules a pulse at t + delay
 
-There is no randomness inside the engine: the same circuit and feeds give the same spikes and
-weights, bit for bit, whether agents are stepped alone or together. Nothing here knows Zenoh.
+That is the "phased" semantics. The "netlogo" semantics (`Engine(..., semantics="netlogo")`)
+reproduces the original SpikingLab NetLogo engine instead (docs/tick.md): input neurons first,
+then every neuron in its turn, in a seeded random order per agent and tick (or file order), each
+running its state machine and then at once the pulse queues of its own outgoing synapses.
+
+The same circuit, feeds and seeds give the same spikes and weights, bit for bit, whether agents
+are stepped alone or together: the only randomness (the netlogo order) is a pure function of
+(agent seed, tick). Nothing here knows Zenoh.
 """
 
 from __future__ import annotations
@@ -31,6 +37,9 @@ HISTORY = 30  # arrivals a neuron remembers since its last spike (oldest dropped
 NEVER = -(2**62)  # last-spike tick of a neuron that has not fired yet
 SYN_BITS = 16  # a history entry packs (arrival tick << SYN_BITS) | synapse index
 SYN_MASK = (1 << SYN_BITS) - 1
+T_SHIFT = SYN_BITS
+SEMANTICS = ("phased", "netlogo")
+ORDERS = ("random", "file")  # netlogo: neurons per tick in a seeded random order, or in file order
 
 # npar columns: per-neuron parameters (from its type), then W(dt) for dt = -STDP_OFFSET.. (stdp.py)
 REST, THRESHOLD, DECAY, REFR_V, REFR_PERIOD, FLOOR, W_MIN, W_MAX, STDP_OFFSET, STDP = range(10)
@@ -38,7 +47,7 @@ REST, THRESHOLD, DECAY, REFR_V, REFR_PERIOD, FLOOR, W_MIN, W_MAX, STDP_OFFSET, S
 PRE, POST, DELAY, FLAGS = 0, 1, 2, 3
 INHIBITORY, PLASTIC = 1, 2
 # node state planes [3, nodes, A] (int32): for neurons ...
-REFR_LEFT, HIST_LEN = 0, 1
+REFR_LEFT, HIST_LEN, REFRACTORY = 0, 1, 2  # REFRACTORY: netlogo's state flag (its counter may be <= 0)
 # ... and for input neurons (the nodes after the neurons): ticks counted, pulses left, latency
 COUNT, LEFT, LATENCY = 0, 1, 2
 # inpar columns: per input neuron
@@ -116,7 +125,7 @@ def _deliver(lo, hi, t, training, syn, npar, v, w, state, last_spike, hist, ring
                     for h in range(HISTORY - 1):
                         hist[a, post, h] = hist[a, post, h + 1]
                     n -= 1
-                hist[a, post, n] = (t << SYN_BITS) | s
+                hist[a, post, n] = (t << T_SHIFT) | s
                 state[HIST_LEN, post, a] = n + 1
         for a in range(lo, hi):
             ring[slot, s, a] = 0
@@ -141,7 +150,7 @@ def _fire(lo, hi, t, training, npar, v, w, state, last_spike, hist, spiked):
                 if training:  # every remembered arrival is paired with this spike
                     for h in range(state[HIST_LEN, n, a]):
                         entry = hist[a, n, h]
-                        _learn(w, entry & SYN_MASK, a, n, (entry >> SYN_BITS) - t, npar)
+                        _learn(w, entry & SYN_MASK, a, n, (entry >> T_SHIFT) - t, npar)
                 state[HIST_LEN, n, a] = 0
 
 
@@ -185,6 +194,135 @@ def _step_parallel(feed, clock, syn, npar, inpar, v, w, state, last_spike, hist,
     clock[TICK] += 1
 
 
+# --- netlogo semantics: the original SpikingLab engine, turn by turn ------------------------------
+# Per tick: input neurons (each pulse reaches its target at once), then every neuron in its turn:
+# its state machine, then at once the pulse queues of its outgoing synapses. A pulse sent at t on
+# a synapse of delay d is counted down from d in the sending tick and delivered at 0, so it
+# arrives at t + d - 1 in the sender's turn: before or after the receiver's own turn in that
+# tick, depending on the order (effective delay d - 1 or d).
+
+
+@njit(cache=True, inline="always")
+def _mix(x):
+    """splitmix64 of a uint64: the netlogo order is a pure function of (agent seed, tick)."""
+    z = x + np.uint64(0x9E3779B97F4A7C15)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
+
+
+@njit(cache=True, inline="always")
+def _netlogo_receive(a, t, s, training, syn, npar, v, w, state, last_spike, hist):
+    """NetLogo receive-pulse: potential change unless REFRACTORY; a plastic arrival in training is
+    remembered and the STDP rule runs over the whole history since the post's last spike.
+
+    Every remembered arrival came at or after that spike (the history is cleared when it fires),
+    and each was depressed once, at its own arrival. So of the whole history only two kinds of
+    entry change w: those at dt = 0 (arrived in the spike's tick, after the spike: they
+    potentiate again at every arrival, NetLogo's dt = 0 quirk), which are a prefix, and the new
+    arrival itself (depressed once if dt > 0). Running just those, in history order, gives the
+    same weights as NetLogo's full pass."""
+    post = syn[s, POST]
+    if state[REFRACTORY, post, a] == 0:
+        if syn[s, FLAGS] & INHIBITORY:
+            v[post, a] = max(v[post, a] - w[s, a], npar[post, FLOOR])
+        else:
+            v[post, a] += w[s, a]
+    if training and syn[s, FLAGS] & PLASTIC:
+        n = state[HIST_LEN, post, a]
+        if n > HISTORY:  # NetLogo drops the oldest when it holds more than 30, then appends: up to 31
+            for h in range(n - 1):
+                hist[a, post, h] = hist[a, post, h + 1]
+            n -= 1
+        hist[a, post, n] = (t << T_SHIFT) | s
+        state[HIST_LEN, post, a] = n + 1
+        last = last_spike[post, a]
+        for h in range(n + 1):  # the dt = 0 prefix (the new arrival too, when it is at dt = 0)
+            entry = hist[a, post, h]
+            if (entry >> T_SHIFT) != last:
+                break
+            _learn(w, entry & SYN_MASK, a, post, 0, npar)
+        if t > last:  # the new arrival's one depression
+            _learn(w, s, a, post, t - last, npar)
+
+
+@njit(cache=True, inline="always")
+def _netlogo_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked,
+                   out_start, out_syn, order_seed, shuffle):
+    """One NetLogo tick for agents lo..hi-1: each agent is a sequence of turns (no vector loop)."""
+    t = clock[TICK]
+    training = clock[TRAINING] != 0
+    n_neurons = v.shape[0]
+    _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, state, ring, spiked)  # input pulses: slot t
+    mask = ring.shape[0] - 1
+    now = np.uint64(t & mask)
+    n_net = syn.shape[0] - feed.shape[1]
+    order = np.empty(n_neurons, np.uint64)  # unsigned indices: no negative-index checks
+    for a in range(lo, hi):
+        for s in range(n_net, syn.shape[0]):  # input neurons: straight to their target, not plastic
+            if ring[now, s, a]:
+                ring[now, s, a] = 0
+                post = syn[s, POST]
+                if state[REFRACTORY, post, a] == 0:
+                    v[post, a] += w[s, a]
+        for n in range(n_neurons):
+            order[n] = np.uint64(n)
+        if shuffle:  # Fisher-Yates: a hashed (seed, tick) start, then LCG steps, j by multiply-shift
+            r = _mix(_mix(order_seed[a]) + np.uint64(t))
+            for i in range(n_neurons - 1, 0, -1):
+                r = r * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
+                j = ((r >> np.uint64(32)) * np.uint64(i + 1)) >> np.uint64(32)
+                order[i], order[j] = order[j], order[i]
+        for k in range(n_neurons):
+            n = order[k]
+            spiked[n, a] = 0
+            if state[REFRACTORY, n, a] == 0:
+                if v[n, a] != npar[n, REST]:
+                    if v[n, a] >= npar[n, THRESHOLD]:  # fire: potentiation over the history, pulses out
+                        last_spike[n, a] = t
+                        for h in range(state[HIST_LEN, n, a]):
+                            entry = hist[a, n, h]
+                            _learn(w, entry & SYN_MASK, a, n, (entry >> T_SHIFT) - t, npar)
+                        state[HIST_LEN, n, a] = 0
+                        for q in range(out_start[n], out_start[n + 1]):
+                            s = out_syn[q]
+                            ring[np.uint64((t + syn[s, DELAY] - 1) & mask), s, a] = 1
+                        state[REFRACTORY, n, a] = 1
+                        state[REFR_LEFT, n, a] = np.int32(npar[n, REFR_PERIOD])
+                        spiked[n, a] = 1
+                    else:
+                        v[n, a] += (npar[n, REST] - v[n, a]) * npar[n, DECAY]
+            else:  # one tick of the refractory period, held at the refractory potential
+                state[REFR_LEFT, n, a] -= 1
+                v[n, a] = npar[n, REFR_V]
+                if state[REFR_LEFT, n, a] <= 0:
+                    state[REFRACTORY, n, a] = 0  # open again: later arrivals in this tick count
+            for q in range(out_start[n], out_start[n + 1]):  # its synapses' pulses due now
+                s = out_syn[q]
+                if ring[now, s, a]:
+                    ring[now, s, a] = 0
+                    _netlogo_receive(a, t, s, training, syn, npar, v, w, state, last_spike, hist)
+
+
+@njit(cache=True)
+def _netlogo_serial(feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked,
+                    out_start, out_syn, order_seed, shuffle):
+    _netlogo_range(np.uint64(0), np.uint64(v.shape[1]), feed, clock, syn, npar, inpar, v, w, state,
+                   last_spike, hist, ring, spiked, out_start, out_syn, order_seed, shuffle)
+    clock[TICK] += 1
+
+
+@njit(cache=True, parallel=True)
+def _netlogo_parallel(feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked,
+                      out_start, out_syn, order_seed, shuffle, chunks):
+    agents = v.shape[1]
+    for c in prange(chunks):
+        lo, hi = np.uint64(c * agents // chunks), np.uint64((c + 1) * agents // chunks)
+        _netlogo_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked,
+                       out_start, out_syn, order_seed, shuffle)
+    clock[TICK] += 1
+
+
 PARALLEL_FROM = 256  # agents; below this, thread start-up costs more than it saves
 
 
@@ -194,13 +332,23 @@ class Engine:
     Per tick: call `step(feed)` with the sensor values (shape [A, inputs], NaN = nothing fed; or
     no argument when nothing is fed), then read `spiked` ([A, nodes]: neurons then input
     neurons), `v` and `w`.
+
+    `semantics`: "phased" (five phases, a delay of d is exactly d) or "netlogo" (the original
+    engine's turns, docs/tick.md). With "netlogo", `order` is "random" (agent a's order at tick t
+    is drawn from seed + a and t) or "file" (circuit file order every tick).
     """
 
-    def __init__(self, circuit: Circuit, agents: int = 1, training: bool = True):
+    def __init__(self, circuit: Circuit, agents: int = 1, training: bool = True, semantics: str = "phased",
+                 order: str = "random", seed: int = 0):
         if agents < 1:
             raise ValueError(f"agents must be >= 1, got {agents}")
+        if semantics not in SEMANTICS:
+            raise ValueError(f"semantics must be one of {', '.join(SEMANTICS)}, got {semantics!r}")
+        if order not in ORDERS:
+            raise ValueError(f"order must be one of {', '.join(ORDERS)}, got {order!r}")
         self.circuit = circuit
         self.agents = agents
+        self.semantics, self.order, self.seed = semantics, order, int(seed)
         c = circuit
         self.n_neurons, self.n_inputs, self.n_synapses = len(c.neuron_names), len(c.inputs), len(c.synapses)
         self.syn = np.array(
@@ -230,7 +378,7 @@ class Engine:
         self._w = np.empty((S, A))
         self.state = np.empty((3, N + I, A), dtype=np.int32)
         self.last_spike = np.empty((N, A), dtype=np.int64)
-        self.hist = np.zeros((A, N, HISTORY), dtype=np.int64)  # used per event: agent-major
+        self.hist = np.zeros((A, N, HISTORY + 1), dtype=np.int64)  # per event: agent-major (netlogo keeps 31)
         self.ring = np.empty((ring_len, S, A), dtype=np.uint8)
         self._spiked = np.zeros((N + I, A), dtype=np.uint8)
         self.v = self._v.T  # [A, neurons] membrane potentials
@@ -238,10 +386,18 @@ class Engine:
         self.spiked = self._spiked.view(np.bool_).T  # [A, nodes] who spiked in the last tick
         self._args = (self.clock, self.syn, self.npar, self.inpar, self._v, self._w,
                       self.state, self.last_spike, self.hist, self.ring, self._spiked)
+        serial, parallel = _step_serial, _step_parallel
+        if semantics == "netlogo":  # each neuron's outgoing synapses, for its turn
+            pre = self.syn[: S - I, PRE]
+            self.out_syn = np.argsort(pre, kind="stable").astype(np.uint64)
+            self.out_start = np.searchsorted(pre[self.out_syn], np.arange(N + 1)).astype(np.uint64)
+            self.order_seed = (np.int64(self.seed) + np.arange(A, dtype=np.int64)).view(np.uint64)
+            self._args += (self.out_start, self.out_syn, self.order_seed, order == "random")
+            serial, parallel = _netlogo_serial, _netlogo_parallel
         if agents >= PARALLEL_FROM:
-            self._call, self._args = _step_parallel, self._args + (get_num_threads(),)
+            self._call, self._args = parallel, self._args + (get_num_threads(),)
         else:
-            self._call = _step_serial
+            self._call = serial
         self.training = training
         self.reset()
 
@@ -252,7 +408,7 @@ class Engine:
         self.v[:] = self.npar[:N, REST]
         self.w[:] = self.initial_weights
         self.state[:] = 0
-        self.last_spike[:] = NEVER
+        self.last_spike[:] = 0 if self.semantics == "netlogo" else NEVER  # NetLogo's variables start at 0
         self.hist[:] = 0
         self.ring[:] = 0
         self._spiked[:] = 0

@@ -1,0 +1,119 @@
+"""The netlogo semantics on tiny circuits: when a pulse arrives under each order, a refractory
+neuron reopening inside a tick, NetLogo's dt = 0 quirk, and determinism by seed."""
+
+import math
+
+import numpy as np
+import pytest
+
+from services.brain.circuit import build_circuit, load_circuit
+from services.brain.engine import PARALLEL_FROM, Engine
+
+from .helpers import run_with_events
+from .test_batch import random_feeds
+
+
+def chain(order, delay, weight=20):
+    """a_in -> A -> B (delay `delay`); the neurons are declared in `order`, the file order."""
+    return build_circuit({
+        "neurons": {n: "regular" for n in order},
+        "inputs": {"a_in": {"target": "A"}},
+        "synapses": [{"from": "A", "to": "B", "weight": weight, "delay": delay}],
+    })
+
+
+@pytest.mark.parametrize("delay", [1, 2, 3, 5])
+def test_a_pulse_arrives_after_d_minus_1_or_d_ticks_by_the_order(delay):
+    # A fires at tick 0; its pulse is counted down from d in that tick and delivered at 0, in A's
+    # turn of tick d - 1: B fires in that tick if its turn comes after A's, else one tick later.
+    for order, expected in ((("A", "B"), delay - 1), (("B", "A"), delay)):
+        e = Engine(chain(order, delay), semantics="netlogo", order="file")
+        spikes = run_with_events(e, 12, {0: {"a_in": 0}})
+        assert spikes["A"] == [0]
+        assert spikes["B"] == [expected], order
+    # the phased engine: exactly d, whatever the file order
+    for order in (("A", "B"), ("B", "A")):
+        assert run_with_events(Engine(chain(order, delay)), 12, {0: {"a_in": 0}})["B"] == [delay]
+
+
+def test_random_order_gives_both_arrival_ticks_from_the_seed():
+    seen = {}
+    for seed in range(64):
+        e = Engine(chain(("A", "B"), 3), semantics="netlogo", order="random", seed=seed)
+        seen[seed] = run_with_events(e, 12, {0: {"a_in": 0}})["B"]
+    assert {tuple(b) for b in seen.values()} == {(2,), (3,)}
+    assert 16 <= sum(b == [2] for b in seen.values()) <= 48  # about half each way
+    again = Engine(chain(("A", "B"), 3), semantics="netlogo", order="random", seed=5)
+    assert run_with_events(again, 12, {0: {"a_in": 0}})["B"] == seen[5]  # the seed fixes the order
+
+
+def test_a_refractory_neuron_reopens_in_its_turn_and_takes_later_arrivals():
+    # B fires at 0 (period 3): its turns at 1, 2, 3 are refractory, and in its turn at 3 it opens
+    # again at -75. C's pulse (weight 20, delay 2, C fired at 2) arrives at 3 in C's turn:
+    # after B's turn it lifts B to -55 and B fires at 4; before B's turn it is lost.
+    def circuit(order):
+        return build_circuit({
+            "neurons": {n: "regular" for n in order},
+            "inputs": {"b_in": {"target": "B"}, "c_in": {"target": "C"}},
+            "synapses": [{"from": "C", "to": "B", "weight": 20, "delay": 2}],
+        })
+
+    events = {0: {"b_in": 0}, 2: {"c_in": 0}}
+    taken = run_with_events(Engine(circuit(("B", "C")), semantics="netlogo", order="file"), 10, events)
+    lost = run_with_events(Engine(circuit(("C", "B")), semantics="netlogo", order="file"), 10, events)
+    assert taken["C"] == lost["C"] == [2]
+    assert taken["B"] == [0, 4]
+    assert lost["B"] == [0]
+
+
+def test_an_arrival_just_after_the_post_spike_potentiates_at_every_later_arrival():
+    # U and C fire at 0; U's pulse (delay 1, weight 20) makes M fire in its turn at 0, and C's
+    # plastic pulse (delay 1) arrives after that turn: dt = 0, a potentiation by A+. NetLogo keeps
+    # that arrival in M's history and applies the rule to it again at C's next arrival (tick 10),
+    # which itself depresses once: w = 5 + A+ + A+ - A- exp(-10 / tau-).
+    a = 0.05
+    doc = {
+        "neurons": {"U": "regular", "M": "regular", "C": "regular"},
+        "inputs": {"u_in": {"target": "U"}, "c_in": {"target": "C"}},
+        "synapses": [
+            {"from": "U", "to": "M", "weight": 20, "delay": 1},
+            {"from": "C", "to": "M", "weight": 5, "delay": 1, "plastic": True},
+        ],
+    }
+    c = build_circuit(doc).with_learning_rate(a)
+    e = Engine(c, semantics="netlogo", order="file")
+    spikes = run_with_events(e, 11, {0: {"u_in": 0, "c_in": 0}, 10: {"c_in": 0}})
+    assert spikes["M"] == [0] and spikes["C"] == [0, 10]
+    k = c.synapse_index("C", "M")
+    assert e.w[0, k] == pytest.approx(5 + a + a - a * math.exp(-10 / 18), abs=1e-12)
+
+
+def test_history_only_fills_in_training():
+    c = load_circuit("insect").with_learning_rate(0.05)
+    feeds = random_feeds(3, 2000, 1, len(c.inputs))
+    e = Engine(c, training=False, semantics="netlogo")
+    e.run(feeds)
+    np.testing.assert_array_equal(e.w, e.initial_weights[None, :])
+    assert (e.state[1] == 0).all()  # no arrival was remembered
+
+
+@pytest.mark.parametrize("agents", [5, PARALLEL_FROM + 3])  # serial and parallel kernels
+def test_netlogo_agents_together_equal_each_alone_with_seed_plus_a(agents):
+    c = load_circuit("insect").with_learning_rate(0.05)
+    feeds = random_feeds(1, 3000, agents, len(c.inputs))
+    together = Engine(c, agents=agents, semantics="netlogo", seed=10)
+    spikes = together.run(feeds)
+    for a in sorted({0, 1, agents - 1}):
+        alone = Engine(c, semantics="netlogo", seed=10 + a)
+        np.testing.assert_array_equal(alone.run(feeds[:, a : a + 1]), spikes[:, a : a + 1])
+        np.testing.assert_array_equal(alone.w, together.w[a : a + 1])
+    other_seed = Engine(c, agents=agents, semantics="netlogo", seed=11)
+    assert not np.array_equal(other_seed.run(feeds)[:, 0], spikes[:, 0])  # the order is the seed's
+
+
+def test_unknown_semantics_or_order_is_refused():
+    c = load_circuit("insect")
+    with pytest.raises(ValueError, match="semantics must be one of phased, netlogo"):
+        Engine(c, semantics="brian")
+    with pytest.raises(ValueError, match="order must be one of random, file"):
+        Engine(c, semantics="netlogo", order="sorted")
