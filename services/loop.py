@@ -13,8 +13,10 @@ from services.brain.circuit import Circuit
 from services.world.world import SENSORS, World, world_actions
 
 
-def brain_for(world: World, circuit: Circuit) -> Brain:
-    return Brain(circuit, SENSORS, tuple(circuit.actuators), agents=world.agents, training=world.training)
+def brain_for(world: World, circuit: Circuit, **engine_options) -> Brain:
+    """A brain for the world's agents; the netlogo order is drawn from the world's seed (agent a: seed + a)."""
+    return Brain(circuit, SENSORS, tuple(circuit.actuators), agents=world.agents, training=world.training,
+                 seed=world.seed, **engine_options)
 
 
 def closed_loop(world: World, brain: Brain, ticks: int, on_tick: Callable[[int], None] | None = None) -> None:

@@ -25,6 +25,7 @@ import numpy as np
 from services.brain.checkpoint import load_weights
 from services.brain.engine import PARALLEL_FROM
 from services.brain.circuit import CircuitError, load_circuit
+from services.brain.service import add_engine_args
 from services.world.service import add_world_args, world_from_args
 from services.world.world import MapError
 
@@ -39,6 +40,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--circuit", default="insect", help="circuit name in circuits/ or a .toml path (default insect)")
     p.add_argument("--a-plus", type=float, default=None,
                    help="A+ = A- of the learning neurons (default: the circuit's, 0.02 for the insect)")
+    add_engine_args(p)
     p.add_argument("--load", type=Path, help="start the brain from these weights (.npz checkpoint)")
     p.add_argument("--runs", type=Path, default=Path("runs"), help="where run folders go (default runs/)")
     p.add_argument("--id", help="name of the run folder (default: date, time and seed)")
@@ -101,7 +103,8 @@ def main(argv=None) -> int:
     world_args += ["--no-training"] if args.no_training else []
     world_args += [] if args.quiet else ["--progress"]
     brain_args = ["--listen", brain_ep, "--connect", world_ep, "--circuit", args.circuit, "--once",
-                  "--save", folder / "weights.npz"]
+                  "--save", folder / "weights.npz", "--seed", args.seed, "--semantics", args.semantics,
+                  "--order", args.order]
     brain_args += ["--a-plus", args.a_plus] if args.a_plus is not None else []
     brain_args += ["--no-training"] if args.no_training else []
     brain_args += ["--load", args.load] if args.load else []
@@ -115,8 +118,9 @@ def main(argv=None) -> int:
     if not args.no_record:  # world and brain publish their state; they wait for the recorder to listen
         world_args.append("--publish-state")
         brain_args.append("--publish-state")
-    log.info("run %s: %d ticks, seed %d, %d agent(s), A+ = A- = %s, world %s%s", run_id, args.ticks, args.seed,
-             args.agents, learning_rate(circuit), args.preset, f", map {args.map}" if args.map else "")
+    log.info("run %s: %d ticks, seed %d, %d agent(s), A+ = A- = %s, world %s%s, %s semantics", run_id, args.ticks,
+             args.seed, args.agents, learning_rate(circuit), args.preset, f", map {args.map}" if args.map else "",
+             args.semantics)
     started = time.time()
     if not args.no_record:
         recorder = service("recorder", ["--connect", world_ep, "--connect", brain_ep, "--out",
@@ -170,7 +174,8 @@ def summarise(folder: Path, args, circuit, run_id: str, wall_s: float) -> dict:
         "parameters": {"ticks": args.ticks, "seed": args.seed, "agents": args.agents, "a_plus": learning_rate(circuit),
                        "a_minus": learning_rate(circuit, "a_minus"), "circuit": circuit.source, "preset": args.preset,
                        "map": str(args.map) if args.map else None, "shared_arena": args.shared,
-                       "training": not args.no_training, "learned_after": args.learned_after},
+                       "training": not args.no_training, "learned_after": args.learned_after,
+                       "semantics": args.semantics, "order": args.order},
         "wall_time_s": round(wall_s, 1),
         "ticks_per_s": metrics["ticks_per_s"],
         "learning_time": metrics["learning_time"],

@@ -1,6 +1,7 @@
 """The closed loop: the same seed gives the same run in one process and across two processes."""
 
 import numpy as np
+import pytest
 
 from services.brain.checkpoint import load_weights
 from services.brain.circuit import load_circuit
@@ -14,9 +15,9 @@ from .processes import Watcher, endpoint, finish, free_port, start
 TICKS, SEED, AGENTS = 3000, 5, 2
 
 
-def inprocess_run():
+def inprocess_run(semantics):
     world = World(params_for("paper"), agents=AGENTS, seed=SEED)
-    brain = brain_for(world, load_circuit("insect").with_learning_rate(0.04))
+    brain = brain_for(world, load_circuit("insect").with_learning_rate(0.04), semantics=semantics)
     pos, spikes = [], []
 
     def keep(t):
@@ -26,8 +27,9 @@ def inprocess_run():
     return np.array(pos), np.array(spikes), brain.engine.get_weights(), world.metrics
 
 
-def test_same_seed_same_run_in_one_process_and_across_the_bus(tmp_path):
-    pos, spikes, weights, metrics = inprocess_run()
+@pytest.mark.parametrize("semantics", ["phased", "netlogo"])  # netlogo: its random order comes from the seed too
+def test_same_seed_same_run_in_one_process_and_across_the_bus(tmp_path, semantics):
+    pos, spikes, weights, metrics = inprocess_run(semantics)
     assert metrics.collisions.sum() > 0 and spikes.sum() > 0  # something happened
 
     world_port, brain_port = free_port(), free_port()
@@ -38,6 +40,7 @@ def test_same_seed_same_run_in_one_process_and_across_the_bus(tmp_path):
                       "--agents", AGENTS, "--publish-state", "--out", tmp_path, log=tmp_path / "world.log")
         brain = start("brain", "--group", "det", "--listen", endpoint(brain_port), "--connect", endpoint(world_port),
                       "--a-plus", 0.04, "--publish-state", "--once", "--save", tmp_path / "weights.npz",
+                      "--seed", SEED, "--semantics", semantics,
                       log=tmp_path / "brain.log")
         assert finish(world, 120, tmp_path / "world.log") == 0
         assert finish(brain, 30, tmp_path / "brain.log") == 0

@@ -14,9 +14,10 @@ class Brain:
     actions it does not bind never fire."""
 
     def __init__(self, circuit: Circuit, sensors: tuple[str, ...], actions: tuple[str, ...],
-                 agents: int = 1, training: bool = True):
+                 agents: int = 1, training: bool = True, **engine_options):
+        """`engine_options`: the Engine's semantics, order, seed (and without, for ablations)."""
         self.circuit, self.sensor_names, self.action_names = circuit, tuple(sensors), tuple(actions)
-        self.engine = Engine(circuit, agents=agents, training=training)
+        self.engine = Engine(circuit, agents=agents, training=training, **engine_options)
         bound = circuit.sensors
         unknown = sorted(set(bound) - set(sensors))
         if unknown:

@@ -39,7 +39,15 @@ SYN_BITS = 16  # a history entry packs (arrival tick << SYN_BITS) | synapse inde
 SYN_MASK = (1 << SYN_BITS) - 1
 T_SHIFT = SYN_BITS
 SEMANTICS = ("phased", "netlogo")
+DEFAULT_SEMANTICS = "phased"  # of the commands (docs/results.md says why)
 ORDERS = ("random", "file")  # netlogo: neurons per tick in a seeded random order, or in file order
+# netlogo rules, each of which can be switched off alone to measure what it does (docs/results.md)
+SHUFFLE, COUNT_FROM_SEND, REOPEN_IN_TURN, DT0_AGAIN = 1, 2, 4, 8
+NETLOGO_RULES = {
+    "delay_count": COUNT_FROM_SEND,  # a pulse's count-down starts in the sending tick (else: the next)
+    "reopen": REOPEN_IN_TURN,  # a refractory neuron opens in its turn (else: at the next tick's start)
+    "dt0": DT0_AGAIN,  # arrivals at dt = 0 potentiate again at every later arrival (else: once)
+}
 
 # npar columns: per-neuron parameters (from its type), then W(dt) for dt = -STDP_OFFSET.. (stdp.py)
 REST, THRESHOLD, DECAY, REFR_V, REFR_PERIOD, FLOOR, W_MIN, W_MAX, STDP_OFFSET, STDP = range(10)
@@ -212,7 +220,7 @@ def _mix(x):
 
 
 @njit(cache=True, inline="always")
-def _netlogo_receive(a, t, s, training, syn, npar, v, w, state, last_spike, hist):
+def _netlogo_receive(a, t, s, training, rules, syn, npar, v, w, state, last_spike, hist):
     """NetLogo receive-pulse: potential change unless REFRACTORY; a plastic arrival in training is
     remembered and the STDP rule runs over the whole history since the post's last spike.
 
@@ -237,18 +245,21 @@ def _netlogo_receive(a, t, s, training, syn, npar, v, w, state, last_spike, hist
         hist[a, post, n] = (t << T_SHIFT) | s
         state[HIST_LEN, post, a] = n + 1
         last = last_spike[post, a]
-        for h in range(n + 1):  # the dt = 0 prefix (the new arrival too, when it is at dt = 0)
-            entry = hist[a, post, h]
-            if (entry >> T_SHIFT) != last:
-                break
-            _learn(w, entry & SYN_MASK, a, post, 0, npar)
-        if t > last:  # the new arrival's one depression
+        if rules & DT0_AGAIN:
+            for h in range(n + 1):  # the dt = 0 prefix (the new arrival too, when it is at dt = 0)
+                entry = hist[a, post, h]
+                if (entry >> T_SHIFT) != last:
+                    break
+                _learn(w, entry & SYN_MASK, a, post, 0, npar)
+            if t > last:  # the new arrival's one depression
+                _learn(w, s, a, post, t - last, npar)
+        else:  # the new arrival alone: potentiation at dt = 0, else its one depression
             _learn(w, s, a, post, t - last, npar)
 
 
 @njit(cache=True, inline="always")
 def _netlogo_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked,
-                   out_start, out_syn, order_seed, shuffle):
+                   out_start, out_syn, order_seed, rules):
     """One NetLogo tick for agents lo..hi-1: each agent is a sequence of turns (no vector loop)."""
     t = clock[TICK]
     training = clock[TRAINING] != 0
@@ -258,7 +269,12 @@ def _netlogo_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spik
     now = np.uint64(t & mask)
     n_net = syn.shape[0] - feed.shape[1]
     order = np.empty(n_neurons, np.uint64)  # unsigned indices: no negative-index checks
+    send = np.int64(1) if rules & COUNT_FROM_SEND else np.int64(0)  # count-down ticks used in the sending tick
     for a in range(lo, hi):
+        if not rules & REOPEN_IN_TURN:  # refractory periods that ended in the last tick end now
+            for n in range(n_neurons):
+                if state[REFRACTORY, n, a] and state[REFR_LEFT, n, a] <= 0:
+                    state[REFRACTORY, n, a] = 0
         for s in range(n_net, syn.shape[0]):  # input neurons: straight to their target, not plastic
             if ring[now, s, a]:
                 ring[now, s, a] = 0
@@ -267,7 +283,7 @@ def _netlogo_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spik
                     v[post, a] += w[s, a]
         for n in range(n_neurons):
             order[n] = np.uint64(n)
-        if shuffle:  # Fisher-Yates: a hashed (seed, tick) start, then LCG steps, j by multiply-shift
+        if rules & SHUFFLE:  # Fisher-Yates: a hashed (seed, tick) start, then LCG steps, j by multiply-shift
             r = _mix(_mix(order_seed[a]) + np.uint64(t))
             for i in range(n_neurons - 1, 0, -1):
                 r = r * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
@@ -286,7 +302,7 @@ def _netlogo_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spik
                         state[HIST_LEN, n, a] = 0
                         for q in range(out_start[n], out_start[n + 1]):
                             s = out_syn[q]
-                            ring[np.uint64((t + syn[s, DELAY] - 1) & mask), s, a] = 1
+                            ring[np.uint64((t + syn[s, DELAY] - send) & mask), s, a] = 1
                         state[REFRACTORY, n, a] = 1
                         state[REFR_LEFT, n, a] = np.int32(npar[n, REFR_PERIOD])
                         spiked[n, a] = 1
@@ -295,31 +311,31 @@ def _netlogo_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spik
             else:  # one tick of the refractory period, held at the refractory potential
                 state[REFR_LEFT, n, a] -= 1
                 v[n, a] = npar[n, REFR_V]
-                if state[REFR_LEFT, n, a] <= 0:
+                if state[REFR_LEFT, n, a] <= 0 and rules & REOPEN_IN_TURN:
                     state[REFRACTORY, n, a] = 0  # open again: later arrivals in this tick count
             for q in range(out_start[n], out_start[n + 1]):  # its synapses' pulses due now
                 s = out_syn[q]
                 if ring[now, s, a]:
                     ring[now, s, a] = 0
-                    _netlogo_receive(a, t, s, training, syn, npar, v, w, state, last_spike, hist)
+                    _netlogo_receive(a, t, s, training, rules, syn, npar, v, w, state, last_spike, hist)
 
 
 @njit(cache=True)
 def _netlogo_serial(feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked,
-                    out_start, out_syn, order_seed, shuffle):
+                    out_start, out_syn, order_seed, rules):
     _netlogo_range(np.uint64(0), np.uint64(v.shape[1]), feed, clock, syn, npar, inpar, v, w, state,
-                   last_spike, hist, ring, spiked, out_start, out_syn, order_seed, shuffle)
+                   last_spike, hist, ring, spiked, out_start, out_syn, order_seed, rules)
     clock[TICK] += 1
 
 
 @njit(cache=True, parallel=True)
 def _netlogo_parallel(feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked,
-                      out_start, out_syn, order_seed, shuffle, chunks):
+                      out_start, out_syn, order_seed, rules, chunks):
     agents = v.shape[1]
     for c in prange(chunks):
         lo, hi = np.uint64(c * agents // chunks), np.uint64((c + 1) * agents // chunks)
         _netlogo_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked,
-                       out_start, out_syn, order_seed, shuffle)
+                       out_start, out_syn, order_seed, rules)
     clock[TICK] += 1
 
 
@@ -335,11 +351,12 @@ class Engine:
 
     `semantics`: "phased" (five phases, a delay of d is exactly d) or "netlogo" (the original
     engine's turns, docs/tick.md). With "netlogo", `order` is "random" (agent a's order at tick t
-    is drawn from seed + a and t) or "file" (circuit file order every tick).
+    is drawn from seed + a and t) or "file" (circuit file order every tick), and `without` names
+    NetLogo rules to switch off one at a time (NETLOGO_RULES; for ablations, not for use).
     """
 
     def __init__(self, circuit: Circuit, agents: int = 1, training: bool = True, semantics: str = "phased",
-                 order: str = "random", seed: int = 0):
+                 order: str = "random", seed: int = 0, without: tuple[str, ...] = ()):
         if agents < 1:
             raise ValueError(f"agents must be >= 1, got {agents}")
         if semantics not in SEMANTICS:
@@ -348,7 +365,11 @@ class Engine:
             raise ValueError(f"order must be one of {', '.join(ORDERS)}, got {order!r}")
         self.circuit = circuit
         self.agents = agents
-        self.semantics, self.order, self.seed = semantics, order, int(seed)
+        unknown = sorted(set(without) - set(NETLOGO_RULES))
+        if unknown or (without and semantics != "netlogo"):
+            raise ValueError(f"without: NetLogo rules are {', '.join(NETLOGO_RULES)} (netlogo semantics only), "
+                             f"got {', '.join(without)}")
+        self.semantics, self.order, self.seed, self.without = semantics, order, int(seed), tuple(without)
         c = circuit
         self.n_neurons, self.n_inputs, self.n_synapses = len(c.neuron_names), len(c.inputs), len(c.synapses)
         self.syn = np.array(
@@ -392,7 +413,8 @@ class Engine:
             self.out_syn = np.argsort(pre, kind="stable").astype(np.uint64)
             self.out_start = np.searchsorted(pre[self.out_syn], np.arange(N + 1)).astype(np.uint64)
             self.order_seed = (np.int64(self.seed) + np.arange(A, dtype=np.int64)).view(np.uint64)
-            self._args += (self.out_start, self.out_syn, self.order_seed, order == "random")
+            rules = SHUFFLE * (order == "random") | sum(f for k, f in NETLOGO_RULES.items() if k not in without)
+            self._args += (self.out_start, self.out_syn, self.order_seed, rules)
             serial, parallel = _netlogo_serial, _netlogo_parallel
         if agents >= PARALLEL_FROM:
             self._call, self._args = parallel, self._args + (get_num_threads(),)

@@ -29,6 +29,7 @@ from services.bus.session import Bus, add_bus_args, service_main, wait_for_subsc
 from .brain import Brain
 from .checkpoint import load_weights, save_weights
 from .circuit import CircuitError, load_circuit
+from .engine import DEFAULT_SEMANTICS, ORDERS, SEMANTICS
 
 log = logging.getLogger("spikinglab.brain")
 STATE_BATCH = 50  # ticks per BrainState message (one put per 50 ticks keeps recording off the loop's back)
@@ -39,6 +40,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--circuit", default="insect", help="circuit name in circuits/ or a .toml path (default insect)")
     p.add_argument("--a-plus", type=float, help="A+ = A- of the learning neurons (default: the circuit's)")
     p.add_argument("--no-training", action="store_true", help="weights stay as they are")
+    add_engine_args(p)
+    p.add_argument("--seed", type=int, default=0,
+                   help="the netlogo order's seed: agent a uses seed + a, as the world's arenas (default 0)")
     p.add_argument("--load", type=Path, help="start from the weights in this checkpoint (.npz)")
     p.add_argument("--save", type=Path, help="write the final weights here (.npz) when the run ends")
     p.add_argument("--once", action="store_true", help="exit after one run ends (default: serve the next run)")
@@ -59,11 +63,25 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
+def add_engine_args(p: argparse.ArgumentParser) -> None:
+    """The engine's semantics options, shared by `brain`, `run` and `sweep`."""
+    p.add_argument("--semantics", choices=SEMANTICS, default=DEFAULT_SEMANTICS,
+                   help=f"phased: five phases, a delay of d is exactly d; netlogo: the original NetLogo engine's "
+                        f"turns (docs/tick.md) (default {DEFAULT_SEMANTICS})")
+    p.add_argument("--order", choices=ORDERS, default="random",
+                   help="netlogo: neurons each tick in a seeded random order (as NetLogo's ask) or in file order")
+
+
+def engine_options(args: argparse.Namespace) -> dict:
+    return {"semantics": args.semantics, "order": args.order}
+
+
 class BrainNode:
     """The lock-step logic, without the transport: a Sensors message in, a Motor message out."""
 
-    def __init__(self, circuit, training: bool = True, weights: np.ndarray | None = None):
+    def __init__(self, circuit, training: bool = True, weights: np.ndarray | None = None, **engine_options):
         self.circuit, self.training, self.initial_weights = circuit, training, weights
+        self.engine_options = engine_options  # semantics, order, seed
         self.brain: Brain | None = None
         self.batch = TickBatch(STATE_BATCH)  # spikes and potentials not yet published
         self.stepped = False  # whether the last answer() stepped the brain (not a repeat)
@@ -74,13 +92,14 @@ class BrainNode:
         """A fresh brain for the sensors and agents of `message` (a new run)."""
         agents = message.values.shape[0]
         self.brain = Brain(self.circuit, message.names, tuple(self.circuit.actuators), agents=agents,
-                           training=self.training)
+                           training=self.training, **self.engine_options)
         if self.initial_weights is not None:  # one agent's weights are given to every agent
             w = self.initial_weights
             self.brain.engine.set_weights(w[0] if w.shape[0] == 1 else w)
         self.batch = TickBatch(STATE_BATCH)  # nothing of a previous run goes into this one's batches
-        log.info("brain for %d agent(s) of circuit %s, sensors %s, training %s", agents, self.circuit.name,
-                 ", ".join(message.names), "on" if self.training else "off")
+        log.info("brain for %d agent(s) of circuit %s, sensors %s, training %s, %s", agents, self.circuit.name,
+                 ", ".join(message.names), "on" if self.training else "off",
+                 ", ".join(f"{k} {v}" for k, v in self.engine_options.items()))
 
     def answer(self, message: Sensors) -> Motor | None:
         """The Motor answer to `message`, or None when it is to be ignored (stale or wrong shape)."""
@@ -138,7 +157,8 @@ def run(args: argparse.Namespace, session) -> int:
     except (CircuitError, ValueError, OSError) as e:
         log.error("%s", e)
         return 2
-    node = BrainNode(circuit, training=not args.no_training, weights=weights)
+    node = BrainNode(circuit, training=not args.no_training, weights=weights, seed=args.seed,
+                         **engine_options(args))
     bus = Bus(session, args.group, "brain")
     if args.clock:
         try:
@@ -183,7 +203,8 @@ def run(args: argparse.Namespace, session) -> int:
                     log.info("weights saved to %s", args.save)
                 if args.once:
                     return 0
-                node = BrainNode(circuit, training=not args.no_training, weights=weights)
+                node = BrainNode(circuit, training=not args.no_training, weights=weights, seed=args.seed,
+                         **engine_options(args))
     finally:
         bus.close()
 

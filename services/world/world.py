@@ -284,9 +284,12 @@ def _sense(grid, arena_of, pos, heading, fpar, kind, training, t, sensors, last_
         eaten[a, 0] = eaten[a, 1] = -1
         h = math.radians(heading[a])
         dx, dy = math.sin(h), math.cos(h)
-        # vision: the first non-empty patch along the heading, sampled every ray_step
+        # vision: the first non-empty patch along the heading, sampled every ray_step. The
+        # distance is a running sum, as NetLogo's `set itemcount itemcount + 0.2`: its 10th
+        # sample is 1.9999999999999998, so a patch seen there fires its smell one tick sooner.
+        d = 0.0
         for k in range(1, steps + 1):
-            d = k * fpar[RAY_STEP]
+            d += fpar[RAY_STEP]
             colour, _ = _colour_at(grid, g, pos[a, 0] + d * dx, pos[a, 1] + d * dy, fpar)
             if colour != EMPTY:
                 if colour == BLACK:

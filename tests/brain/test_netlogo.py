@@ -117,3 +117,27 @@ def test_unknown_semantics_or_order_is_refused():
         Engine(c, semantics="brian")
     with pytest.raises(ValueError, match="order must be one of random, file"):
         Engine(c, semantics="netlogo", order="sorted")
+
+
+def test_each_rule_switched_off_alone():
+    # delay counting: counted down from the next tick, a pulse arrives after d or d + 1 ticks
+    for order, expected in ((("A", "B"), 3), (("B", "A"), 4)):
+        e = Engine(chain(order, 3), semantics="netlogo", order="file", without=("delay_count",))
+        assert run_with_events(e, 12, {0: {"a_in": 0}})["B"] == [expected]
+    # reopening: without it the neuron opens at the start of the next tick, and C's pulse is lost
+    doc = {"neurons": {"B": "regular", "C": "regular"},
+           "inputs": {"b_in": {"target": "B"}, "c_in": {"target": "C"}},
+           "synapses": [{"from": "C", "to": "B", "weight": 20, "delay": 2}]}
+    e = Engine(build_circuit(doc), semantics="netlogo", order="file", without=("reopen",))
+    assert run_with_events(e, 10, {0: {"b_in": 0}, 2: {"c_in": 0}})["B"] == [0]
+    # dt = 0: the arrival potentiates once, at its own arrival
+    doc = {"neurons": {"U": "regular", "M": "regular", "C": "regular"},
+           "inputs": {"u_in": {"target": "U"}, "c_in": {"target": "C"}},
+           "synapses": [{"from": "U", "to": "M", "weight": 20, "delay": 1},
+                        {"from": "C", "to": "M", "weight": 5, "delay": 1, "plastic": True}]}
+    c = build_circuit(doc).with_learning_rate(0.05)
+    e = Engine(c, semantics="netlogo", order="file", without=("dt0",))
+    run_with_events(e, 11, {0: {"u_in": 0, "c_in": 0}, 10: {"c_in": 0}})
+    assert e.w[0, c.synapse_index("C", "M")] == pytest.approx(5 + 0.05 - 0.05 * math.exp(-10 / 18), abs=1e-12)
+    with pytest.raises(ValueError, match="NetLogo rules are delay_count, reopen, dt0"):
+        Engine(c, without=("dt0",))  # phased has no NetLogo rules to switch off
