@@ -15,13 +15,14 @@ COMMANDS = {
     "router": ("services.router", "a Zenoh router, for brain and world on different machines"),
     "sweep": ("services.sweep", "the paper's Table 1: learning time for A+ = A- over seeds"),
     "conditioning": ("services.brain.conditioning", "classical conditioning demo on fig. 2 and fig. 4"),
-    "bench": (None, "benchmarks: bench engine | loop | recorder | gateway"),
+    "bench": (None, "benchmarks and experiments: bench engine | loop | recorder | gateway | table1"),
 }
 BENCHMARKS = {
     "engine": "bench.engine",
     "loop": "bench.loop",
     "recorder": "bench.recorder",
     "gateway": "bench.gateway",
+    "table1": "bench.table1",
 }
 
 

@@ -128,12 +128,25 @@ class Circuit:
         for value, label in ((a_plus, "A+"), (a_minus, "A-")):
             if not (math.isfinite(value) and value >= 0):
                 raise CircuitError(f"{self.source}: {label} must be a finite number >= 0, got {value}")
+        return self.with_learning_params(a_plus=a_plus, a_minus=a_minus)
+
+    def with_learning_params(self, **fields) -> "Circuit":
+        """Set NeuronType fields (w_max, tau_plus, ...) of every neuron that a plastic synapse targets."""
         learning = {self.synapses[k].post for k in self.plastic_synapses}
-        types = tuple(
-            dataclasses.replace(t, a_plus=a_plus, a_minus=a_minus) if n in learning else t
-            for n, t in enumerate(self.neuron_types)
-        )
-        return dataclasses.replace(self, neuron_types=types)
+        types = []
+        for n, t in enumerate(self.neuron_types):
+            if n in learning:
+                t = dataclasses.replace(t, **fields)
+                _check_type(t, lambda problem, name=t.name: self._fail(f"type {name}: {problem}"))
+            types.append(t)
+        for k in self.plastic_synapses:
+            t, w = types[self.synapses[k].post], self.synapses[k].weight
+            if not t.w_min <= w <= t.w_max:
+                self._fail(f"{self.synapse_label(k)}: weight {w} out of range [{t.w_min}, {t.w_max}]")
+        return dataclasses.replace(self, neuron_types=tuple(types))
+
+    def _fail(self, problem: str):
+        raise CircuitError(f"{self.source}: {problem}")
 
 
 def builtin_circuit_path(name: str) -> Path:

@@ -129,8 +129,8 @@ def metrics_of(world: World, ticks: int, elapsed: float) -> dict:
         "food": m.food.tolist(), "distance": np.round(m.distance, 3).tolist(), "resets": m.resets.tolist(),
         "ticks_since_last_collision": [ticks - int(t) if t >= 0 else ticks for t in m.last_collision],
         "learning_time": [int(t) if t >= 0 else None for t in m.learned_at],
-        "learning_time_definition": f"tick of the last collision event before the first run of {p.learned_after} "
-                                    "collision-free ticks (null: not reached)",
+        "learning_time_definition": f"the last tick on a noxious patch before the first {p.learned_after} "
+                                    "ticks off them (null: not reached)",
     }
 
 

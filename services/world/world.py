@@ -171,7 +171,8 @@ class Metrics:
     food: np.ndarray  # [A] food patches eaten
     distance: np.ndarray  # [A] patches travelled (moves and pushes)
     last_collision: np.ndarray  # [A] tick of the last collision event (-1: none yet)
-    learned_at: np.ndarray  # [A] learning time: last collision before W collision-free ticks (-1: not yet)
+    last_noxious: np.ndarray  # [A] last tick on a noxious patch (-1: none yet): NetLogo's error-free counter
+    learned_at: np.ndarray  # [A] learning time: last noxious tick before W collision-free ticks (-1: not yet)
     resets: np.ndarray  # [A] times the insect left the arena and was put back at the start
     bins: list = field(default_factory=list)  # collisions per 1,000 ticks, [A] per finished bin
 
@@ -218,6 +219,7 @@ class World:
         self.metrics = Metrics(
             collisions=np.zeros(A, np.int64), collisions_by_colour=np.zeros((A, 4), np.int64),
             food=np.zeros(A, np.int64), distance=np.zeros(A), last_collision=np.full(A, -1, np.int64),
+            last_noxious=np.full(A, -1, np.int64),
             learned_at=np.full(A, -1, np.int64), resets=np.zeros(A, np.int64),
         )
         self._bin = np.zeros(A, np.int64)
@@ -229,7 +231,8 @@ class World:
         m = self.metrics
         _sense(self.grid, self.arena_of, self.pos, self.heading, self.fpar, self.kind, self.training,
                self.tick, self.sensors, self.last_patch, self.events, self.eaten, m.collisions,
-               m.collisions_by_colour, m.food, m.distance, m.last_collision, m.learned_at, self._bin)
+               m.collisions_by_colour, m.food, m.distance, m.last_collision, m.last_noxious, m.learned_at,
+               self._bin)
         return self.sensors
 
     def changes(self) -> np.ndarray:
@@ -273,7 +276,7 @@ def _colour_at(grid, g, x, y, fpar):
 
 @njit(cache=True)
 def _sense(grid, arena_of, pos, heading, fpar, kind, training, t, sensors, last_patch, events, eaten,
-           collisions, by_colour, food, distance, last_collision, learned_at, bins):
+           collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins):
     steps = int(round(fpar[VIEW] / fpar[RAY_STEP]))
     for a in range(pos.shape[0]):
         g = arena_of[a]
@@ -303,6 +306,7 @@ def _sense(grid, arena_of, pos, heading, fpar, kind, training, t, sensors, last_
         colour, patch = _colour_at(grid, g, pos[a, 0], pos[a, 1], fpar)
         if kind[colour] == 1:  # noxious
             sensors[a, PAIN] = fpar[PAIN_VALUE]
+            last_noxious[a] = t
             if patch != last_patch[a]:  # entering it: a collision event
                 collisions[a] += 1
                 by_colour[a, colour] += 1
@@ -321,9 +325,10 @@ def _sense(grid, arena_of, pos, heading, fpar, kind, training, t, sensors, last_
             food[a] += 1
             events[a, EV_ATE] = 1
         last_patch[a] = patch
-        # learning time: the last collision before the first W collision-free ticks
-        if learned_at[a] < 0 and t - max(last_collision[a], 0) >= fpar[LEARNED_AFTER]:
-            learned_at[a] = max(last_collision[a], 0)
+        # learning time: the last tick on a noxious patch before the first W ticks off them (NetLogo
+        # resets its error_free_counter in every tick on one: staying on a wall is no progress)
+        if learned_at[a] < 0 and t - max(last_noxious[a], 0) >= fpar[LEARNED_AFTER]:
+            learned_at[a] = max(last_noxious[a], 0)
             events[a, EV_LEARNED] = 1
 
 

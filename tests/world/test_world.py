@@ -125,7 +125,9 @@ def test_learning_time_is_the_last_collision_before_w_free_ticks():
     for t in range(10, 80):
         w.sense(); w.act(NOTHING)
     assert w.metrics.collisions[0] == 1  # entering once; staying is not a new event
-    assert w.metrics.learned_at[0] == 0  # the collision at tick 0, then 50 collision-free ticks
+    # but every tick on it resets the count (NetLogo's error_free_counter): the last was tick 9
+    assert w.metrics.last_noxious[0] == 9
+    assert w.metrics.learned_at[0] == 9
 
 
 def test_collision_bins_per_thousand_ticks():
