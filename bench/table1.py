@@ -14,7 +14,6 @@ line printed is a JSON summary. Run: `spikinglab bench table1 [--ablation]`.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import multiprocessing
 import os

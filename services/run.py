@@ -103,7 +103,7 @@ def main(argv=None) -> int:
     world_args += ["--no-training"] if args.no_training else []
     world_args += [] if args.quiet else ["--progress"]
     brain_args = ["--listen", brain_ep, "--connect", world_ep, "--circuit", args.circuit, "--once",
-                  "--save", folder / "weights.npz", "--seed", args.seed, "--semantics", args.semantics,
+                  "--save", folder / "weights.npz", "--semantics", args.semantics,
                   "--order", args.order]
     brain_args += ["--a-plus", args.a_plus] if args.a_plus is not None else []
     brain_args += ["--no-training"] if args.no_training else []

@@ -41,8 +41,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--a-plus", type=float, help="A+ = A- of the learning neurons (default: the circuit's)")
     p.add_argument("--no-training", action="store_true", help="weights stay as they are")
     add_engine_args(p)
-    p.add_argument("--seed", type=int, default=0,
-                   help="the netlogo order's seed: agent a uses seed + a, as the world's arenas (default 0)")
+    p.add_argument("--seed", type=int, default=None,
+                   help="the netlogo order's seed, agent a using seed + a (default: the world's seed, which its "
+                        "sensor messages carry, so that a run is the same in one process or across the bus)")
     p.add_argument("--load", type=Path, help="start from the weights in this checkpoint (.npz)")
     p.add_argument("--save", type=Path, help="write the final weights here (.npz) when the run ends")
     p.add_argument("--once", action="store_true", help="exit after one run ends (default: serve the next run)")
@@ -91,15 +92,18 @@ class BrainNode:
     def start(self, message: Sensors) -> None:
         """A fresh brain for the sensors and agents of `message` (a new run)."""
         agents = message.values.shape[0]
+        options = dict(self.engine_options)
+        if options.get("seed") is None:
+            options["seed"] = message.seed
         self.brain = Brain(self.circuit, message.names, tuple(self.circuit.actuators), agents=agents,
-                           training=self.training, **self.engine_options)
+                           training=self.training, **options)
         if self.initial_weights is not None:  # one agent's weights are given to every agent
             w = self.initial_weights
             self.brain.engine.set_weights(w[0] if w.shape[0] == 1 else w)
         self.batch = TickBatch(STATE_BATCH)  # nothing of a previous run goes into this one's batches
         log.info("brain for %d agent(s) of circuit %s, sensors %s, training %s, %s", agents, self.circuit.name,
                  ", ".join(message.names), "on" if self.training else "off",
-                 ", ".join(f"{k} {v}" for k, v in self.engine_options.items()))
+                 ", ".join(f"{k} {v}" for k, v in options.items()))
 
     def answer(self, message: Sensors) -> Motor | None:
         """The Motor answer to `message`, or None when it is to be ignored (stale or wrong shape)."""

@@ -65,6 +65,7 @@ class Sensors(Message, tag="sensors", kw_only=True):
     names: tuple[str, ...]
     values: Array
     training: bool = True
+    seed: int = 0  # the world's seed: the brain's netlogo order uses seed + a for agent a, as the arenas
 
     def check(self):
         values = self.values.numpy("values", "<f8", 2)

@@ -155,7 +155,8 @@ def run(args: argparse.Namespace, session) -> int:
         progress = Progress(world, args.ticks, args.progress)
         batch, changes = TickBatch(STATE_BATCH), []
         started = time.perf_counter()
-        request = Sensors(tick=0, names=SENSORS, values=Array.of(world.sense()), training=world.training)
+        request = Sensors(tick=0, names=SENSORS, values=Array.of(world.sense()), training=world.training,
+                          seed=world.seed)
         sensors.put(request)
         for t in range(args.ticks):
             actions = None
@@ -176,7 +177,7 @@ def run(args: argparse.Namespace, session) -> int:
             if state is not None:  # this tick's poses, events and changes, before the next sense()
                 keep_state(batch, changes, world, t)
             if t + 1 < args.ticks:  # the brain's next tick first: the recorder can wait
-                request = Sensors(tick=t + 1, names=SENSORS, values=Array.of(world.sense()),
+                request = Sensors(tick=t + 1, names=SENSORS, values=Array.of(world.sense()), seed=world.seed,
                                   training=world.training)
                 sensors.put(request)
             if state is not None and (batch.full or t + 1 == args.ticks):

@@ -6,6 +6,11 @@ from services.brain.circuit import build_circuit
 from services.brain.engine import Engine
 
 
+def phased(circuit, **options) -> Engine:
+    """An engine with the phased semantics: the tests that pin its timing and STDP bookkeeping."""
+    return Engine(circuit, semantics="phased", **options)
+
+
 def relay_circuit(**types):
     """C and U relay neurons onto M: c_in -> C -> M (plastic, w 5), u_in -> U -> M (w 20), delays 3."""
     doc = {

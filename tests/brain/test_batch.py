@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 
 from services.brain.circuit import load_circuit
-from services.brain.engine import PARALLEL_FROM, Engine
+from services.brain.engine import PARALLEL_FROM
+
+from .helpers import phased
 
 
 def random_feeds(seed, ticks, agents, inputs):
@@ -17,11 +19,11 @@ def random_feeds(seed, ticks, agents, inputs):
 def test_agents_together_equal_each_alone(agents):
     c = load_circuit("insect").with_learning_rate(0.05)
     feeds = random_feeds(1, 3000, agents, len(c.inputs))
-    together = Engine(c, agents=agents)
+    together = phased(c, agents=agents)
     spikes = together.run(feeds)
     assert spikes.any(axis=(0, 1))[c.neuron_index("PAIN")]
     for a in sorted({0, 1, agents // 2, agents - 1}):
-        alone = Engine(c)
+        alone = phased(c)
         np.testing.assert_array_equal(alone.run(feeds[:, a : a + 1]), spikes[:, a : a + 1])
         np.testing.assert_array_equal(alone.v, together.v[a : a + 1])
         np.testing.assert_array_equal(alone.w, together.w[a : a + 1])
@@ -34,7 +36,7 @@ def test_same_feeds_give_identical_arrays():
     feeds = random_feeds(7, 5000, 3, len(c.inputs))
     runs = []
     for _ in range(2):
-        e = Engine(c, agents=3)
+        e = phased(c, agents=3)
         runs.append((e.run(feeds), e.v.copy(), e.w.copy(), e.state.copy(), e.hist.copy()))
     for x, y in zip(*runs):
         np.testing.assert_array_equal(x, y)
@@ -43,7 +45,7 @@ def test_same_feeds_give_identical_arrays():
 def test_reset_restores_the_initial_state():
     c = load_circuit("insect")
     feeds = random_feeds(2, 2000, 1, len(c.inputs))
-    e = Engine(c)
+    e = phased(c)
     first = e.run(feeds)
     e.reset()
     np.testing.assert_array_equal(e.run(feeds), first)
@@ -51,7 +53,7 @@ def test_reset_restores_the_initial_state():
 
 def test_weights_get_and_set():
     c = load_circuit("insect")
-    e = Engine(c, agents=2)
+    e = phased(c, agents=2)
     w = e.get_weights()
     w[:, c.synapse_index("RED", "PAIN")] = 12.5
     e.set_weights(w)

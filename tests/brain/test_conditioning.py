@@ -2,13 +2,14 @@
 
 from services.brain.circuit import load_circuit
 from services.brain.conditioning import TRIAL, responds, train
-from services.brain.engine import Engine
+
+from .helpers import phased
 
 TRIALS = 400  # ~0.017 per pairing at A+ = 0.02 and dt = -2: 5 -> 10 needs ~300
 
 
 def test_fig2_c_before_u_teaches_c_to_fire_m():
-    e = Engine(load_circuit("conditioning"))
+    e = phased(load_circuit("conditioning"))
     assert not responds(e, "c_in") and responds(e, "u_in")
     history = train(e, {"c_in": 0, "u_in": 2}, TRIALS)  # C's pulse reaches M 2 ticks before U's
     weights = [w[0] for w in history]
@@ -18,7 +19,7 @@ def test_fig2_c_before_u_teaches_c_to_fire_m():
 
 
 def test_fig2_reverse_order_does_not_teach():
-    e = Engine(load_circuit("conditioning"))
+    e = phased(load_circuit("conditioning"))
     train(e, {"u_in": 0, "c_in": 2}, TRIALS)
     assert e.w[0, 0] == 1.0  # depressed to w_min
     assert not responds(e, "c_in")
@@ -26,7 +27,7 @@ def test_fig2_reverse_order_does_not_teach():
 
 def test_fig4_paired_a_learns_unpaired_b_does_not():
     c = load_circuit("association")
-    e = Engine(c)
+    e = phased(c)
     train(e, {"a_in": 0, "u_in": 2, "b_in": 6}, TRIALS)  # A before U, B after M fired
     wa, wb = e.w[0, c.synapse_index("A", "M")], e.w[0, c.synapse_index("B", "M")]
     assert wa > 10 and wb == 1.0
@@ -35,7 +36,7 @@ def test_fig4_paired_a_learns_unpaired_b_does_not():
 
 def test_fig6_each_action_learns_its_own_stimulus():
     c = load_circuit("two_actions")
-    e = Engine(c)
+    e = phased(c)
     # one trial of 2 x TRIAL ticks: A paired with U1 (action R), later B paired with U2 (action M)
     train(e, {"a_in": 0, "u1_in": 2, "b_in": TRIAL, "u2_in": TRIAL + 2}, TRIALS, period=2 * TRIAL)
     w = {lab: e.w[0, c.synapse_index(*lab.split("->"))] for lab in ("A->R", "A->M", "B->R", "B->M")}

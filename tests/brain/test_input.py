@@ -7,14 +7,13 @@ so its pulse comes at t + floor(v) and, over its synapse of delay 0, reaches its
 import pytest
 
 from services.brain.circuit import build_circuit
-from services.brain.engine import Engine
 
-from .helpers import run_with_events
+from .helpers import phased, run_with_events
 
 
 def input_engine(pulses=1):
     doc = {"neurons": {"X": "regular"}, "inputs": {"x_in": {"target": "X", "pulses": pulses}}}
-    return Engine(build_circuit(doc))
+    return phased(build_circuit(doc))
 
 
 @pytest.mark.parametrize("value,count", [(0.0, 1), (0.2, 1), (1.0, 2), (2.7, 3), (3.99, 4), (12.0, 13)])

@@ -33,7 +33,7 @@ def test_a_pulse_arrives_after_d_minus_1_or_d_ticks_by_the_order(delay):
         assert spikes["B"] == [expected], order
     # the phased engine: exactly d, whatever the file order
     for order in (("A", "B"), ("B", "A")):
-        assert run_with_events(Engine(chain(order, delay)), 12, {0: {"a_in": 0}})["B"] == [delay]
+        assert run_with_events(Engine(chain(order, delay), semantics="phased"), 12, {0: {"a_in": 0}})["B"] == [delay]
 
 
 def test_random_order_gives_both_arrival_ticks_from_the_seed():
@@ -140,4 +140,4 @@ def test_each_rule_switched_off_alone():
     run_with_events(e, 11, {0: {"u_in": 0, "c_in": 0}, 10: {"c_in": 0}})
     assert e.w[0, c.synapse_index("C", "M")] == pytest.approx(5 + 0.05 - 0.05 * math.exp(-10 / 18), abs=1e-12)
     with pytest.raises(ValueError, match="NetLogo rules are delay_count, reopen, dt0"):
-        Engine(c, without=("dt0",))  # phased has no NetLogo rules to switch off
+        Engine(c, semantics="phased", without=("dt0",))  # phased has no NetLogo rules to switch off

@@ -4,9 +4,8 @@ import numpy as np
 import pytest
 
 from services.brain.circuit import build_circuit
-from services.brain.engine import Engine
 
-from .helpers import run_with_events
+from .helpers import phased, run_with_events
 
 
 def first_feed(engine, **values):
@@ -26,7 +25,7 @@ def one_input(weight, delay=0, inhibitory_weight=None, ntype="regular"):
         doc["neurons"]["I"] = "regular"
         doc["inputs"]["i_in"] = {"target": "I"}
         doc["synapses"] = [{"from": "I", "to": "X", "weight": inhibitory_weight, "delay": 1, "inhibitory": True}]
-    return Engine(build_circuit(doc))
+    return phased(build_circuit(doc))
 
 
 def test_decay_curve_toward_rest():
@@ -88,7 +87,7 @@ def test_arrival_tick_for_each_delay(delay):
         "inputs": {"a_in": {"target": "A"}},
         "synapses": [{"from": "A", "to": "B", "weight": 20, "delay": delay}],
     }
-    e = Engine(build_circuit(doc))
+    e = phased(build_circuit(doc))
     spikes = run_with_events(e, 20, {0: {"a_in": 0.0}})
     assert spikes["A"] == [0]
     assert spikes["B"] == [delay]  # fires in the tick the pulse arrives
@@ -97,7 +96,7 @@ def test_arrival_tick_for_each_delay(delay):
 def test_pacemaker_oscillates_and_drives_reward():
     from services.brain.circuit import load_circuit
 
-    e = Engine(load_circuit("insect"))
+    e = phased(load_circuit("insect"))
     spikes = run_with_events(e, 300, {})
     assert spikes["kick"] == [1]  # fed 1 at tick 0: floor(1) ticks later
     assert spikes["H1"][:3] == [1, 6, 11]  # H1 -> H2 delay 2, H2 -> H1 delay 3: period 5

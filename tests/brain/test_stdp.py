@@ -6,16 +6,15 @@ import numpy as np
 import pytest
 
 from services.brain.circuit import build_circuit
-from services.brain.engine import Engine
 
-from .helpers import relay_circuit, run_with_events
+from .helpers import phased, relay_circuit, run_with_events
 
 A = 0.02  # type 1 default A+ = A-
 
 
 def pairing(dt, **types):
     """One C pulse reaching M at dt ticks relative to M's spike (caused by U); returns the C->M weight."""
-    e = Engine(relay_circuit(**types))
+    e = phased(relay_circuit(**types))
     f_u = 100
     f_c = f_u + dt  # both relays add 3 ticks, so arrival - spike = f_c - f_u
     events = {f_u: {"u_in": 0.0}}
@@ -52,7 +51,7 @@ def test_clipping_at_w_max_and_w_min():
     # type with large rates so a few pairings hit the bounds
     fast = {"a_plus": 4.0, "a_minus": 4.0}
     for order, bound in ((-2, 15.0), (+2, 1.0)):
-        e = Engine(relay_circuit(fast=fast))
+        e = phased(relay_circuit(fast=fast))
         events = {}
         for k in range(6):
             f_u = 100 + 200 * k
@@ -74,7 +73,7 @@ def test_history_keeps_the_last_30_arrivals():
             {"from": "U", "to": "M", "weight": 20, "delay": 3},
         ],
     }
-    e = Engine(build_circuit(doc))
+    e = phased(build_circuit(doc))
     spikes = run_with_events(e, 250, {0: {"c_in": 3.0}, 200: {"u_in": 0.0}})
     assert len(spikes["C"]) == 35 and spikes["M"] == [203]
     assert e.w[0, 0] == pytest.approx(1 + 30 * 0.1, rel=1e-9)  # 35 would give 4.5
@@ -82,7 +81,7 @@ def test_history_keeps_the_last_30_arrivals():
 
 def test_history_is_cleared_when_the_post_neuron_fires():
     # C before U twice, far apart (outside the window of each other): each spike sees only its own arrival
-    e = Engine(relay_circuit())
+    e = phased(relay_circuit())
     events = {98: {"c_in": 0.0}, 100: {"u_in": 0.0}, 198: {"c_in": 0.0}, 200: {"u_in": 0.0}}
     run_with_events(e, 300, events)
     one = A * math.exp(-2 / 11)
@@ -90,14 +89,14 @@ def test_history_is_cleared_when_the_post_neuron_fires():
 
 
 def test_depression_is_applied_once_per_pulse_against_the_latest_spike():
-    e = Engine(relay_circuit())
+    e = phased(relay_circuit())
     # M fires at 103 and 123; C arrives at 128: dt = 5 from the latest spike only
     run_with_events(e, 300, {100: {"u_in": 0.0}, 120: {"u_in": 0.0}, 125: {"c_in": 0.0}})
     assert e.w[0, 0] == pytest.approx(5 - A * math.exp(-5 / 18), rel=1e-12)
 
 
 def test_training_off_freezes_weights():
-    e = Engine(relay_circuit(), training=False)
+    e = phased(relay_circuit(), training=False)
     rng = np.random.default_rng(3)
     feeds = np.where(rng.random((5000, 1, 2)) < 0.05, rng.random((5000, 1, 2)) * 3, np.nan)
     spikes = e.run(feeds)
