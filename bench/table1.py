@@ -23,9 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from services.learning import DEFAULT_DEFINITION, DEFINITIONS, all_definitions, tick_text
+from services.learning import DEFAULT_DEFINITION, DEFINITIONS, PAPER, all_definitions, plot_table1, tick_text
 
-PAPER = {0.01: 19_000, 0.02: 15_000, 0.03: 9_000, 0.04: 7_000}
 A_VALUES = (0.01, 0.02, 0.03, 0.04, 0.08)
 STEPS = {"paper": "paper", "demo": "netlogo"}  # -> world preset
 
@@ -67,8 +66,11 @@ def run_population(setting: dict, a: float, seeds: int, ticks: int) -> dict:
     started = time.perf_counter()
     closed_loop(world, brain, ticks, keep)
     plastic = circuit.plastic_synapses
+    m = world.metrics
     return {"a": a, "collision_ticks": collisions, "seconds": time.perf_counter() - started,
-            "weights": {circuit.synapse_label(k): float(np.mean(brain.engine.w[:, k])) for k in plastic}}
+            "weights": {circuit.synapse_label(k): float(np.mean(brain.engine.w[:, k])) for k in plastic},
+            # an insect that barely moves is collision-free for free: how far they went, what they ate
+            "distance_per_1000": float(m.distance.mean() * 1000 / ticks), "food": float(m.food.mean())}
 
 
 def jobs(ablation: bool, a_values) -> list[tuple[str, dict, float]]:
@@ -92,7 +94,8 @@ def summarise(name: str, setting: dict, result: dict, seeds: int, ticks: int) ->
     return {"name": name, "setting": {k: list(v) if isinstance(v, tuple) else v for k, v in setting.items()},
             "a": result["a"], "seeds": seeds, "ticks": ticks, "seconds": round(result["seconds"], 1),
             "definitions": all_definitions(result["collision_ticks"], ticks),
-            "noxious_ticks": [len(c) for c in result["collision_ticks"]], "mean_weights": result["weights"]}
+            "noxious_ticks": [len(c) for c in result["collision_ticks"]], "mean_weights": result["weights"],
+            "distance_per_1000": round(result["distance_per_1000"], 1), "food": round(result["food"], 1)}
 
 
 def ratio(rows: list[dict], row: dict, definition: str) -> str:
@@ -104,15 +107,15 @@ def ratio(rows: list[dict], row: dict, definition: str) -> str:
 def markdown(rows: list[dict], definition: str) -> str:
     lines = [f"Learning time ({definition} collision-free ticks unless named), {rows[0]['seeds']} seeds, "
              f"{rows[0]['ticks']:,} ticks: median (quartiles), seeds learned, median / median at A = 0.04.", "",
-             "| setting | A+ = A- | paper | median (quartiles) | learned | ratio | paper ratio |",
-             "|---|---|---|---|---|---|---|"]
+             "| setting | A+ = A- | paper | median (quartiles) | learned | ratio | paper ratio | patches per 1,000 ticks | food |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         d, t = r["definitions"][definition], r["ticks"]
         paper = PAPER.get(r["a"])
         lines.append(f"| {r['name']} | {r['a']} | {'' if paper is None else f'{paper:,}'} | "
                      f"{tick_text(d['median'], t)} ({tick_text(d['q1'], t)} - {tick_text(d['q3'], t)}) | "
                      f"{d['reached']}/{d['seeds']} | {ratio(rows, r, definition)} | "
-                     f"{'' if paper is None else f'{paper / PAPER[0.04]:.2f}'} |")
+                     f"{'' if paper is None else f'{paper / PAPER[0.04]:.2f}'} | {r['distance_per_1000']} | {r['food']} |")
     return "\n".join(lines)
 
 
@@ -124,33 +127,6 @@ def definitions_markdown(rows: list[dict]) -> str:
                  for n in names]
         lines.append(f"| {r['name']} | {r['a']} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n\nMedian learning time (seeds that learned) per definition."
-
-
-def plot(rows: list[dict], definition: str, path: Path) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(9, 5), dpi=110)
-    names = list(dict.fromkeys(r["name"] for r in rows))
-    for k, name in enumerate(names):
-        mine = [r for r in rows if r["name"] == name]
-        x = np.array([r["a"] for r in mine]) * (1 + 0.03 * (k - len(names) / 2))  # spread the points apart
-        ticks = mine[0]["ticks"]
-        med = [r["definitions"][definition]["median"] or ticks * 1.05 for r in mine]
-        lo = [r["definitions"][definition]["q1"] or ticks * 1.05 for r in mine]
-        hi = [r["definitions"][definition]["q3"] or ticks * 1.05 for r in mine]
-        ax.errorbar(x, med, yerr=[np.subtract(med, lo), np.subtract(hi, med)], marker="o", ms=4, capsize=3,
-                    lw=1, label=name)
-    ax.plot(list(PAPER), list(PAPER.values()), "k*", ms=14, label="paper, Table 1")
-    ax.axhline(rows[0]["ticks"], color="gray", ls=":", lw=1)
-    ax.set(xlabel="A+ = A-", ylabel=f"learning time, ticks ({definition} collision-free)", yscale="log",
-           title="Table 1 against the paper: median and quartiles over seeds (top line: end of run)")
-    ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=7, ncol=2)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
 
 
 def main(argv=None) -> dict:
@@ -182,7 +158,7 @@ def main(argv=None) -> dict:
     text = markdown(rows, DEFAULT_DEFINITION) + "\n\n" + definitions_markdown(rows)
     (args.out / f"{stem}.md").write_text(text + "\n")
     (args.out / f"{stem}.json").write_text(json.dumps(rows, indent=1))
-    plot(rows, DEFAULT_DEFINITION, args.out / f"{stem}.png")
+    plot_table1(rows, DEFAULT_DEFINITION, args.out / f"{stem}.png")
     print(text)
     print(f"\nwritten to {args.out}/: {stem}.md, {stem}.json, {stem}.png ({time.perf_counter() - started:.0f} s)")
     result = {f"{r['name']} A={r['a']}": r["definitions"][DEFAULT_DEFINITION]["median"] for r in rows}

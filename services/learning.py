@@ -30,6 +30,7 @@ DEFINITIONS = {  # name -> (window W, collisions allowed in it)
     "at most 2 in 5,000": (5_000, 2),
 }
 DEFAULT_DEFINITION = "free 5,000"
+PAPER = {0.01: 19_000, 0.02: 15_000, 0.03: 9_000, 0.04: 7_000}  # Table 1: A+ = A- -> iterations
 
 
 def learning_time(collision_ticks, ticks: int, window: int, allowed: int = 0) -> int | None:
@@ -67,3 +68,31 @@ def all_definitions(collision_ticks_per_agent: list, ticks: int) -> dict[str, di
 
 def tick_text(x: float | None, ticks: int) -> str:
     return f"{x:,.0f}" if x is not None else f"> {ticks:,}"
+
+
+def plot_table1(rows: list[dict], definition: str, path) -> None:
+    """Learning time against A+ = A- per setting (median, quartiles) beside the paper's Table 1."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 5), dpi=110)
+    names = list(dict.fromkeys(r["name"] for r in rows))
+    for k, name in enumerate(names):
+        mine = [r for r in rows if r["name"] == name]
+        x = np.array([r["a"] for r in mine]) * (1 + 0.03 * (k - len(names) / 2))  # spread the points apart
+        ticks = mine[0]["ticks"]
+        med = [r["definitions"][definition]["median"] or ticks * 1.05 for r in mine]
+        lo = [r["definitions"][definition]["q1"] or ticks * 1.05 for r in mine]
+        hi = [r["definitions"][definition]["q3"] or ticks * 1.05 for r in mine]
+        ax.errorbar(x, med, yerr=[np.subtract(med, lo), np.subtract(hi, med)], marker="o", ms=4, capsize=3,
+                    lw=1, label=name)
+    ax.plot(list(PAPER), list(PAPER.values()), "k*", ms=14, label="paper, Table 1")
+    ax.axhline(rows[0]["ticks"], color="gray", ls=":", lw=1)
+    ax.set(xlabel="A+ = A-", ylabel=f"learning time, ticks ({definition} collision-free)", yscale="log",
+           title="Table 1 against the paper: median and quartiles over seeds (top line: end of run)")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

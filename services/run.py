@@ -155,6 +155,7 @@ def main(argv=None) -> int:
         sockets.cleanup()
     summary = summarise(folder, args, circuit, run_id, time.time() - started)
     plot(folder, summary)
+    plot_trajectory(folder, summary)
     report(folder, summary)
     return 0
 
@@ -220,6 +221,35 @@ def plot(folder: Path, summary: dict) -> None:
     plt.close(fig)
 
 
+def plot_trajectory(folder: Path, summary: dict) -> None:
+    """trajectory.png: agent 0's path early and late in the run on its map (the paper's fig. 8)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import ListedColormap
+
+    data = np.load(folder / "trajectory.npz")
+    x0, y0 = int(data["x_min"]), int(data["y_min"])
+    colours = ListedColormap(["white", "dimgray", "tab:red", "tab:green"])  # empty, wall, predator, food
+    fig, axes = plt.subplots(1, 2, figsize=(10, 7), dpi=100)
+    n = len(data["early"])
+    for ax, path, grid, title in (
+            (axes[0], data["early"], data["grid_early"], f"ticks 0 - {n:,}: early in training"),
+            (axes[1], data["late"], data["grid_late"],
+             f"ticks {int(data['late_from']):,} - {int(data['late_from']) + n:,}: late")):
+        ax.imshow(grid.T, origin="lower", cmap=colours, vmin=0, vmax=3,
+                  extent=(x0 - 0.5, x0 + grid.shape[0] - 0.5, y0 - 0.5, y0 + grid.shape[1] - 0.5))
+        jumps = np.flatnonzero(np.hypot(*np.diff(path, axis=0).T) > 2) + 1  # put back at the start: no line
+        for piece in np.split(path, jumps):
+            ax.plot(piece[:, 0], piece[:, 1], color="tab:blue", lw=1)
+        ax.set(title=title, xticks=[], yticks=[])
+    p = summary["parameters"]
+    fig.suptitle(f"The insect's path (seed {p['seed']}, A+ = A- = {p['a_plus']}, {p['semantics']} semantics)")
+    fig.tight_layout()
+    fig.savefig(folder / "trajectory.png")
+    plt.close(fig)
+
+
 def report(folder: Path, summary: dict) -> None:
     bins = np.array(summary["collisions_per_1000_ticks"], dtype=float)
     q = max(bins.shape[1] // 4, 1)
@@ -228,10 +258,16 @@ def report(folder: Path, summary: dict) -> None:
     mean = {k: float(np.mean(v)) for k, v in w.items()}
     print(f"\ncollisions: {first:.0f} in the first quarter, {last:.0f} in the last quarter "
           f"({summary['parameters']['ticks']:,} ticks, {summary['ticks_per_s']:,.0f} ticks/s)")
-    print("learning time:", ", ".join("not reached" if t is None else f"{t:,}" for t in summary["learning_time"][:8]),
-          f"(paper: {summary['paper_table_1_learning_time'].get(str(summary['parameters']['a_plus']), 'n/a')})")
+    times = summary["learning_time"]
+    learned = sum(t is not None for t in times)
+    p = summary["parameters"]
+    paper = summary["paper_table_1_learning_time"].get(str(p["a_plus"]))
+    print(f"learned: {'yes' if learned == len(times) else 'no' if not learned else f'{learned} of {len(times)}'}"
+          f" (criterion: {p['learned_after']:,} ticks off noxious patches); learning time: "
+          + ", ".join("not reached" if t is None else f"tick {t:,}" for t in times[:8])
+          + (f" (paper, A+ = A- = {p['a_plus']}: {paper:,}; docs/results.md compares)" if paper else ""))
     print("weights:", ", ".join(f"{k} {v:.2f}" for k, v in mean.items()))
-    files = "summary.json, collisions.png, metrics.json, weights.npz"
+    files = "summary.json, collisions.png, trajectory.png, metrics.json, weights.npz"
     if (folder / "recording.rrd").exists():
         files += ", recording.rrd"
     print(f"\nwritten to {folder}/: {files}")

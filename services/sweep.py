@@ -16,27 +16,36 @@ from pathlib import Path
 import numpy as np
 
 from services.brain.circuit import load_circuit
+from services.brain.engine import DEFAULT_SEMANTICS
+from services.brain.service import add_engine_args
+from services.learning import all_definitions, plot_table1, stats
 from services.loop import brain_for, closed_loop
 from services.run import PAPER_TABLE_1
-from services.world.world import PRESETS, World, params_for
+from services.world.world import PAIN, PRESETS, World, params_for
 
 
-def sweep_one(a_plus: float, seeds: int, ticks: int, preset: str, learned_after: int, progress=None) -> dict:
+def sweep_one(a_plus: float, seeds: int, ticks: int, preset: str, learned_after: int, progress=None,
+              semantics: str = DEFAULT_SEMANTICS, order: str = "random") -> dict:
     world = World(params_for(preset, learned_after=learned_after), agents=seeds, seed=0)
-    brain = brain_for(world, load_circuit("insect").with_learning_rate(a_plus))
-    closed_loop(world, brain, ticks, (lambda t: progress.update(1)) if progress else None)
+    brain = brain_for(world, load_circuit("insect").with_learning_rate(a_plus), semantics=semantics, order=order)
+    noxious = [[] for _ in range(seeds)]  # ticks on a noxious patch, per seed
+
+    def keep(t):
+        for agent in np.flatnonzero(~np.isnan(world.sensors[:, PAIN])):
+            noxious[agent].append(t)
+        if progress:
+            progress.update(1)
+    closed_loop(world, brain, ticks, keep)
     bins = np.array(world.metrics.bins).T  # [seeds, ticks / 1000]
     q = bins.shape[1] // 4
-    learned = [int(t) for t in world.metrics.learned_at if t >= 0]
-    # not reached within the run counts as later than the run: a censored median, not a biased one
-    times = np.where(world.metrics.learned_at >= 0, world.metrics.learned_at, np.inf)
-    median, q1, q3 = np.median(times), *np.percentile(times, [25, 75])
+    definitions = all_definitions(noxious, ticks)
+    main = definitions[f"free {learned_after:,}"] if f"free {learned_after:,}" in definitions else \
+        {"times": [int(t) if t >= 0 else None for t in world.metrics.learned_at]}
+    main = {**main, **stats(main["times"], ticks)}
     return {
-        "a_plus": a_plus, "seeds": seeds, "ticks": ticks,
-        "learning_time": [int(t) if t >= 0 else None for t in world.metrics.learned_at],
-        "reached": len(learned),
-        "median": float(median) if np.isfinite(median) else None,
-        "quartiles": [float(x) if np.isfinite(x) else None for x in (q1, q3)],
+        "name": f"{semantics} semantics, {preset} steps", "a": a_plus, "a_plus": a_plus, "seeds": seeds,
+        "ticks": ticks, "learning_time": main["times"], "reached": main["reached"], "median": main["median"],
+        "quartiles": [main["q1"], main["q3"]], "definitions": {**definitions, "project": main},
         "collisions_first_quarter": bins[:, :q].sum(axis=1).tolist(),
         "collisions_last_quarter": bins[:, -q:].sum(axis=1).tolist(),
         "collisions_per_1000_ticks_mean": bins.mean(axis=0).round(2).tolist(),
@@ -55,9 +64,9 @@ def table(rows: list[dict], learned_after: int) -> str:
         lines.append(f"| {r['a_plus']} | {'' if paper is None else f'{paper:,}'} | {tick(r['median'], r['ticks'])} | "
                      f"{tick(r['quartiles'][0], r['ticks'])} - {tick(r['quartiles'][1], r['ticks'])} | "
                      f"{r['reached']}/{r['seeds']} | {first:.0f} -> {last:.0f} |")
-    lines.append(f"\nLearning time: the tick of the last collision event before the first {learned_after:,} "
-                 f"collision-free ticks. Median and quartiles over all seeds; a seed that did not get there "
-                 f"within {rows[0]['ticks']:,} ticks counts as later than that. Collisions: mean per seed.")
+    lines.append(f"\nLearning time: the last tick on a noxious patch before the first {learned_after:,} ticks off "
+                 f"them. Median and quartiles over all seeds; a seed that did not get there within "
+                 f"{rows[0]['ticks']:,} ticks counts as later than that. Collisions: mean per seed.")
     return "\n".join(lines)
 
 
@@ -86,6 +95,7 @@ def main(argv=None) -> int:
     p.add_argument("--ticks", type=int, default=150_000)
     p.add_argument("--preset", choices=sorted(PRESETS), default="paper")
     p.add_argument("--learned-after", type=int, default=5000)
+    add_engine_args(p)
     p.add_argument("--runs", type=Path, default=Path("runs"))
     p.add_argument("--id", help="folder name (default sweep-<date>)")
     args = p.parse_args(argv)
@@ -97,13 +107,16 @@ def main(argv=None) -> int:
     with tqdm(total=args.ticks * len(args.a_plus), unit="tick", unit_scale=True, mininterval=1) as bar:
         for a in args.a_plus:
             bar.set_postfix_str(f"A+ = A- = {a}")
-            rows.append(sweep_one(a, args.seeds, args.ticks, args.preset, args.learned_after, bar))
+            rows.append(sweep_one(a, args.seeds, args.ticks, args.preset, args.learned_after, bar,
+                                  args.semantics, args.order))
     text = table(rows, args.learned_after)
     (folder / "table.md").write_text(text + "\n")
     (folder / "table.json").write_text(json.dumps(rows, indent=1))
     plot(rows, folder / "learning.png")
+    plot_table1(rows, "project", folder / "table1.png")
     print(text)
-    print(f"\nwritten to {folder}/: table.md, table.json, learning.png")
+    print(f"\nwritten to {folder}/: table.md, table.json, learning.png (collisions over time), "
+          f"table1.png (against the paper)")
     return 0
 
 

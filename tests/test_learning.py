@@ -4,7 +4,7 @@ import numpy as np
 
 from services.brain.circuit import load_circuit
 from services.loop import brain_for, closed_loop
-from services.world.world import World
+from services.world.world import World, params_for
 
 SEEDS = 6  # arenas 0..5: the default seed and the next five, fixed before looking at results
 
@@ -36,3 +36,13 @@ def test_training_off_leaves_the_weights_alone():
     closed_loop(world, brain, 5000)
     assert world.metrics.collisions.sum() > 0 or world.metrics.food.sum() > 0  # it lived
     np.testing.assert_array_equal(brain.engine.get_weights(), trained)
+
+
+def test_the_default_run_learns_within_its_ticks():
+    # `spikinglab run` with its defaults: seed 0, 100,000 ticks, A+ = A- = 0.02, paper steps, netlogo semantics
+    world = World(params_for("paper"), agents=1, seed=0)
+    brain = brain_for(world, load_circuit("insect"))
+    closed_loop(world, brain, 100_000)
+    assert 0 < world.metrics.learned_at[0] <= 95_000  # its 5,000 collision-free ticks end within the run
+    bins = np.array(world.metrics.bins)[:, 0]
+    assert bins[-25:].sum() * 10 < bins[:25].sum()  # collisions fell more than tenfold, first to last quarter

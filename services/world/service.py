@@ -44,7 +44,7 @@ def parser() -> argparse.ArgumentParser:
 
 def add_world_args(p: argparse.ArgumentParser) -> None:
     w = p.add_argument_group("world")
-    w.add_argument("--ticks", type=int, default=40_000, help="ticks to run (default 40,000)")
+    w.add_argument("--ticks", type=int, default=40_000, help="ticks to run (default %(default)s)")
     w.add_argument("--seed", type=int, default=0, help="world seed: maps and headings (agent a uses seed + a)")
     w.add_argument("--agents", type=int, default=1, help="insects stepped together (default 1)")
     w.add_argument("--shared", action="store_true", help="all agents share one arena (default: one each)")
@@ -134,6 +134,29 @@ def metrics_of(world: World, ticks: int, elapsed: float) -> dict:
     }
 
 
+class Trajectory:
+    """Agent 0's path over the first and the last TRAJECTORY ticks, and the map at both times
+    (trajectory.png, the paper's fig. 8: short paths early in training, long ones late)."""
+
+    TICKS = 5000
+
+    def __init__(self, world: World, ticks: int):
+        self.world, self.n = world, min(self.TICKS, ticks)
+        self.early, self.late = np.full((self.n, 2), np.nan), np.full((self.n, 2), np.nan)
+        self.grid_early = world.grid[world.arena_of[0]].copy()
+
+    def keep(self, t: int) -> None:
+        if t < self.n:
+            self.early[t] = self.world.pos[0]
+        self.late[t % self.n] = self.world.pos[0]
+
+    def save(self, path: Path, ticks: int) -> None:
+        late = np.roll(self.late, -(ticks % self.n), axis=0)  # oldest first
+        np.savez_compressed(path, early=self.early, late=late, late_from=ticks - self.n,
+                            grid_early=self.grid_early, grid_late=self.world.grid[self.world.arena_of[0]],
+                            x_min=self.world.params.x_min, y_min=self.world.params.y_min)
+
+
 def run(args: argparse.Namespace, session) -> int:
     try:
         world = world_from_args(args)
@@ -153,6 +176,7 @@ def run(args: argparse.Namespace, session) -> int:
             bus.outbox(keys.world_map(args.group)).put(
                 WorldMap(tick=0, grid=Array.of(world.grid), x_min=world.params.x_min, y_min=world.params.y_min))
         progress = Progress(world, args.ticks, args.progress)
+        trajectory = Trajectory(world, args.ticks)
         batch, changes = TickBatch(STATE_BATCH), []
         started = time.perf_counter()
         request = Sensors(tick=0, names=SENSORS, values=Array.of(world.sense()), training=world.training,
@@ -174,6 +198,7 @@ def run(args: argparse.Namespace, session) -> int:
                         log.warning("ignored motor for tick %d: %d agents, the world has %d",
                                     t, answer.actions.shape[0], world.agents)
             world.act(actions)
+            trajectory.keep(t)
             if state is not None:  # this tick's poses, events and changes, before the next sense()
                 keep_state(batch, changes, world, t)
             if t + 1 < args.ticks:  # the brain's next tick first: the recorder can wait
@@ -193,6 +218,7 @@ def run(args: argparse.Namespace, session) -> int:
         if args.out:
             args.out.mkdir(parents=True, exist_ok=True)
             (args.out / "metrics.json").write_text(json.dumps(result))
+            trajectory.save(args.out / "trajectory.npz", args.ticks)
         return 0
     finally:
         bus.close()
