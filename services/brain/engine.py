@@ -37,7 +37,6 @@ HISTORY = 30  # arrivals a neuron remembers since its last spike (oldest dropped
 NEVER = -(2**62)  # last-spike tick of a neuron that has not fired yet
 SYN_BITS = 16  # a history entry packs (arrival tick << SYN_BITS) | synapse index
 SYN_MASK = (1 << SYN_BITS) - 1
-T_SHIFT = SYN_BITS
 SEMANTICS = ("phased", "netlogo")
 DEFAULT_SEMANTICS = "netlogo"  # the original's engine: the only one that learns in every setting (docs/results.md)
 ORDERS = ("random", "file")  # netlogo: neurons per tick in a seeded random order, or in file order
@@ -133,7 +132,7 @@ def _deliver(lo, hi, t, training, syn, npar, v, w, state, last_spike, hist, ring
                     for h in range(HISTORY - 1):
                         hist[a, post, h] = hist[a, post, h + 1]
                     n -= 1
-                hist[a, post, n] = (t << T_SHIFT) | s
+                hist[a, post, n] = (t << SYN_BITS) | s
                 state[HIST_LEN, post, a] = n + 1
         for a in range(lo, hi):
             ring[slot, s, a] = 0
@@ -158,7 +157,7 @@ def _fire(lo, hi, t, training, npar, v, w, state, last_spike, hist, spiked):
                 if training:  # every remembered arrival is paired with this spike
                     for h in range(state[HIST_LEN, n, a]):
                         entry = hist[a, n, h]
-                        _learn(w, entry & SYN_MASK, a, n, (entry >> T_SHIFT) - t, npar)
+                        _learn(w, entry & SYN_MASK, a, n, (entry >> SYN_BITS) - t, npar)
                 state[HIST_LEN, n, a] = 0
 
 
@@ -242,13 +241,13 @@ def _netlogo_receive(a, t, s, training, rules, syn, npar, v, w, state, last_spik
             for h in range(n - 1):
                 hist[a, post, h] = hist[a, post, h + 1]
             n -= 1
-        hist[a, post, n] = (t << T_SHIFT) | s
+        hist[a, post, n] = (t << SYN_BITS) | s
         state[HIST_LEN, post, a] = n + 1
         last = last_spike[post, a]
         if rules & DT0_AGAIN:
             for h in range(n + 1):  # the dt = 0 prefix (the new arrival too, when it is at dt = 0)
                 entry = hist[a, post, h]
-                if (entry >> T_SHIFT) != last:
+                if (entry >> SYN_BITS) != last:
                     break
                 _learn(w, entry & SYN_MASK, a, post, 0, npar)
             if t > last:  # the new arrival's one depression
@@ -259,7 +258,7 @@ def _netlogo_receive(a, t, s, training, rules, syn, npar, v, w, state, last_spik
 
 @njit(cache=True, inline="always")
 def _netlogo_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked,
-                   out_start, out_syn, order_seed, rules):
+                   out_start, out_syn, order_key, rules):
     """One NetLogo tick for agents lo..hi-1: each agent is a sequence of turns (no vector loop)."""
     t = clock[TICK]
     training = clock[TRAINING] != 0
@@ -284,7 +283,7 @@ def _netlogo_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spik
         for n in range(n_neurons):
             order[n] = np.uint64(n)
         if rules & SHUFFLE:  # Fisher-Yates: a hashed (seed, tick) start, then LCG steps, j by multiply-shift
-            r = _mix(_mix(order_seed[a]) + np.uint64(t))
+            r = _mix(order_key[a] + np.uint64(t))
             for i in range(n_neurons - 1, 0, -1):
                 r = r * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
                 j = ((r >> np.uint64(32)) * np.uint64(i + 1)) >> np.uint64(32)
@@ -298,7 +297,7 @@ def _netlogo_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spik
                         last_spike[n, a] = t
                         for h in range(state[HIST_LEN, n, a]):
                             entry = hist[a, n, h]
-                            _learn(w, entry & SYN_MASK, a, n, (entry >> T_SHIFT) - t, npar)
+                            _learn(w, entry & SYN_MASK, a, n, (entry >> SYN_BITS) - t, npar)
                         state[HIST_LEN, n, a] = 0
                         for q in range(out_start[n], out_start[n + 1]):
                             s = out_syn[q]
@@ -322,20 +321,20 @@ def _netlogo_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spik
 
 @njit(cache=True)
 def _netlogo_serial(feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked,
-                    out_start, out_syn, order_seed, rules):
+                    out_start, out_syn, order_key, rules):
     _netlogo_range(np.uint64(0), np.uint64(v.shape[1]), feed, clock, syn, npar, inpar, v, w, state,
-                   last_spike, hist, ring, spiked, out_start, out_syn, order_seed, rules)
+                   last_spike, hist, ring, spiked, out_start, out_syn, order_key, rules)
     clock[TICK] += 1
 
 
 @njit(cache=True, parallel=True)
 def _netlogo_parallel(feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked,
-                      out_start, out_syn, order_seed, rules, chunks):
+                      out_start, out_syn, order_key, rules, chunks):
     agents = v.shape[1]
     for c in prange(chunks):
         lo, hi = np.uint64(c * agents // chunks), np.uint64((c + 1) * agents // chunks)
         _netlogo_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked,
-                       out_start, out_syn, order_seed, rules)
+                       out_start, out_syn, order_key, rules)
     clock[TICK] += 1
 
 
@@ -412,9 +411,10 @@ class Engine:
             pre = self.syn[: S - I, PRE]
             self.out_syn = np.argsort(pre, kind="stable").astype(np.uint64)
             self.out_start = np.searchsorted(pre[self.out_syn], np.arange(N + 1)).astype(np.uint64)
-            self.order_seed = (np.int64(self.seed) + np.arange(A, dtype=np.int64)).view(np.uint64)
+            # agent a's order key: the hash of seed + a, once here rather than in every tick
+            self.order_key = _mix((np.int64(self.seed) + np.arange(A, dtype=np.int64)).view(np.uint64))
             rules = SHUFFLE * (order == "random") | sum(f for k, f in NETLOGO_RULES.items() if k not in without)
-            self._args += (self.out_start, self.out_syn, self.order_seed, rules)
+            self._args += (self.out_start, self.out_syn, self.order_key, rules)
             serial, parallel = _netlogo_serial, _netlogo_parallel
         if agents >= PARALLEL_FROM:
             self._call, self._args = parallel, self._args + (get_num_threads(),)
