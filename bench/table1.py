@@ -49,22 +49,17 @@ ABLATION = {  # factor -> what it is switched to
 def run_population(setting: dict, a: float, seeds: int, ticks: int) -> dict:
     """One population: `seeds` insects of one setting at A+ = A- = a; collision ticks per insect."""
     from services.brain.circuit import load_circuit
-    from services.loop import brain_for, closed_loop
-    from services.world.world import PAIN, World, params_for
+    from services.learning import noxious_ticks
+    from services.loop import brain_for
+    from services.world.world import World, params_for
 
     params = params_for(STEPS[setting["steps"]], view_distance=setting["view_distance"], push=setting["push"])
     world = World(params, agents=seeds, seed=0)
     circuit = load_circuit("insect").with_learning_params(a_plus=a, a_minus=a, w_max=setting["w_max"])
     brain = brain_for(world, circuit, semantics=setting["semantics"], order=setting["order"],
                       without=setting["without"])
-    collisions = [[] for _ in range(seeds)]  # ticks on a noxious patch (NetLogo resets its counter in each)
-    sensed = world.sensors
-
-    def keep(t):
-        for agent in np.flatnonzero(~np.isnan(sensed[:, PAIN])):
-            collisions[agent].append(t)
     started = time.perf_counter()
-    closed_loop(world, brain, ticks, keep)
+    collisions = noxious_ticks(world, brain, ticks)  # NetLogo resets its error-free counter in each
     plastic = circuit.plastic_synapses
     m = world.metrics
     return {"a": a, "collision_ticks": collisions, "seconds": time.perf_counter() - started,

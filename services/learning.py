@@ -20,6 +20,8 @@ more than half the seeds got there).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 DEFINITIONS = {  # name -> (window W, collisions allowed in it)
@@ -31,6 +33,23 @@ DEFINITIONS = {  # name -> (window W, collisions allowed in it)
 }
 DEFAULT_DEFINITION = "free 5,000"
 PAPER = {0.01: 19_000, 0.02: 15_000, 0.03: 9_000, 0.04: 7_000}  # Table 1: A+ = A- -> iterations
+
+
+def noxious_ticks(world, brain, ticks: int, on_tick: Callable[[int], None] | None = None) -> list[list[int]]:
+    """Run world and brain in the closed loop for `ticks` ticks; the ticks each agent spent on a
+    noxious patch (the pain sensor fed), from which every definition below is computed."""
+    from services.loop import closed_loop
+    from services.world.world import PAIN
+
+    noxious = [[] for _ in range(world.agents)]
+
+    def keep(t):
+        for agent in np.flatnonzero(~np.isnan(world.sensors[:, PAIN])):
+            noxious[agent].append(t)
+        if on_tick is not None:
+            on_tick(t)
+    closed_loop(world, brain, ticks, keep)
+    return noxious
 
 
 def learning_time(collision_ticks, ticks: int, window: int, allowed: int = 0) -> int | None:

@@ -26,11 +26,12 @@ from services.brain.checkpoint import load_weights
 from services.brain.engine import PARALLEL_FROM
 from services.brain.circuit import CircuitError, load_circuit
 from services.brain.service import add_engine_args
+from services.learning import PAPER
 from services.world.service import add_world_args, world_from_args
 from services.world.world import MapError
 
 log = logging.getLogger("spikinglab.run")
-PAPER_TABLE_1 = {"0.01": 19_000, "0.02": 15_000, "0.03": 9_000, "0.04": 7_000}
+PAPER_TABLE_1 = {f"{a:.2f}": n for a, n in PAPER.items()}  # keyed as summary.json shows A
 
 
 def parser() -> argparse.ArgumentParser:

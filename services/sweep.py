@@ -18,30 +18,22 @@ import numpy as np
 from services.brain.circuit import load_circuit
 from services.brain.engine import DEFAULT_SEMANTICS
 from services.brain.service import add_engine_args
-from services.learning import all_definitions, plot_table1, stats
-from services.loop import brain_for, closed_loop
+from services.learning import all_definitions, noxious_ticks, plot_table1, stats
+from services.loop import brain_for
 from services.run import PAPER_TABLE_1
-from services.world.world import PAIN, PRESETS, World, params_for
+from services.world.world import PRESETS, World, params_for
 
 
 def sweep_one(a_plus: float, seeds: int, ticks: int, preset: str, learned_after: int, progress=None,
               semantics: str = DEFAULT_SEMANTICS, order: str = "random") -> dict:
     world = World(params_for(preset, learned_after=learned_after), agents=seeds, seed=0)
     brain = brain_for(world, load_circuit("insect").with_learning_rate(a_plus), semantics=semantics, order=order)
-    noxious = [[] for _ in range(seeds)]  # ticks on a noxious patch, per seed
-
-    def keep(t):
-        for agent in np.flatnonzero(~np.isnan(world.sensors[:, PAIN])):
-            noxious[agent].append(t)
-        if progress:
-            progress.update(1)
-    closed_loop(world, brain, ticks, keep)
+    noxious = noxious_ticks(world, brain, ticks, (lambda t: progress.update(1)) if progress else None)
     bins = np.array(world.metrics.bins).T  # [seeds, ticks / 1000]
     q = bins.shape[1] // 4
     definitions = all_definitions(noxious, ticks)
-    main = definitions[f"free {learned_after:,}"] if f"free {learned_after:,}" in definitions else \
-        {"times": [int(t) if t >= 0 else None for t in world.metrics.learned_at]}
-    main = {**main, **stats(main["times"], ticks)}
+    times = [int(t) if t >= 0 else None for t in world.metrics.learned_at]  # the world's own counter
+    main = {"times": times, **stats(times, ticks)}
     return {
         "name": f"{semantics} semantics, {preset} steps", "a": a_plus, "a_plus": a_plus, "seeds": seeds,
         "ticks": ticks, "learning_time": main["times"], "reached": main["reached"], "median": main["median"],

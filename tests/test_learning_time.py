@@ -1,11 +1,9 @@
 """Learning time from noxious ticks: the post-hoc definitions agree with the world's own counter."""
 
-import numpy as np
-
 from services.brain.circuit import load_circuit
-from services.learning import learning_time, stats
-from services.loop import brain_for, closed_loop
-from services.world.world import PAIN, World, params_for
+from services.learning import learning_time, noxious_ticks, stats
+from services.loop import brain_for
+from services.world.world import World, params_for
 
 
 def test_definitions_on_hand_made_ticks():
@@ -27,12 +25,7 @@ def test_post_hoc_definition_equals_the_worlds_counter_on_a_real_run():
     ticks, window = 12_000, 1_000
     world = World(params_for("paper", learned_after=window), agents=6, seed=0)
     brain = brain_for(world, load_circuit("insect").with_learning_rate(0.04), semantics="netlogo")
-    noxious = [[] for _ in range(world.agents)]
-
-    def keep(t):
-        for a in np.flatnonzero(~np.isnan(world.sensors[:, PAIN])):
-            noxious[a].append(t)
-    closed_loop(world, brain, ticks, keep)
+    noxious = noxious_ticks(world, brain, ticks)
     expected = [None if t < 0 else int(t) for t in world.metrics.learned_at]
     assert [learning_time(n, ticks, window) for n in noxious] == expected
     assert any(t is not None for t in expected) and all(len(n) > 0 for n in noxious)
