@@ -44,11 +44,8 @@ def train(engine: Engine, schedule: dict[str, int], trials: int, period: int = T
 
 def responds(engine: Engine, stimulus: str, target: str = "M") -> bool:
     """Does `stimulus` alone fire `target`? (A fresh state with the learned weights, training off.)"""
-    probe = Engine(engine.circuit, training=False)
-    probe.set_weights(engine.get_weights()[:1])
-    feed = feed_for(probe, {stimulus: 0.0})
-    target_index = engine.circuit.neuron_index(target)
-    return any(probe.step(feed if k == 0 else None)[0, target_index] for k in range(50))
+    spikes = raster(engine.circuit, engine.get_weights()[0], {0: {stimulus: 0.0}}, 50)
+    return bool(spikes[:, engine.circuit.neuron_index(target)].any())
 
 
 def raster(circuit, weights: np.ndarray, events: dict[int, dict[str, float]], ticks: int) -> np.ndarray:

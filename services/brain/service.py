@@ -73,8 +73,6 @@ def add_engine_args(p: argparse.ArgumentParser) -> None:
                    help="netlogo: neurons each tick in a seeded random order (as NetLogo's ask) or in file order")
 
 
-def engine_options(args: argparse.Namespace) -> dict:
-    return {"semantics": args.semantics, "order": args.order}
 
 
 class BrainNode:
@@ -161,8 +159,10 @@ def run(args: argparse.Namespace, session) -> int:
     except (CircuitError, ValueError, OSError) as e:
         log.error("%s", e)
         return 2
-    node = BrainNode(circuit, training=not args.no_training, weights=weights, seed=args.seed,
-                         **engine_options(args))
+    def new_node() -> BrainNode:  # one per run the brain serves
+        return BrainNode(circuit, training=not args.no_training, weights=weights, seed=args.seed,
+                         semantics=args.semantics, order=args.order)
+    node = new_node()
     bus = Bus(session, args.group, "brain")
     if args.clock:
         try:
@@ -207,8 +207,7 @@ def run(args: argparse.Namespace, session) -> int:
                     log.info("weights saved to %s", args.save)
                 if args.once:
                     return 0
-                node = BrainNode(circuit, training=not args.no_training, weights=weights, seed=args.seed,
-                         **engine_options(args))
+                node = new_node()
     finally:
         bus.close()
 
