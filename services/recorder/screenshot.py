@@ -8,6 +8,8 @@ the time cursor is set to --tick (default: the end), and the window is saved.
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import socket
 import subprocess
 import sys
@@ -36,7 +38,8 @@ def screenshot(recording: Path, out: Path, tick: int | None = None, size: str = 
     viewer_exe = Path(sys.executable).with_name("rerun")
     viewer = subprocess.Popen([str(viewer_exe) if viewer_exe.exists() else "rerun", "--headless", "--window-size", size,
                                "--port", str(port), "--hide-welcome-screen"],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                              start_new_session=True)  # its own group: the venv's `rerun` starts the real viewer
     try:
         client, deadline = None, time.monotonic() + 30
         while client is None:
@@ -56,8 +59,11 @@ def screenshot(recording: Path, out: Path, tick: int | None = None, size: str = 
         time.sleep(settle)
         out.parent.mkdir(parents=True, exist_ok=True)
         client.save_screenshot(str(out.resolve()))
-    finally:
-        viewer.kill()
+    finally:  # the whole group: killing the wrapper alone left a ~400 MB viewer behind per call
+        try:
+            os.killpg(viewer.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
         viewer.wait()
     return out
 

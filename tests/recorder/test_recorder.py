@@ -99,14 +99,22 @@ def test_spikes_weights_and_learning_curve_are_the_brains(recorded_run):
     assert RrdReader(str(folder / "recording.rrd")).blueprints  # the layout is in the file
 
 
+def headless_viewers() -> set[int]:
+    """Process ids of running headless Rerun viewers (of anyone: compared before and after)."""
+    out = subprocess.run(["ps", "-eo", "pid=,args="], capture_output=True, text=True).stdout
+    return {int(line.split()[0]) for line in out.splitlines() if "rerun" in line and "--headless" in line}
+
+
 def test_screenshot_of_the_replay_is_not_blank(recorded_run, tmp_path):
     from matplotlib.image import imread
 
     folder = recorded_run[0]
+    before = headless_viewers()
     done = subprocess.run([sys.executable, "-m", "services.cli", "screenshot", str(folder / "recording.rrd"),
                            "--out", str(tmp_path / "replay.png"), "--tick", "2500"],
                           cwd=ROOT, capture_output=True, text=True, timeout=180)
     assert done.returncode == 0, done.stderr[-2000:]
+    assert headless_viewers() == before  # the viewer it started is gone, the real one behind the wrapper too
     image = imread(tmp_path / "replay.png")[..., :3]
     assert image.shape[0] >= 800 and image.shape[1] >= 1400
     assert image.std() > 0.05  # not one flat colour
