@@ -15,7 +15,7 @@ COMMANDS = {
     "router": ("services.router", "a Zenoh router, for brain and world on different machines"),
     "sweep": ("services.sweep", "the paper's Table 1: learning time for A+ = A- over seeds"),
     "conditioning": ("services.brain.conditioning", "classical conditioning demo on fig. 2 and fig. 4"),
-    "bench": (None, "benchmarks and experiments: bench engine | loop | recorder | gateway | table1"),
+    "bench": (None, "benchmarks and experiments: bench engine | loop | recorder | gateway | table1 | robot"),
 }
 BENCHMARKS = {
     "engine": "bench.engine",
@@ -23,6 +23,7 @@ BENCHMARKS = {
     "recorder": "bench.recorder",
     "gateway": "bench.gateway",
     "table1": "bench.table1",
+    "robot": "bench.robot",
 }
 
 

@@ -149,22 +149,29 @@ class EV3Backend(Backend):
 
 
 class SimBackend(Backend):
-    """A simulated EV3 in the world's arena, in real time: the colour sensor looks at the patch
-    under the robot, the ultrasonic sensor sees the objects standing on black and red patches
-    (a pymunk ray), and a simulated experimenter presses the touch sensor while it is on food.
+    """A simulated EV3 on the paper's floor, in real time.
+
+    The floor is the world's map, `patch_cm` a square. As in the paper, an object of the
+    ultrasonic sensor's height (`object_cm` wide) stands in the centre of every black and red
+    square, so the colour sensor sees black or red for (patch_cm - object_cm) / 2 before the
+    ultrasonic reads a collision (below 5 cm). The robot is a point at its sensors: it stalls
+    against an object, and a simulated experimenter presses the touch sensor while it is on food
+    and carries it back to the start when it leaves the floor.
     """
 
-    def __init__(self, seed: int = 0, patch_cm: float = 10.0, speed_patches_s: float = 2.0,
+    def __init__(self, seed: int = 0, patch_cm: float = 30.0, object_cm: float = 15.0, speed_cm_s: float = 20.0,
                  turn_deg_s: float = 50.0, link_ms: float = 5.0, map_path=None):
-        from services.world.physics import build_space
-        from services.world.world import World, map_world, params_for
+        from services.world.physics import build_objects
+        from services.world.world import BLACK as W_BLACK, RED as W_RED, World, map_world, params_for
 
+        if not 0 < object_cm <= patch_cm:
+            raise ValueError(f"the objects ({object_cm} cm) must fit their squares ({patch_cm} cm)")
         params, grid = params_for("paper"), None
         if map_path:
             params, grid = map_world(map_path, params)
         self.world = World(params, seed=seed, grid=grid)
-        self.space = build_space(self.world)
-        self.patch_cm, self.speed, self.turn, self.link_s = patch_cm, speed_patches_s, turn_deg_s, link_ms / 1000
+        self.objects = build_objects(self.world, object_cm / patch_cm, colours=(W_BLACK, W_RED))
+        self.patch_cm, self.speed, self.turn, self.link_s = patch_cm, speed_cm_s / patch_cm, turn_deg_s, link_ms / 1000
         self._motion = ("stop", 0, 0.0)  # kind, direction, until
         self._last = time.monotonic()
         self._lock = threading.Lock()
@@ -175,16 +182,23 @@ class SimBackend(Backend):
         self._last = time.monotonic()
 
     def _advance(self, now: float) -> None:
+        from services.world.physics import ray
+
         kind, direction, until = self._motion
         dt = max(0.0, min(now, until) - self._last)
         if kind == "forward":
-            h = math.radians(self.world.heading[0])
-            self.world.pos[0] += self.speed * dt * np.array([math.sin(h), math.cos(h)])
+            heading = float(self.world.heading[0])
+            step = self.speed * dt
+            _, free = ray(self.objects, tuple(self.world.pos[0]), heading, step)
+            if free is not None:  # stalls against the object
+                step = max(0.0, free - 1e-6)
+            h = math.radians(heading)
+            self.world.pos[0] += step * np.array([math.sin(h), math.cos(h)])
         elif kind == "spin":
             self.world.heading[0] = (self.world.heading[0] + direction * self.turn * dt) % 360
         p = self.world.params
         x, y = self.world.pos[0]
-        if not (p.x_min <= x <= p.x_max and p.y_min <= y <= p.y_max):  # carried back to the start
+        if not (p.x_min - 0.5 <= x <= p.x_max + 0.5 and p.y_min - 0.5 <= y <= p.y_max + 0.5):  # off the floor
             self.world.pos[0] = p.start
         self._last = now
 
@@ -200,8 +214,7 @@ class SimBackend(Backend):
             self._advance(now)
             under = self.world.patch_at(0)
             colour = {W_BLACK: BLACK, W_RED: RED, W_GREEN: GREEN}.get(under, WHITE)
-            _, d = ray(self.space, tuple(self.world.pos[0]), float(self.world.heading[0]), 255 / self.patch_cm,
-                       colours=(W_BLACK, W_RED))
+            _, d = ray(self.objects, tuple(self.world.pos[0]), float(self.world.heading[0]), 255 / self.patch_cm)
         distance = 255.0 if d is None else round(d * self.patch_cm, 1)
         return Reading(colour, distance, under == W_GREEN, now)
 

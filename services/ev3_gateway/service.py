@@ -55,6 +55,9 @@ def parser() -> argparse.ArgumentParser:
     sim = p.add_argument_group("simulated EV3")
     sim.add_argument("--sim-seed", type=int, default=0)
     sim.add_argument("--sim-map", type=Path)
+    sim.add_argument("--sim-patch-cm", type=float, default=30.0, help="the floor's squares (default 30 cm)")
+    sim.add_argument("--sim-object-cm", type=float, default=15.0,
+                     help="the objects in the centre of black and red squares (default 15 cm)")
     sim.add_argument("--link-ms", type=float, default=5.0, help="simulated link round trip (default 5 ms)")
     m = p.add_argument_group("mapping and safety")
     m.add_argument("--move-ms", type=int, default=500, help="forward time per MOVE spike (default 500)")
@@ -67,7 +70,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--max-polls", type=float, default=0, metavar="PER_S",
                    help="poll at most this often (default 0: as fast as the link allows)")
     p.add_argument("--duration", type=float, default=0, help="stop after this many seconds (default: run until Ctrl-C)")
-    p.add_argument("--stats", type=Path, help="write polls, commands, stops and link losses here (JSON) at the end")
+    p.add_argument("--stats", type=Path,
+                   help="write polls, commands, stops, link losses and the times of collisions here (JSON) at the end")
     add_bus_args(p)
     return p
 
@@ -98,7 +102,9 @@ class Gateway:
         self.done = threading.Event()
         self.busy_until = 0.0  # when the running motor command ends
         self.stopped = True  # no motor command is running (or it was stopped)
-        self.stats = {"polls": 0, "commands": 0, "safety_stops": 0, "link_losses": 0, "rejected": 0}
+        self.started = time.monotonic()
+        self.stats = {"polls": 0, "commands": 0, "safety_stops": 0, "link_losses": 0, "rejected": 0,
+                      "collisions": []}
 
     def call(self, what: str, *args) -> bool:
         """A backend call under the lock; a link failure is noted for the poll loop to repair."""
@@ -135,12 +141,25 @@ class Gateway:
                 waited += 1
                 self.done.wait(1.0)
 
+    def count_collision(self, reading: Reading, touching: bool) -> bool:
+        """The paper's collision on the robot: the ultrasonic distance below --pain-below-cm. Each
+        is noted as [start, end] in seconds since the start, to see learning on the robot."""
+        now_touching = reading.distance_cm < self.args.pain_below_cm
+        if now_touching != touching:
+            at = round(reading.at - self.started, 3)
+            if now_touching:
+                self.stats["collisions"].append([at, None])
+            else:
+                self.stats["collisions"][-1][1] = at
+        return now_touching
+
     def poll(self) -> None:
         tick = 0
         names = INSECT_SENSORS
         args = self.args
         interval = 1.0 / args.max_polls if args.max_polls else 0.0
-        next_at = time.monotonic()
+        next_at = self.started = time.monotonic()
+        touching = False
         while not self.done.is_set():
             if interval:
                 next_at += interval
@@ -154,6 +173,7 @@ class Gateway:
             except RobotLinkError as e:
                 self.link_lost(e)
                 continue
+            touching = self.count_collision(reading, touching)
             self.sensors.put(Sensors(tick=tick, names=names, values=Array.of(
                 sensor_values(reading, args.pain_below_cm, args.contact_value))))
             tick += 1
@@ -203,11 +223,15 @@ class Gateway:
             worker.join(timeout=2)
             self.call("stop")
             self.stats["rejected"] = self.motor.rejected_total
+            self.stats["seconds"] = round(time.monotonic() - self.started, 3)
+            if self.stats["collisions"] and self.stats["collisions"][-1][1] is None:
+                self.stats["collisions"][-1][1] = self.stats["seconds"]
 
 
 def backend_from(args: argparse.Namespace):
     if args.backend == "sim":
-        return SimBackend(seed=args.sim_seed, link_ms=args.link_ms, map_path=args.sim_map)
+        return SimBackend(seed=args.sim_seed, patch_cm=args.sim_patch_cm, object_cm=args.sim_object_cm,
+                          link_ms=args.link_ms, map_path=args.sim_map)
     wiring = Wiring(touch=args.touch_port, colour=args.colour_port, ultrasonic=args.ultrasonic_port,
                     motors=args.motors, speed=args.speed, spin_speed=args.spin_speed)
     return EV3Backend(protocol=args.protocol, host=args.host, wiring=wiring)
@@ -235,7 +259,7 @@ def main(argv=None) -> int:
     finally:
         backend.close()
         bus.close()
-        log.info("gateway done: %s", gateway.stats)
+        log.info("gateway done: %s", {k: len(v) if k == "collisions" else v for k, v in gateway.stats.items()})
         if args.stats:
             args.stats.write_text(json.dumps(gateway.stats))
     return 0

@@ -21,16 +21,8 @@ INSECT_RADIUS = 0.3  # patches; the body is for display and contact, sensing use
 
 def build_space(world: World, arena: int = 0) -> pymunk.Space:
     """A pymunk space of one arena of `world`: its non-empty patches and its insects."""
-    p = world.params
     space = pymunk.Space()
-    grid = world.grid[arena]
-    for ix, iy in zip(*np.nonzero(grid)):
-        cx, cy = p.x_min + ix, p.y_min + iy
-        box = pymunk.Poly(space.static_body, [(cx - 0.5, cy - 0.5), (cx + 0.5, cy - 0.5),
-                                              (cx + 0.5, cy + 0.5), (cx - 0.5, cy + 0.5)])
-        box.collision_type = int(grid[ix, iy])
-        box.sensor = True  # patches are smelled and touched, never pushed against
-        space.add(box)
+    add_boxes(space, world, arena, 1.0, world.grid[arena] != EMPTY)
     for a in np.flatnonzero(world.arena_of == arena):
         body = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
         body.position = tuple(world.pos[a])
@@ -40,6 +32,25 @@ def build_space(world: World, arena: int = 0) -> pymunk.Space:
         shape.filter = pymunk.ShapeFilter(categories=0b10, mask=0)  # not seen by rays
         space.add(body, shape)
     return space
+
+
+def build_objects(world: World, size: float, colours, arena: int = 0) -> pymunk.Space:
+    """Square objects `size` patches wide in the centre of every patch of `colours` (the EV3
+    floor's obstacles: what an ultrasonic sensor sees), collision_type their patch's colour."""
+    space = pymunk.Space()
+    add_boxes(space, world, arena, size, np.isin(world.grid[arena], colours))
+    return space
+
+
+def add_boxes(space: pymunk.Space, world: World, arena: int, size: float, where: np.ndarray) -> None:
+    """A static box `size` patches wide centred on each patch `where` is true; collision_type its colour."""
+    p, grid, h = world.params, world.grid[arena], size / 2
+    for ix, iy in zip(*np.nonzero(where)):
+        cx, cy = p.x_min + ix, p.y_min + iy
+        box = pymunk.Poly(space.static_body, [(cx - h, cy - h), (cx + h, cy - h), (cx + h, cy + h), (cx - h, cy + h)])
+        box.collision_type = int(grid[ix, iy])
+        box.sensor = True  # patches are smelled and touched, never pushed against
+        space.add(box)
 
 
 def ray(space: pymunk.Space, start, heading_deg: float, distance: float, colours=None):

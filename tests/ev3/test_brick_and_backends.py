@@ -109,14 +109,15 @@ ARENA = """\
 
 def test_simulated_ev3_senses_and_moves_in_its_world(tmp_path):
     (tmp_path / "arena.txt").write_text(ARENA)
-    robot = SimBackend(link_ms=0, speed_patches_s=20.0, turn_deg_s=900.0, map_path=tmp_path / "arena.txt")
+    # 30 cm squares, 15 cm objects in the centre of the black ones; 20 patches/s, 900 deg/s
+    robot = SimBackend(link_ms=0, speed_cm_s=600.0, turn_deg_s=900.0, map_path=tmp_path / "arena.txt")
     robot.connect()
     robot.world.heading[0] = 270.0  # west, towards the wall at x = 0; the robot starts at (1, 2)
     reading = robot.read()
-    assert reading.distance_cm == pytest.approx(5.0)  # to the wall's face at x = 0.5: half a patch, 10 cm a patch
+    assert reading.distance_cm == pytest.approx(22.5)  # to the object's face at x = 0.25: 0.75 of a 30 cm square
     assert (reading.colour, reading.touch) == (6, False)  # white floor
-    robot.world.heading[0] = 90.0  # east, towards the food at x = 7 and the wall at x = 9
-    assert robot.read().distance_cm == pytest.approx(75.0)  # food is not an obstacle
+    robot.world.heading[0] = 90.0  # east, towards the food at x = 7 and the wall's object at x = 8.75
+    assert robot.read().distance_cm == pytest.approx(232.5)  # food is not an obstacle
     robot.forward(100)  # 20 patches/s for 0.1 s: 2 patches
     time.sleep(0.15)
     robot.read()
@@ -128,3 +129,14 @@ def test_simulated_ev3_senses_and_moves_in_its_world(tmp_path):
     robot.world.pos[0] = (7.0, 2.0)  # on the food: the experimenter presses the touch sensor
     reading = robot.read()
     assert reading.touch and reading.colour == 3
+    # west into the wall: onto its black square, where the colour sensor sees black before the
+    # ultrasonic sees the object close; then stalled against the object, not through it
+    robot.world.pos[0], robot.world.heading[0] = (1.0, 2.0), 270.0
+    robot.forward(30)  # 0.6 patches: on the black square, 4.5 cm from the object
+    time.sleep(0.05)
+    reading = robot.read()
+    assert reading.colour == 1 and reading.distance_cm == pytest.approx(4.5, abs=1.0)
+    robot.forward(300)  # 6 patches, were it free
+    time.sleep(0.35)
+    reading = robot.read()
+    assert robot.world.pos[0][0] == pytest.approx(0.25, abs=0.02) and reading.distance_cm < 1
