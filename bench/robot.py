@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.run import local_endpoints
+from spikinglab.run import local_endpoints
 
 CONDITIONS = {  # name -> brain options
     "learning, A = 0.08 (the paper's robot)": ["--a-plus", 0.08],
@@ -41,10 +41,10 @@ def one_run(brain_options: list, seed: int, seconds: float, gateway_options: lis
         with sockets:
             stats = Path(tmp) / "gateway.json"
             python = [sys.executable, "-m"]
-            gateway = subprocess.Popen([*python, "services.ev3_gateway", "--backend", "sim", "--sim-seed", str(seed),
+            gateway = subprocess.Popen([*python, "spikinglab.ev3_gateway", "--backend", "sim", "--sim-seed", str(seed),
                                         "--listen", gateway_ep, "--duration", str(seconds), "--stats", str(stats),
                                         *map(str, gateway_options)], stderr=subprocess.DEVNULL)
-            brain = subprocess.Popen([*python, "services.brain", "--connect", gateway_ep, "--clock", "1000",
+            brain = subprocess.Popen([*python, "spikinglab.brain", "--connect", gateway_ep, "--clock", "1000",
                                       "--seed", str(seed), *map(str, brain_options)], stderr=subprocess.DEVNULL)
             try:
                 gateway.wait(seconds + 60)
