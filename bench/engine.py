@@ -3,7 +3,7 @@
 single: ticks/s of one agent through Engine.step(feed), the per-tick call a closed loop makes.
 batch:  agent-ticks/s of A = 1000 agents stepped together.
 Both for each semantics (phased, netlogo with its random order), on the same feeds.
-The last line printed is JSON. Run: `spikinglab bench engine` or `python -m bench.engine`.
+The last line printed is JSON. Run: `spikinglab bench engine` or `python -m spikinglab.bench.engine`.
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ import time
 
 import numpy as np
 
-from services.brain.circuit import load_circuit
-from services.brain.engine import SEMANTICS, Engine
+from spikinglab.brain.circuit import load_circuit
+from spikinglab.brain.engine import SEMANTICS, Engine
 
 FEED_PROBABILITY = 0.3  # chance per tick that a sensor feeds its input neuron a value in [0, 4)
 

@@ -4,7 +4,7 @@ polls/s:          the gateway reading the brick as fast as the link allows (no b
 sensor-to-motor:  an obstacle appears 3 cm ahead on the brick -> the gateway's next poll -> pain ->
                   the free-running brain -> ROTATE -> the spin command on the brick; median of trials
 brain:            its achieved tick rate and p99 lateness while doing that, at --clock Hz
-The last line printed is JSON. Run: `spikinglab bench gateway` or `python -m bench.gateway`.
+The last line printed is JSON. Run: `spikinglab bench gateway` or `python -m spikinglab.bench.gateway`.
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from services.ev3_gateway.fake_brick import FakeBrick
-from services.run import local_endpoints
+from spikinglab.ev3_gateway.fake_brick import FakeBrick
+from spikinglab.run import local_endpoints
 
 
 def service(name: str, *args) -> subprocess.Popen:
@@ -33,7 +33,7 @@ def polls_per_s(seconds: float) -> float:
     with FakeBrick(), tempfile.TemporaryDirectory() as tmp:
         (gateway_ep,), sockets = local_endpoints("gateway")
         with sockets:
-            gateway = service("services.ev3_gateway", "--listen", gateway_ep, "--duration", seconds, "--stats",
+            gateway = service("spikinglab.ev3_gateway", "--listen", gateway_ep, "--duration", seconds, "--stats",
                               Path(tmp) / "g.json")
             gateway.wait(seconds + 30)
         return json.loads((Path(tmp) / "g.json").read_text())["polls"] / seconds
@@ -46,8 +46,8 @@ def chain(trials: int, hz: float, max_polls: float = 0) -> tuple[list[float], di
     with FakeBrick() as brick, tempfile.TemporaryDirectory() as tmp:
         (gateway_ep, brain_ep), sockets = local_endpoints("gateway", "brain")
         with sockets:
-            gateway = service("services.ev3_gateway", "--listen", gateway_ep, "--cpu", 0, "--max-polls", max_polls)
-            brain = service("services.brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", hz,
+            gateway = service("spikinglab.ev3_gateway", "--listen", gateway_ep, "--cpu", 0, "--max-polls", max_polls)
+            brain = service("spikinglab.brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", hz,
                             "--stats", Path(tmp) / "b.json", "--cpu", 1)
             latencies = []
             try:

@@ -5,7 +5,7 @@ bus:       one agent, world and brain as two processes on a local Zenoh bus (Uni
            CPU each, as `spikinglab run` places them).
 batch:     A = 1000 agents in one message per tick, across the same two processes.
 All with the default engine semantics, or `--semantics phased|netlogo`.
-The last line printed is JSON. Run: `spikinglab bench loop` or `python -m bench.loop`.
+The last line printed is JSON. Run: `spikinglab bench loop` or `python -m spikinglab.bench.loop`.
 """
 
 from __future__ import annotations
@@ -21,11 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
-from services.brain.circuit import load_circuit
-from services.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, SEMANTICS
-from services.loop import brain_for, closed_loop
-from services.run import local_endpoints
-from services.world.world import World
+from spikinglab.brain.circuit import load_circuit
+from spikinglab.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, SEMANTICS
+from spikinglab.loop import brain_for, closed_loop
+from spikinglab.run import local_endpoints
+from spikinglab.world.world import World
 
 
 def inprocess(ticks: int, semantics: str) -> float:
@@ -43,9 +43,9 @@ def over_the_bus(ticks: int, agents: int, semantics: str) -> float:
     with sockets, tempfile.TemporaryDirectory() as tmp:
         run = [sys.executable, "-m"]
         pin = ([["--cpu", "0"], ["--cpu", "1"]] if agents < PARALLEL_FROM and os.cpu_count() >= 2 else [[], []])
-        world = subprocess.Popen(run + ["services.world", "--listen", world_ep, "--ticks", str(ticks), "--agents",
+        world = subprocess.Popen(run + ["spikinglab.world", "--listen", world_ep, "--ticks", str(ticks), "--agents",
                                         str(agents), "--out", tmp] + pin[0], stderr=subprocess.DEVNULL)
-        brain = subprocess.Popen(run + ["services.brain", "--listen", brain_ep, "--connect", world_ep, "--once",
+        brain = subprocess.Popen(run + ["spikinglab.brain", "--listen", brain_ep, "--connect", world_ep, "--once",
                                         "--semantics", semantics] + pin[1], stderr=subprocess.DEVNULL)
         if world.wait(600) != 0 or brain.wait(60) != 0:
             raise SystemExit("the world or the brain failed")

@@ -2,7 +2,7 @@
 
 Prints the loop's ticks/s both ways, the messages the recorder took, its lag (how long after the
 world's last tick the file was complete) and the file size. The last line is JSON.
-Run: `spikinglab bench recorder` or `python -m bench.recorder`.
+Run: `spikinglab bench recorder` or `python -m spikinglab.bench.recorder`.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from services.run import local_endpoints
+from spikinglab.run import local_endpoints
 
 
 def one_run(ticks: int, record: bool, folder: Path) -> dict:
@@ -26,12 +26,12 @@ def one_run(ticks: int, record: bool, folder: Path) -> dict:
     with sockets:
         recorder = None
         if record:
-            recorder = subprocess.Popen(py + ["services.recorder", "--connect", world_ep, "--connect", brain_ep,
+            recorder = subprocess.Popen(py + ["spikinglab.recorder", "--connect", world_ep, "--connect", brain_ep,
                                               "--out", str(folder / "recording.rrd")],
                                         stderr=open(folder / "recorder.log", "w"))
-        world = subprocess.Popen(py + ["services.world", "--listen", world_ep, "--ticks", str(ticks), "--out",
+        world = subprocess.Popen(py + ["spikinglab.world", "--listen", world_ep, "--ticks", str(ticks), "--out",
                                        str(folder), "--cpu", "0"] + state, stderr=subprocess.DEVNULL)
-        brain = subprocess.Popen(py + ["services.brain", "--listen", brain_ep, "--connect", world_ep, "--once",
+        brain = subprocess.Popen(py + ["spikinglab.brain", "--listen", brain_ep, "--connect", world_ep, "--once",
                                        "--cpu", "1"] + state, stderr=subprocess.DEVNULL)
         world.wait()
         world_done = time.monotonic()
@@ -51,13 +51,13 @@ def alone(ticks: int) -> float:
     """Ticks/s the recorder decodes and writes when fed a run's state messages as fast as it takes them."""
     import rerun as rr
 
-    from services.brain.circuit import load_circuit
-    from services.brain.service import STATE_BATCH, BrainNode, layout
-    from services.bus.schemas import Array, Sensors, WorldMap, decode, encode
-    from services.recorder.recorder import Recorder, blueprint
-    from services.world.service import keep_state, state_message
-    from services.world.world import SENSORS, World, world_actions
-    from services.bus.schemas import TickBatch
+    from spikinglab.brain.circuit import load_circuit
+    from spikinglab.brain.service import STATE_BATCH, BrainNode, layout
+    from spikinglab.bus.schemas import Array, Sensors, WorldMap, decode, encode
+    from spikinglab.recorder.recorder import Recorder, blueprint
+    from spikinglab.world.service import keep_state, state_message
+    from spikinglab.world.world import SENSORS, World, world_actions
+    from spikinglab.bus.schemas import TickBatch
 
     circuit, world = load_circuit("insect"), World(seed=1)
     node = BrainNode(circuit)

@@ -38,8 +38,8 @@ PAPER = {0.01: 19_000, 0.02: 15_000, 0.03: 9_000, 0.04: 7_000}  # Table 1: A+ = 
 def noxious_ticks(world, brain, ticks: int, on_tick: Callable[[int], None] | None = None) -> list[list[int]]:
     """Run world and brain in the closed loop for `ticks` ticks; the ticks each agent spent on a
     noxious patch (the pain sensor fed), from which every definition below is computed."""
-    from services.loop import closed_loop
-    from services.world.world import PAIN
+    from spikinglab.loop import closed_loop
+    from spikinglab.world.world import PAIN
 
     noxious = [[] for _ in range(world.agents)]
 

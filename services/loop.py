@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from services.brain.brain import Brain
-from services.brain.circuit import Circuit
-from services.world.world import SENSORS, World, world_actions
+from spikinglab.brain.brain import Brain
+from spikinglab.brain.circuit import Circuit
+from spikinglab.world.world import SENSORS, World, world_actions
 
 
 def brain_for(world: World, circuit: Circuit, **engine_options) -> Brain:

@@ -10,7 +10,7 @@ import logging
 import sys
 import time
 
-from services.bus.session import add_bus_args, open_session
+from spikinglab.bus.session import add_bus_args, open_session
 
 log = logging.getLogger("spikinglab.router")
 

@@ -22,13 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-from services.brain.checkpoint import load_weights
-from services.brain.engine import PARALLEL_FROM
-from services.brain.circuit import CircuitError, load_circuit
-from services.brain.service import add_engine_args
-from services.learning import PAPER
-from services.world.service import add_world_args, world_from_args
-from services.world.world import MapError
+from spikinglab.brain.checkpoint import load_weights
+from spikinglab.brain.engine import PARALLEL_FROM
+from spikinglab.brain.circuit import CircuitError, load_circuit
+from spikinglab.brain.service import add_engine_args
+from spikinglab.learning import PAPER
+from spikinglab.world.service import add_world_args, world_from_args
+from spikinglab.world.world import MapError
 
 log = logging.getLogger("spikinglab.run")
 PAPER_TABLE_1 = {f"{a:.2f}": n for a, n in PAPER.items()}  # keyed as summary.json shows A
@@ -61,7 +61,7 @@ def local_endpoints(*names: str) -> tuple[list[str], tempfile.TemporaryDirectory
 def service(name: str, args: list, log_file: Path | None) -> subprocess.Popen:
     out = open(log_file, "w") if log_file else None
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    return subprocess.Popen([sys.executable, "-m", f"services.{name}", *map(str, args)], stdout=out,
+    return subprocess.Popen([sys.executable, "-m", f"spikinglab.{name}", *map(str, args)], stdout=out,
                             stderr=subprocess.STDOUT if out else None, env=env)
 
 

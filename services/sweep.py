@@ -15,13 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
-from services.brain.circuit import load_circuit
-from services.brain.engine import DEFAULT_SEMANTICS
-from services.brain.service import add_engine_args
-from services.learning import all_definitions, noxious_ticks, plot_table1, stats
-from services.loop import brain_for
-from services.run import PAPER_TABLE_1
-from services.world.world import PRESETS, World, params_for
+from spikinglab.brain.circuit import load_circuit
+from spikinglab.brain.engine import DEFAULT_SEMANTICS
+from spikinglab.brain.service import add_engine_args
+from spikinglab.learning import all_definitions, noxious_ticks, plot_table1, stats
+from spikinglab.loop import brain_for
+from spikinglab.run import PAPER_TABLE_1
+from spikinglab.world.world import PRESETS, World, params_for
 
 
 def sweep_one(a_plus: float, seeds: int, ticks: int, preset: str, learned_after: int, progress=None,

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import zenoh
 
-from services.bus.schemas import BusError, decode
-from services.bus.session import make_config
+from spikinglab.bus.schemas import BusError, decode
+from spikinglab.bus.session import make_config
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -28,10 +28,10 @@ def endpoint(port: int) -> str:
 
 
 def start(service: str, *args, log: Path | None = None) -> subprocess.Popen:
-    """`python -m services.<service> args...`, its output into `log` (read it when a test fails)."""
+    """`python -m spikinglab.<service> args...`, its output into `log` (read it when a test fails)."""
     out = open(log, "w") if log else subprocess.DEVNULL
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    return subprocess.Popen([sys.executable, "-m", f"services.{service}", *map(str, args)], cwd=ROOT,
+    return subprocess.Popen([sys.executable, "-m", f"spikinglab.{service}", *map(str, args)], cwd=ROOT,
                             stdout=out, stderr=subprocess.STDOUT, env=env)
 
 

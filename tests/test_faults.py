@@ -9,12 +9,12 @@ import time
 import msgspec
 import numpy as np
 
-from services.brain.checkpoint import load_weights
-from services.brain.circuit import load_circuit
-from services.bus import keys
-from services.bus.schemas import VERSION, Array, Control, Sensors, encode
-from services.loop import brain_for, closed_loop
-from services.world.world import World
+from spikinglab.brain.checkpoint import load_weights
+from spikinglab.brain.circuit import load_circuit
+from spikinglab.bus import keys
+from spikinglab.bus.schemas import VERSION, Array, Control, Sensors, encode
+from spikinglab.loop import brain_for, closed_loop
+from spikinglab.world.world import World
 
 from .processes import Watcher, endpoint, finish, free_port, start, ticks_in, wait_for
 

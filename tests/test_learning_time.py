@@ -1,9 +1,9 @@
 """Learning time from noxious ticks: the post-hoc definitions agree with the world's own counter."""
 
-from services.brain.circuit import load_circuit
-from services.learning import learning_time, noxious_ticks, stats
-from services.loop import brain_for
-from services.world.world import World, params_for
+from spikinglab.brain.circuit import load_circuit
+from spikinglab.learning import learning_time, noxious_ticks, stats
+from spikinglab.loop import brain_for
+from spikinglab.world.world import World, params_for
 
 
 def test_definitions_on_hand_made_ticks():

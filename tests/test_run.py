@@ -6,14 +6,14 @@ import sys
 
 import numpy as np
 
-from services.brain.checkpoint import load_weights
-from services.brain.circuit import load_circuit
+from spikinglab.brain.checkpoint import load_weights
+from spikinglab.brain.circuit import load_circuit
 
 from .processes import ROOT
 
 
 def spikinglab(*args, timeout=180):
-    return subprocess.run([sys.executable, "-m", "services.cli", *map(str, args)], cwd=ROOT, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "spikinglab.cli", *map(str, args)], cwd=ROOT, capture_output=True,
                           text=True, timeout=timeout)
 
 

@@ -11,10 +11,11 @@ from __future__ import annotations
 import dataclasses
 import math
 import tomllib
+from importlib import resources
 from dataclasses import dataclass, field
 from pathlib import Path
 
-CIRCUITS_DIR = Path(__file__).resolve().parents[2] / "circuits"
+CIRCUITS_DIR = Path(str(resources.files("spikinglab.circuits")))  # shipped with the package
 
 
 class CircuitError(ValueError):

@@ -1,4 +1,4 @@
-"""The brain service: `spikinglab brain` / `python -m services.brain`.
+"""The brain service: `spikinglab brain` / `python -m spikinglab.brain`.
 
 Reads:  spikinglab/<group>/sensors (Sensors), spikinglab/<group>/control (Control)
 Writes: spikinglab/<group>/motor (Motor), liveliness spikinglab/<group>/alive/brain
@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from services.bus import keys
-from services.bus.schemas import Array, BrainLayout, BrainState, Control, Motor, Sensors, TickBatch
-from services.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
+from spikinglab.bus import keys
+from spikinglab.bus.schemas import Array, BrainLayout, BrainState, Control, Motor, Sensors, TickBatch
+from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 
 from .brain import Brain
 from .checkpoint import load_weights, save_weights

@@ -263,7 +263,7 @@ class FakeBrick:
         return i
 
 
-def main() -> None:  # a fake brick to try the gateway by hand: python -m services.ev3_gateway.fake_brick
+def main() -> None:  # a fake brick to try the gateway by hand: python -m spikinglab.ev3_gateway.fake_brick
     logging.basicConfig(level=logging.INFO)
     brick = FakeBrick().start()
     print(f"fake EV3 on 127.0.0.1:{brick.port}, beaconing to UDP {BEACON_PORT}; Ctrl-C to stop")

@@ -1,4 +1,4 @@
-"""The EV3 gateway: `spikinglab gateway` / `python -m services.ev3_gateway`.
+"""The EV3 gateway: `spikinglab gateway` / `python -m spikinglab.ev3_gateway`.
 
 Reads:  spikinglab/<group>/motor (Motor events of a free-running brain), the brain's liveliness
 Writes: spikinglab/<group>/sensors (every reading), liveliness spikinglab/<group>/alive/gateway
@@ -29,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
-from services.bus import keys
-from services.bus.schemas import INSECT_SENSORS, Array, Motor, Sensors
-from services.bus.session import Bus, add_bus_args, open_session
+from spikinglab.bus import keys
+from spikinglab.bus.schemas import INSECT_SENSORS, Array, Motor, Sensors
+from spikinglab.bus.session import Bus, add_bus_args, open_session
 
 from .backends import BLACK, GREEN, RED, EV3Backend, Reading, RobotLinkError, SimBackend, Wiring
 

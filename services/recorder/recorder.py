@@ -26,7 +26,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from services.bus.schemas import BrainLayout, BrainState, WorldMap, WorldState
+from spikinglab.bus.schemas import BrainLayout, BrainState, WorldMap, WorldState
 
 EMPTY, BLACK, RED, GREEN = 0, 1, 2, 3
 PATCH_COLOURS = [(EMPTY, "floor", (24, 24, 28)), (BLACK, "wall", (215, 215, 215)),

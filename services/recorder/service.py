@@ -1,4 +1,4 @@
-"""The recorder service: `spikinglab record` / `python -m services.recorder`.
+"""The recorder service: `spikinglab record` / `python -m spikinglab.recorder`.
 
 Reads:  spikinglab/<group>/state/** (the world's and the brain's state batches, the map, the
         brain's layout; one strict inbox), and the liveliness of the world and the brain
@@ -22,9 +22,9 @@ from pathlib import Path
 
 import rerun as rr
 
-from services.bus import keys
-from services.bus.schemas import BrainLayout, BrainState, WorldMap, WorldState
-from services.bus.session import Bus, add_bus_args, service_main
+from spikinglab.bus import keys
+from spikinglab.bus.schemas import BrainLayout, BrainState, WorldMap, WorldState
+from spikinglab.bus.session import Bus, add_bus_args, service_main
 
 from .recorder import Recorder, blueprint
 

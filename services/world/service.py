@@ -1,4 +1,4 @@
-"""The world service: `spikinglab world` / `python -m services.world`.
+"""The world service: `spikinglab world` / `python -m spikinglab.world`.
 
 Reads:  spikinglab/<group>/motor (Motor), liveliness spikinglab/<group>/alive/brain
 Writes: spikinglab/<group>/sensors (Sensors), .../control (Control "end"), .../world/state and
@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from services.bus import keys
-from services.bus.schemas import Array, Control, Motor, Sensors, TickBatch, WorldMap, WorldState
-from services.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
+from spikinglab.bus import keys
+from spikinglab.bus.schemas import Array, Control, Motor, Sensors, TickBatch, WorldMap, WorldState
+from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 
 from .world import PRESETS, SENSORS, MapError, World, map_world, params_for, world_actions
 

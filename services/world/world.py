@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from services.bus.schemas import INSECT_ACTIONS, INSECT_SENSORS
+from spikinglab.bus.schemas import INSECT_ACTIONS, INSECT_SENSORS
 
 EMPTY, BLACK, RED, GREEN = 0, 1, 2, 3
 # Sensor columns the world publishes and action columns it takes (the bus's names; the circuit

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from services.brain.circuit import load_circuit
-from services.brain.engine import PARALLEL_FROM
+from spikinglab.brain.circuit import load_circuit
+from spikinglab.brain.engine import PARALLEL_FROM
 
 from .helpers import phased
 

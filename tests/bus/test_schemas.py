@@ -4,8 +4,8 @@ import msgspec
 import numpy as np
 import pytest
 
-from services.bus import keys
-from services.bus.schemas import (VERSION, Array, BrainLayout, BrainState, BusError, Control, Motor, Sensors, WorldMap,
+from spikinglab.bus import keys
+from spikinglab.bus.schemas import (VERSION, Array, BrainLayout, BrainState, BusError, Control, Motor, Sensors, WorldMap,
                                   WorldState, decode, encode)
 
 A = 3

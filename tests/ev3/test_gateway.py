@@ -4,7 +4,7 @@ import json
 import signal
 import time
 
-from services.ev3_gateway.fake_brick import FakeBrick
+from spikinglab.ev3_gateway.fake_brick import FakeBrick
 
 from ..processes import endpoint, finish, free_port, start, wait_for
 from ..recorder.test_recorder import read

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from services.brain.checkpoint import load_weights
-from services.bus import keys
-from services.brain.circuit import load_circuit
-from services.loop import brain_for, closed_loop
-from services.world.world import World, generate_map, params_for
+from spikinglab.brain.checkpoint import load_weights
+from spikinglab.bus import keys
+from spikinglab.brain.circuit import load_circuit
+from spikinglab.loop import brain_for, closed_loop
+from spikinglab.world.world import World, generate_map, params_for
 
 from ..processes import ROOT, Watcher, finish, start, ticks_in, wait_for
 
@@ -43,7 +43,7 @@ def read(path):
 @pytest.fixture(scope="module")
 def recorded_run(tmp_path_factory):
     runs = tmp_path_factory.mktemp("runs")
-    done = subprocess.run([sys.executable, "-m", "services.cli", "run", "--ticks", str(TICKS), "--seed", str(SEED),
+    done = subprocess.run([sys.executable, "-m", "spikinglab.cli", "run", "--ticks", str(TICKS), "--seed", str(SEED),
                            "--a-plus", "0.04", "--runs", str(runs), "--id", "r", "--quiet"],
                           cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
@@ -110,7 +110,7 @@ def test_screenshot_of_the_replay_is_not_blank(recorded_run, tmp_path):
 
     folder = recorded_run[0]
     before = headless_viewers()
-    done = subprocess.run([sys.executable, "-m", "services.cli", "screenshot", str(folder / "recording.rrd"),
+    done = subprocess.run([sys.executable, "-m", "spikinglab.cli", "screenshot", str(folder / "recording.rrd"),
                            "--out", str(tmp_path / "replay.png"), "--tick", "2500"],
                           cwd=ROOT, capture_output=True, text=True, timeout=180)
     assert done.returncode == 0, done.stderr[-2000:]

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from services.world.world import (ACTIONS, BLACK, EMPTY, GREEN, RED, SENSORS, MapError, World, WorldParams,
+from spikinglab.world.world import (ACTIONS, BLACK, EMPTY, GREEN, RED, SENSORS, MapError, World, WorldParams,
                                   generate_map, load_map, map_world, params_for)
 
 SMELL = {BLACK: SENSORS.index("smell_black"), RED: SENSORS.index("smell_red"), GREEN: SENSORS.index("smell_green")}

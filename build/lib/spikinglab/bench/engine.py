@@ -1,0 +1,83 @@
+"""Engine benchmark: the insect circuit, random sensor input, training on.
+
+single: ticks/s of one agent through Engine.step(feed), the per-tick call a closed loop makes.
+batch:  agent-ticks/s of A = 1000 agents stepped together.
+Both for each semantics (phased, netlogo with its random order), on the same feeds.
+The last line printed is JSON. Run: `spikinglab bench engine` or `python -m spikinglab.bench.engine`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+
+import numpy as np
+
+from spikinglab.brain.circuit import load_circuit
+from spikinglab.brain.engine import SEMANTICS, Engine
+
+FEED_PROBABILITY = 0.3  # chance per tick that a sensor feeds its input neuron a value in [0, 4)
+
+
+def random_feeds(rng, circuit, ticks, agents):
+    """Random sensor values for the sensor-bound inputs only (the pacemaker kick stays the circuit's)."""
+    feeds = np.full((ticks, agents, len(circuit.inputs)), np.nan)
+    cols = list(circuit.sensors.values())
+    shape = (ticks, agents, len(cols))
+    feeds[:, :, cols] = np.where(rng.random(shape) < FEED_PROBABILITY, rng.random(shape) * 4.0, np.nan)
+    return feeds
+
+
+def best_rate(engine, feeds, repeats, agents=1):
+    """Best of `repeats` passes over `feeds` in agent-ticks per second (first pass warms up)."""
+    step = engine.step
+    rates = []
+    for _ in range(repeats + 1):
+        t0 = time.perf_counter()
+        for f in feeds:
+            step(f)
+        rates.append(len(feeds) * agents / (time.perf_counter() - t0))
+    return max(rates[1:])
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(prog="spikinglab bench engine", description=__doc__.splitlines()[0])
+    parser.add_argument("--ticks", type=int, default=200_000, help="ticks per pass for one agent")
+    parser.add_argument("--agents", type=int, default=1000, help="agents in the batch case")
+    parser.add_argument("--batch-ticks", type=int, default=500, help="ticks per pass in the batch case")
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args(argv)
+
+    circuit = load_circuit("insect").with_learning_rate(0.04)
+    result = {}
+    for semantics in SEMANTICS:
+        rng = np.random.default_rng(0)
+        t0 = time.perf_counter()
+        single = Engine(circuit, semantics=semantics)
+        single.step()
+        batch = Engine(circuit, agents=args.agents, semantics=semantics)
+        batch.step()
+        print(f"{semantics}: compile/load {time.perf_counter() - t0:.2f} s (cached after the first run)")
+
+        feeds = random_feeds(rng, circuit, args.ticks, 1)
+        single_rate = best_rate(single, feeds, args.repeats)
+        print(f"{semantics}: single agent {single_rate:,.0f} ticks/s ({1e6 / single_rate:.2f} us per step)")
+
+        feeds = random_feeds(rng, circuit, args.batch_ticks, args.agents)
+        batch_rate = best_rate(batch, feeds, args.repeats, agents=args.agents)
+        spikes = int(batch.run(feeds[:100]).sum())
+        print(f"{semantics}: A = {args.agents} {batch_rate:,.0f} agent-ticks/s on {os.cpu_count()} cores "
+              f"({spikes / args.agents / 100:.2f} spikes per agent per tick; training on)")
+        prefix = "" if semantics == "phased" else f"{semantics}_"
+        result[f"{prefix}single_ticks_per_s"] = round(single_rate)
+        result[f"{prefix}batch{args.agents}_agent_ticks_per_s"] = round(batch_rate)
+    ratio = result[f"netlogo_batch{args.agents}_agent_ticks_per_s"] / result[f"batch{args.agents}_agent_ticks_per_s"]
+    print(f"netlogo / phased at A = {args.agents}: {ratio:.2f}")
+    print(json.dumps(result))
+    return result
+
+
+if __name__ == "__main__":
+    main()

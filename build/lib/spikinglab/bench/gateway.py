@@ -1,0 +1,97 @@
+"""Gateway benchmark: the robot chain against the fake brick (which answers at once).
+
+polls/s:          the gateway reading the brick as fast as the link allows (no brain)
+sensor-to-motor:  an obstacle appears 3 cm ahead on the brick -> the gateway's next poll -> pain ->
+                  the free-running brain -> ROTATE -> the spin command on the brick; median of trials
+brain:            its achieved tick rate and p99 lateness while doing that, at --clock Hz
+The last line printed is JSON. Run: `spikinglab bench gateway` or `python -m spikinglab.bench.gateway`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from spikinglab.ev3_gateway.fake_brick import FakeBrick
+from spikinglab.run import local_endpoints
+
+
+def service(name: str, *args) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", name, *map(str, args)], stderr=subprocess.DEVNULL)
+
+
+def polls_per_s(seconds: float) -> float:
+    with FakeBrick(), tempfile.TemporaryDirectory() as tmp:
+        (gateway_ep,), sockets = local_endpoints("gateway")
+        with sockets:
+            gateway = service("spikinglab.ev3_gateway", "--listen", gateway_ep, "--duration", seconds, "--stats",
+                              Path(tmp) / "g.json")
+            gateway.wait(seconds + 30)
+        return json.loads((Path(tmp) / "g.json").read_text())["polls"] / seconds
+
+
+def chain(trials: int, hz: float, max_polls: float = 0) -> tuple[list[float], dict]:
+    # the brain gets a core of its own; the gateway polls flat out against a brick that answers at
+    # once, so it and the brick (threads of this process) share the other
+    os.sched_setaffinity(0, {0})
+    with FakeBrick() as brick, tempfile.TemporaryDirectory() as tmp:
+        (gateway_ep, brain_ep), sockets = local_endpoints("gateway", "brain")
+        with sockets:
+            gateway = service("spikinglab.ev3_gateway", "--listen", gateway_ep, "--cpu", 0, "--max-polls", max_polls)
+            brain = service("spikinglab.brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", hz,
+                            "--stats", Path(tmp) / "b.json", "--cpu", 1)
+            latencies = []
+            try:
+                deadline = time.monotonic() + 60
+                while not brick.commands and time.monotonic() < deadline:  # running: the first MOVE
+                    time.sleep(0.01)
+                for _ in range(trials):
+                    time.sleep(0.3)  # PAIN and ROTATE back at rest
+                    brick.set(distance_cm=3.0)
+                    start = brick.changed_at
+                    while not any(c.turn and c.at > start for c in brick.commands):
+                        time.sleep(0.0005)
+                        if time.monotonic() - start > 2:
+                            raise SystemExit("no spin within 2 s of the obstacle")
+                    spin = next(c for c in brick.commands if c.turn and c.at > start)
+                    latencies.append((spin.at - start) * 1000)
+                    brick.set(distance_cm=100.0)
+            finally:
+                brain.send_signal(signal.SIGTERM)
+                brain.wait(30)
+                gateway.send_signal(signal.SIGTERM)
+                gateway.wait(30)
+        return latencies, json.loads((Path(tmp) / "b.json").read_text())
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(prog="spikinglab bench gateway", description=__doc__.splitlines()[0])
+    p.add_argument("--seconds", type=float, default=5.0, help="for the polls/s figure")
+    p.add_argument("--trials", type=int, default=40)
+    p.add_argument("--clock", type=float, default=1000.0, help="the brain's clock (Hz)")
+    args = p.parse_args(argv)
+    polls = polls_per_s(args.seconds)
+    print(f"gateway polling the fake brick: {polls:,.0f} polls/s (3 sensors per poll, one direct command)")
+    latencies, brain = chain(args.trials, args.clock)
+    lat = np.array(latencies)
+    print(f"sensor -> motor, {len(lat)} trials: median {np.median(lat):.2f} ms, p90 {np.percentile(lat, 90):.2f} ms "
+          f"(of which the circuit: PAIN -> ROTATE, a delay of 3 ticks at {args.clock:g} Hz)")
+    print(f"free-running brain: {brain['hz']:,.1f} Hz, lateness median {brain['late_ms_median']:.3f} ms, "
+          f"p99 {brain['late_ms_p99']:.3f} ms, max {brain['late_ms_max']:.3f} ms")
+    result = {"polls_per_s": round(polls), "sensor_to_motor_ms_median": round(float(np.median(lat)), 2),
+              "brain_hz": brain["hz"], "brain_jitter_ms_p99": brain["late_ms_p99"]}
+    print(json.dumps(result))
+    return result
+
+
+if __name__ == "__main__":
+    main()

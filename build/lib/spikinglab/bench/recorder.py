@@ -1,0 +1,110 @@
+"""Recorder benchmark: a one-agent lock-step run with and without the recorder.
+
+Prints the loop's ticks/s both ways, the messages the recorder took, its lag (how long after the
+world's last tick the file was complete) and the file size. The last line is JSON.
+Run: `spikinglab bench recorder` or `python -m spikinglab.bench.recorder`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from spikinglab.run import local_endpoints
+
+
+def one_run(ticks: int, record: bool, folder: Path) -> dict:
+    (world_ep, brain_ep), sockets = local_endpoints("world", "brain")
+    py = [sys.executable, "-m"]
+    state = ["--publish-state"] if record else []
+    with sockets:
+        recorder = None
+        if record:
+            recorder = subprocess.Popen(py + ["spikinglab.recorder", "--connect", world_ep, "--connect", brain_ep,
+                                              "--out", str(folder / "recording.rrd")],
+                                        stderr=open(folder / "recorder.log", "w"))
+        world = subprocess.Popen(py + ["spikinglab.world", "--listen", world_ep, "--ticks", str(ticks), "--out",
+                                       str(folder), "--cpu", "0"] + state, stderr=subprocess.DEVNULL)
+        brain = subprocess.Popen(py + ["spikinglab.brain", "--listen", brain_ep, "--connect", world_ep, "--once",
+                                       "--cpu", "1"] + state, stderr=subprocess.DEVNULL)
+        world.wait()
+        world_done = time.monotonic()
+        brain.wait(60)
+        result = {"ticks_per_s": json.loads((folder / "metrics.json").read_text())["ticks_per_s"]}
+        if recorder is not None:
+            recorder.wait(300)
+            result["lag_s"] = round(time.monotonic() - world_done, 2)
+            line = (folder / "recorder.log").read_text()
+            found = re.search(r"(\d+) messages in ([\d.]+) s, (\d+) messages/s", line)
+            result["messages"], result["messages_per_s"] = int(found.group(1)), int(found.group(3))
+            result["file_mb"] = round((folder / "recording.rrd").stat().st_size / 1e6, 2)
+    return result
+
+
+def alone(ticks: int) -> float:
+    """Ticks/s the recorder decodes and writes when fed a run's state messages as fast as it takes them."""
+    import rerun as rr
+
+    from spikinglab.brain.circuit import load_circuit
+    from spikinglab.brain.service import STATE_BATCH, BrainNode, layout
+    from spikinglab.bus.schemas import Array, Sensors, WorldMap, decode, encode
+    from spikinglab.recorder.recorder import Recorder, blueprint
+    from spikinglab.world.service import keep_state, state_message
+    from spikinglab.world.world import SENSORS, World, world_actions
+    from spikinglab.bus.schemas import TickBatch
+
+    circuit, world = load_circuit("insect"), World(seed=1)
+    node = BrainNode(circuit)
+    messages = [encode(WorldMap(tick=0, grid=Array.of(world.grid), x_min=80, y_min=1)), encode(layout(circuit, 0))]
+    batch, changes = TickBatch(STATE_BATCH), []
+    values = world.sense()
+    for t in range(ticks):
+        answer = node.answer(Sensors(tick=t, names=SENSORS, values=Array.of(values)))
+        node.keep_state()
+        world.act(world_actions(answer.names, answer.actions.numpy("actions", "|u1", 2)))
+        keep_state(batch, changes, world, t)
+        if batch.full or t + 1 == ticks:
+            messages.append(encode(state_message(batch, changes, final=t + 1 == ticks)))
+            messages.append(encode(node.state_message(final=t + 1 == ticks)))
+        values = world.sense()
+    with tempfile.TemporaryDirectory() as tmp:
+        rec = rr.RecordingStream("bench", recording_id="bench")
+        rec.save(str(Path(tmp) / "alone.rrd"), default_blueprint=blueprint(0))
+        recorder = Recorder(rec)
+        started = time.perf_counter()
+        for payload in messages:
+            recorder.on(decode(payload))
+        recorder.close()
+        rec.flush()
+        return ticks / (time.perf_counter() - started)
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(prog="spikinglab bench recorder", description=__doc__.splitlines()[0])
+    p.add_argument("--ticks", type=int, default=30_000)
+    args = p.parse_args(argv)
+    with tempfile.TemporaryDirectory() as a, tempfile.TemporaryDirectory() as b:
+        plain = one_run(args.ticks, False, Path(a))
+        recorded = one_run(args.ticks, True, Path(b))
+    print(f"lock-step, 1 agent, {args.ticks:,} ticks: {plain['ticks_per_s']:,.0f} ticks/s without the recorder, "
+          f"{recorded['ticks_per_s']:,.0f} with it")
+    print(f"recorder: {recorded['messages']:,} messages (world and brain state in batches of 50 ticks), "
+          f"file complete {recorded['lag_s']} s after the last tick, {recorded['file_mb']} MB")
+    result = {"loop_ticks_per_s": round(plain["ticks_per_s"]), "recorded_loop_ticks_per_s": round(recorded["ticks_per_s"]),
+              "recorder_messages": recorded["messages"], "recorder_lag_s": recorded["lag_s"],
+              "recording_mb": recorded["file_mb"]}
+    capacity = alone(args.ticks)
+    print(f"the recorder alone (decode, buffer, write {args.ticks:,} ticks fed at once): {capacity:,.0f} ticks/s")
+    result["recorder_alone_ticks_per_s"] = round(capacity)
+    print(json.dumps(result))
+    return result
+
+
+if __name__ == "__main__":
+    main()

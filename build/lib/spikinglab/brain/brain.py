@@ -1,0 +1,43 @@
+"""The brain: an Engine plus the circuit's bindings (sensor columns in, actuator spikes out)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .circuit import Circuit
+from .engine import Engine
+
+
+class Brain:
+    """Maps the sensor columns a world (or robot) publishes onto the circuit's input neurons, steps
+    the engine, and reports which actions fired. Sensors the circuit does not bind are ignored;
+    actions it does not bind never fire."""
+
+    def __init__(self, circuit: Circuit, sensors: tuple[str, ...], actions: tuple[str, ...],
+                 agents: int = 1, training: bool = True, **engine_options):
+        """`engine_options`: the Engine's semantics, order, seed (and without, for ablations)."""
+        self.circuit, self.sensor_names, self.action_names = circuit, tuple(sensors), tuple(actions)
+        self.engine = Engine(circuit, agents=agents, training=training, **engine_options)
+        bound = circuit.sensors
+        unknown = sorted(set(bound) - set(sensors))
+        if unknown:
+            raise ValueError(f"circuit {circuit.name!r} binds sensors {unknown} that the world does not "
+                             f"publish (it publishes {list(sensors)})")
+        self._sensor_cols = np.array([sensors.index(s) for s in bound], dtype=np.int64)
+        self._input_cols = np.array(list(bound.values()), dtype=np.int64)
+        self._action_cols = np.array([actions.index(a) for a in circuit.actuators if a in actions], dtype=np.int64)
+        self._actuators = np.array([circuit.neuron_index(n) for a, n in circuit.actuators.items() if a in actions],
+                                   dtype=np.int64)
+        self.feed = np.full((agents, len(circuit.inputs)), np.nan)
+        self.actions = np.zeros((agents, len(actions)), dtype=np.uint8)
+
+    @property
+    def agents(self) -> int:
+        return self.engine.agents
+
+    def step(self, sensors: np.ndarray) -> np.ndarray:
+        """One tick: sensors [A, len(sensors)] (NaN: nothing sensed) -> actions [A, len(actions)]."""
+        self.feed[:, self._input_cols] = sensors[:, self._sensor_cols]
+        spiked = self.engine.step(self.feed)
+        self.actions[:, self._action_cols] = spiked[:, self._actuators]
+        return self.actions

@@ -1,0 +1,35 @@
+"""Checkpoints: a brain's weights in an .npz file, tied to the circuit's synapses by name."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .circuit import Circuit
+from .engine import Engine
+
+
+def save_weights(path: Path, engine: Engine, circuit: Circuit, tick: int = 0) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    labels = [circuit.synapse_label(k) for k in range(len(circuit.synapses))]
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(tmp, weights=engine.get_weights(), synapses=np.array(labels), circuit=circuit.name, tick=tick)
+    tmp.replace(path)  # never a half-written checkpoint
+
+
+def load_weights(path: Path, circuit: Circuit) -> np.ndarray:
+    """Weights [A, synapses] from a checkpoint; its synapses must be the circuit's, in order."""
+    try:
+        with np.load(path) as data:
+            weights, labels = data["weights"], [str(x) for x in data["synapses"]]
+    except (OSError, KeyError, ValueError) as e:
+        raise ValueError(f"{path}: not a weights checkpoint ({e})") from None
+    expected = [circuit.synapse_label(k) for k in range(len(circuit.synapses))]
+    if labels != expected:
+        missing = sorted(set(expected) - set(labels)) or sorted(set(labels) - set(expected))
+        raise ValueError(f"{path}: its synapses do not match circuit {circuit.name!r} (differ in: {missing[:5]})")
+    if weights.ndim != 2 or weights.shape[1] != len(expected):
+        raise ValueError(f"{path}: weights have shape {weights.shape}, expected (agents, {len(expected)})")
+    return weights

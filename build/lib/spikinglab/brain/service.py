@@ -1,0 +1,307 @@
+"""The brain service: `spikinglab brain` / `python -m spikinglab.brain`.
+
+Reads:  spikinglab/<group>/sensors (Sensors), spikinglab/<group>/control (Control)
+Writes: spikinglab/<group>/motor (Motor), liveliness spikinglab/<group>/alive/brain
+
+Lock-step: every Sensors message of tick t is answered by one Motor message of tick t. The number
+of agents is taken from the first message. A repeated tick (the world re-sends when it heard
+nothing) is answered again from the cache, never stepped twice; an older tick is ignored; tick 0
+after others is a new run and resets the brain. On Control "end" the brain saves its weights
+(--save) and exits.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from spikinglab.bus import keys
+from spikinglab.bus.schemas import Array, BrainLayout, BrainState, Control, Motor, Sensors, TickBatch
+from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
+
+from .brain import Brain
+from .checkpoint import load_weights, save_weights
+from .circuit import CircuitError, load_circuit
+from .engine import DEFAULT_SEMANTICS, ORDERS, SEMANTICS
+
+log = logging.getLogger("spikinglab.brain")
+STATE_BATCH = 50  # ticks per BrainState message (one put per 50 ticks keeps recording off the loop's back)
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="spikinglab brain", description="The spiking-network brain, on the bus.")
+    p.add_argument("--circuit", default="insect", help="circuit name in circuits/ or a .toml path (default insect)")
+    p.add_argument("--a-plus", type=float, help="A+ = A- of the learning neurons (default: the circuit's)")
+    p.add_argument("--no-training", action="store_true", help="weights stay as they are")
+    add_engine_args(p)
+    p.add_argument("--seed", type=int, default=None,
+                   help="the netlogo order's seed, agent a using seed + a (default: the world's seed, which its "
+                        "sensor messages carry, so that a run is the same in one process or across the bus)")
+    p.add_argument("--load", type=Path, help="start from the weights in this checkpoint (.npz)")
+    p.add_argument("--save", type=Path, help="write the final weights here (.npz) when the run ends")
+    p.add_argument("--once", action="store_true", help="exit after one run ends (default: serve the next run)")
+    p.add_argument("--publish-state", action="store_true",
+                   help=f"publish spikes and potentials of every tick, and the weights, in batches of {STATE_BATCH} "
+                        "ticks (recorder); the first tick waits until someone subscribes")
+    free = p.add_argument_group("free-running (robot)")
+    free.add_argument("--clock", type=float, default=0, metavar="HZ",
+                      help="tick on this clock with the latest sensor reading, motor spikes as events "
+                           "(robot mode, e.g. 1000); default 0: lock-step with a world")
+    free.add_argument("--stale-after", type=float, default=0.5,
+                      help="seconds after which a reading no longer counts as sensed (default 0.5)")
+    free.add_argument("--stats", type=Path, help="write the achieved tick rate and lateness here (JSON) at the end")
+    free.add_argument("--no-realtime", action="store_true",
+                      help="do not ask for real-time scheduling of the clock thread (asked by default; needs "
+                           "root or CAP_SYS_NICE on Linux, else the normal scheduler is used)")
+    add_bus_args(p)
+    return p
+
+
+def add_engine_args(p: argparse.ArgumentParser) -> None:
+    """The engine's semantics options, shared by `brain`, `run` and `sweep`."""
+    p.add_argument("--semantics", choices=SEMANTICS, default=DEFAULT_SEMANTICS,
+                   help=f"phased: five phases, a delay of d is exactly d; netlogo: the original NetLogo engine's "
+                        f"turns (docs/tick.md) (default {DEFAULT_SEMANTICS})")
+    p.add_argument("--order", choices=ORDERS, default="random",
+                   help="netlogo: neurons each tick in a seeded random order (as NetLogo's ask) or in file order")
+
+
+
+
+class BrainNode:
+    """The lock-step logic, without the transport: a Sensors message in, a Motor message out."""
+
+    def __init__(self, circuit, training: bool = True, weights: np.ndarray | None = None, **engine_options):
+        self.circuit, self.training, self.initial_weights = circuit, training, weights
+        self.engine_options = engine_options  # semantics, order, seed
+        self.brain: Brain | None = None
+        self.batch = TickBatch(STATE_BATCH)  # spikes and potentials not yet published
+        self.stepped = False  # whether the last answer() stepped the brain (not a repeat)
+        self.last_tick = -1
+        self.last_answer: Motor | None = None
+
+    def start(self, message: Sensors) -> None:
+        """A fresh brain for the sensors and agents of `message` (a new run)."""
+        agents = message.values.shape[0]
+        options = dict(self.engine_options)
+        if options.get("seed") is None:
+            options["seed"] = message.seed
+        self.brain = Brain(self.circuit, message.names, tuple(self.circuit.actuators), agents=agents,
+                           training=self.training, **options)
+        if self.initial_weights is not None:  # one agent's weights are given to every agent
+            w = self.initial_weights
+            self.brain.engine.set_weights(w[0] if w.shape[0] == 1 else w)
+        self.batch = TickBatch(STATE_BATCH)  # nothing of a previous run goes into this one's batches
+        log.info("brain for %d agent(s) of circuit %s, sensors %s, training %s, %s", agents, self.circuit.name,
+                 ", ".join(message.names), "on" if self.training else "off",
+                 ", ".join(f"{k} {v}" for k, v in options.items()))
+
+    def answer(self, message: Sensors) -> Motor | None:
+        """The Motor answer to `message`, or None when it is to be ignored (stale or wrong shape)."""
+        self.stepped = False
+        values = message.values.numpy("values", "<f8", 2)
+        if self.brain is None or (message.tick == 0 and self.last_tick >= 0):
+            if self.brain is not None:
+                log.info("tick 0 again: a new run, the brain starts afresh")
+            self.start(message)
+            self.last_tick = -1
+        if message.names != self.brain.sensor_names or values.shape[0] != self.brain.agents:
+            log.warning("ignored sensors for tick %d: %d agents with sensors %s, this brain serves %d with %s",
+                        message.tick, values.shape[0], message.names, self.brain.agents, self.brain.sensor_names)
+            return None
+        if message.tick == self.last_tick:
+            return self.last_answer  # the world asks again: same answer, no second step
+        if message.tick < self.last_tick:
+            return None
+        if self.last_tick >= 0 and message.tick != self.last_tick + 1:
+            log.info("joined at tick %d (last seen %d)", message.tick, self.last_tick)
+        actions = self.brain.step(values)
+        self.last_tick, self.stepped = message.tick, True
+        self.last_answer = Motor(tick=message.tick, names=self.brain.action_names, actions=Array.of(actions))
+        return self.last_answer
+
+    def keep_state(self) -> None:
+        """Note this tick's spikes and potentials for the next BrainState batch."""
+        engine = self.brain.engine
+        self.batch.add(self.last_tick, spiked=engine.spiked.view(np.uint8), potentials=engine.v.astype(np.float32))
+
+    def state_message(self, final: bool = False) -> BrainState:
+        """The ticks noted so far (possibly none, for a final one) and the weights now."""
+        engine = self.brain.engine
+        first, rows = self.batch.take()
+        if first is None:
+            first = self.last_tick + 1
+            rows = {"spiked": np.zeros((0, engine.agents, engine.spiked.shape[1]), np.uint8),
+                    "potentials": np.zeros((0, engine.agents, engine.n_neurons), np.float32)}
+        return BrainState(tick=first, spiked=Array.of(rows["spiked"]), potentials=Array.of(rows["potentials"]),
+                          weights=Array.of(engine.w), final=final)
+
+
+def layout(circuit, tick: int) -> BrainLayout:
+    return BrainLayout(tick=tick, circuit=circuit.name, nodes=circuit.node_names, neurons=len(circuit.neuron_names),
+                       synapses=tuple(circuit.synapse_label(k) for k in range(len(circuit.synapses))),
+                       plastic=tuple(circuit.plastic_synapses))
+
+
+def run(args: argparse.Namespace, session) -> int:
+    try:
+        circuit = load_circuit(args.circuit)
+        if args.a_plus is not None:
+            circuit = circuit.with_learning_rate(args.a_plus)
+        weights = load_weights(args.load, circuit) if args.load else None
+    except (CircuitError, ValueError, OSError) as e:
+        log.error("%s", e)
+        return 2
+    def new_node() -> BrainNode:  # one per run the brain serves
+        return BrainNode(circuit, training=not args.no_training, weights=weights, seed=args.seed,
+                         semantics=args.semantics, order=args.order)
+    node = new_node()
+    bus = Bus(session, args.group, "brain")
+    if args.clock:
+        try:
+            return run_free(args, bus, node)
+        finally:
+            bus.close()
+    try:
+        sensors = bus.inbox(keys.sensors(args.group), Sensors)
+        control = bus.inbox(keys.control(args.group), Control)
+        motor = bus.outbox(keys.motor(args.group))
+        state = bus.outbox(keys.brain_state(args.group)) if args.publish_state else None
+        log.info("brain ready on group %s (%s)", args.group, bus.sender)
+        while True:
+            message = sensors.get(timeout=0.25)
+            if message is not None:
+                if state is not None and node.last_tick < 0:
+                    wait_for_subscriber(state, "a recorder")
+                    state.put(layout(circuit, message.tick))
+                answer = node.answer(message)
+                if answer is not None:
+                    motor.put(answer)  # first: the world waits for it; the recorder does not
+                    if state is not None and node.stepped:
+                        node.keep_state()
+                        if node.batch.full:
+                            state.put(node.state_message())
+                continue
+            order = control.get(timeout=0)
+            if order is None:
+                continue
+            if order.command == "training":
+                node.training = bool(order.arg)
+                if node.brain:
+                    node.brain.engine.training = node.training
+                log.info("training %s at tick %d", "on" if node.training else "off", order.tick)
+            elif order.command == "end":
+                if state is not None and node.brain is not None:  # the rest, and the final weights
+                    state.put(node.state_message(final=True))
+                log.info("run ended at tick %d; rejected messages: %d on sensors, %d on control", order.tick,
+                         sensors.rejected_total, control.rejected_total)
+                if args.save and node.brain is not None:
+                    save_weights(args.save, node.brain.engine, circuit, tick=order.tick)
+                    log.info("weights saved to %s", args.save)
+                if args.once:
+                    return 0
+                node = new_node()
+    finally:
+        bus.close()
+
+
+def realtime_clock() -> None:
+    """SCHED_FIFO for this (the clock's) thread only: the kernel then runs it the moment its sleep
+    ends instead of after the time slice of whatever else shares its core (zenoh's threads do). It
+    sleeps most of each tick, so those threads still run."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))
+        log.info("clock thread on real-time scheduling (SCHED_FIFO)")
+    except (OSError, AttributeError) as e:
+        log.info("clock thread on the normal scheduler (real-time not permitted: %s)", e)
+
+
+def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
+    """Robot mode: tick at --clock Hz with the latest reading; a Motor message only when an action fired.
+
+    Each tick is due at start + k / Hz (no drift); the loop sleeps until shortly before that and
+    spins the rest, because a plain sleep wakes up to ~0.1 ms late, more under load.
+    """
+    sensors = bus.inbox(keys.sensors(args.group), Sensors)
+    control = bus.inbox(keys.control(args.group), Control)
+    motor = bus.outbox(keys.motor(args.group))
+    state = bus.outbox(keys.brain_state(args.group)) if args.publish_state else None
+    latest, latest_at = None, 0.0
+    log.info("brain ready on group %s (%s), free-running at %g Hz; waiting for sensors", args.group, bus.sender,
+             args.clock)
+    while latest is None:  # the first reading tells the sensors and the number of agents
+        latest = sensors.get(timeout=0.25)
+    latest_at = time.monotonic()
+    node.start(latest)
+    engine, brain = node.brain.engine, node.brain
+    nothing = np.full(latest.values.shape, np.nan)
+    if state is not None:
+        wait_for_subscriber(state, "a recorder")
+        state.put(layout(node.circuit, 0))
+    if not args.no_realtime:
+        realtime_clock()
+    period = 1.0 / args.clock
+    lateness = []
+    started = next_at = time.monotonic()
+    tick = 0
+    try:
+        while True:
+            message = sensors.latest()  # only the newest reading counts
+            if message is not None:
+                latest, latest_at = message, time.monotonic()
+            now = time.monotonic()
+            fresh = now - latest_at < args.stale_after
+            values = latest.values.numpy("values", "<f8", 2) if fresh else nothing
+            actions = brain.step(values)
+            node.last_tick = tick
+            if actions.any():
+                motor.put(Motor(tick=tick, names=brain.action_names, actions=Array.of(actions)))
+            if state is not None:
+                node.keep_state()
+                if node.batch.full:
+                    state.put(node.state_message())
+            if tick % 100 == 0:
+                order = control.get(timeout=0)
+                if order is not None and order.command == "end":
+                    break
+                if order is not None and order.command == "training":
+                    engine.training = bool(order.arg)
+            tick += 1
+            next_at += period
+            gap = next_at - time.monotonic()
+            if gap > 0.0003:
+                time.sleep(gap - 0.0003)
+            while time.monotonic() < next_at:
+                pass
+            lateness.append(time.monotonic() - next_at)
+    except KeyboardInterrupt:
+        pass
+    if state is not None:
+        state.put(node.state_message(final=True))
+    elapsed = time.monotonic() - started
+    late_ms = np.array(lateness) * 1000 if lateness else np.zeros(1)
+    stats = {"ticks": tick, "hz": round(tick / elapsed, 1), "late_ms_median": round(float(np.median(late_ms)), 4),
+             "late_ms_p99": round(float(np.percentile(late_ms, 99)), 4), "late_ms_max": round(float(late_ms.max()), 3),
+             "rejected": sensors.rejected_total}
+    log.info("free-running brain stopped after %d ticks: %.1f Hz, lateness median %.3f ms, p99 %.3f ms",
+             tick, stats["hz"], stats["late_ms_median"], stats["late_ms_p99"])
+    if args.stats:
+        args.stats.write_text(json.dumps(stats))
+    if args.save:
+        save_weights(args.save, engine, node.circuit, tick=tick)
+    return 0
+
+
+def main(argv=None) -> int:
+    return service_main("brain", parser(), run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,54 @@
+"""Key expressions of the bus, all in one place.
+
+Everything lives under `spikinglab/<group>/...`, where a group is one insect or one population of
+A insects stepped together (one message carries the whole batch). Default group: "insect".
+"""
+
+PREFIX = "spikinglab"
+DEFAULT_GROUP = "insect"
+
+
+def _check(group: str) -> str:
+    if not group or any(c in group for c in "/*$?#@ ") :
+        raise ValueError(f"group name {group!r} must be one key segment (no '/', '*', '$', '?', '#', '@' or spaces)")
+    return group
+
+
+def sensors(group: str) -> str:
+    """World (or robot gateway) -> brain: sensor values for one tick."""
+    return f"{PREFIX}/{_check(group)}/sensors"
+
+
+def motor(group: str) -> str:
+    """Brain -> world (or gateway): which actions fired in one tick."""
+    return f"{PREFIX}/{_check(group)}/motor"
+
+
+def control(group: str) -> str:
+    """Run control: end of run, training on/off."""
+    return f"{PREFIX}/{_check(group)}/control"
+
+
+def brain_state(group: str) -> str:
+    """Brain -> recorder: the layout once, then batches of spikes, potentials and weights."""
+    return f"{PREFIX}/{_check(group)}/state/brain"
+
+
+def world_state(group: str) -> str:
+    """World -> recorder: batches of poses, sensors, events and map changes."""
+    return f"{PREFIX}/{_check(group)}/state/world"
+
+
+def world_map(group: str) -> str:
+    """World -> recorder: the arena grid, at the start."""
+    return f"{PREFIX}/{_check(group)}/state/map"
+
+
+def state(group: str) -> str:
+    """Everything a recorder needs, and nothing of the lock-step traffic (sensors, motor)."""
+    return f"{PREFIX}/{_check(group)}/state/**"
+
+
+def alive(group: str, service: str) -> str:
+    """Liveliness token of a service (brain, world, gateway, recorder) of a group."""
+    return f"{PREFIX}/{_check(group)}/alive/{_check(service)}"

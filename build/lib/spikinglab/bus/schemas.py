@@ -1,0 +1,221 @@
+"""Message schemas of the bus: typed, versioned, decoded strictly.
+
+Every message is a msgspec Struct tagged by `kind`, with the schema `version` and the `tick` it
+belongs to. Arrays travel as bytes + dtype + shape (`Array`), never as lists. `decode` accepts a
+message only if it is well formed, of the expected kind and version, and its arrays have the
+dtypes and shapes the kind requires; otherwise it raises BusError with the reason, and nothing of
+the message is used. Evolution: new fields get defaults; a change that old readers cannot take
+bumps VERSION.
+"""
+
+from __future__ import annotations
+
+import math
+
+import msgspec
+import numpy as np
+
+VERSION = 2  # 2: brain and world states come in batches of consecutive ticks
+# The insect's senses and actions: what a world or a robot gateway publishes and takes. The brain
+# binds them to its circuit by name (circuit files: `sensor = ...`, [actuators]).
+INSECT_SENSORS = ("smell_black", "smell_red", "smell_green", "pain", "reward")
+INSECT_ACTIONS = ("rotate", "move")
+_MAX_ELEMENTS = 1 << 26
+
+
+class BusError(ValueError):
+    """A message was rejected; the text says why."""
+
+
+class Array(msgspec.Struct, frozen=True):
+    dtype: str
+    shape: tuple[int, ...]
+    data: bytes
+
+    @classmethod
+    def of(cls, a) -> "Array":
+        a = np.ascontiguousarray(a)
+        if a.dtype.byteorder == ">":
+            a = a.astype(a.dtype.newbyteorder("<"))
+        return cls(a.dtype.str, tuple(a.shape), a.tobytes())
+
+    def numpy(self, field: str, dtype: str, ndim: int) -> np.ndarray:
+        """The array, checked: dtype, number of dimensions, and byte length agree."""
+        if self.dtype != dtype:
+            raise BusError(f"{field}: dtype {self.dtype!r}, expected {dtype!r}")
+        if len(self.shape) != ndim or any(n < 0 for n in self.shape):
+            raise BusError(f"{field}: shape {list(self.shape)}, expected {ndim} non-negative dimensions")
+        count = math.prod(self.shape)
+        if count > _MAX_ELEMENTS or count * np.dtype(dtype).itemsize != len(self.data):
+            raise BusError(f"{field}: {len(self.data)} bytes do not hold shape {list(self.shape)} of {dtype}")
+        return np.frombuffer(self.data, dtype=dtype).reshape(self.shape)
+
+
+class Message(msgspec.Struct, tag_field="kind", frozen=True, kw_only=True):
+    tick: int
+    version: int = VERSION
+
+    def check(self) -> None:
+        """Kind-specific checks beyond the types; raise BusError."""
+
+
+class Sensors(Message, tag="sensors", kw_only=True):
+    """Sensor values of tick `tick` for A agents: values[a, k] for sensor names[k]; NaN: nothing."""
+
+    names: tuple[str, ...]
+    values: Array
+    training: bool = True
+    seed: int = 0  # the world's seed: the brain's netlogo order uses seed + a for agent a, as the arenas
+
+    def check(self):
+        values = self.values.numpy("values", "<f8", 2)
+        if values.shape[1] != len(self.names):
+            raise BusError(f"values has {values.shape[1]} columns for {len(self.names)} sensor names")
+
+
+class Motor(Message, tag="motor", kw_only=True):
+    """Which actions fired in tick `tick`: actions[a, k] != 0 for action names[k]."""
+
+    names: tuple[str, ...]
+    actions: Array
+
+    def check(self):
+        actions = self.actions.numpy("actions", "|u1", 2)
+        if actions.shape[1] != len(self.names):
+            raise BusError(f"actions has {actions.shape[1]} columns for {len(self.names)} action names")
+
+
+class Control(Message, tag="control", kw_only=True):
+    """Run control. command: "end" (the run is over: save and stop) or "training" (arg 0/1)."""
+
+    command: str
+    arg: float = 0.0
+
+    def check(self):
+        if self.command not in ("end", "training"):
+            raise BusError(f"unknown control command {self.command!r}")
+
+
+class BrainState(Message, tag="brain_state", kw_only=True):
+    """The brain over T consecutive ticks from `tick`: spikes [T, A, nodes] (u1), potentials
+    [T, A, neurons] (f4), and the weights [A, synapses] (f8) after the batch's last tick. `final`:
+    the last batch of the run."""
+
+    spiked: Array
+    potentials: Array
+    weights: Array
+    final: bool = False
+
+    def check(self):
+        spiked = self.spiked.numpy("spiked", "|u1", 3)
+        if self.potentials.numpy("potentials", "<f4", 3).shape[:2] != spiked.shape[:2]:
+            raise BusError(f"potentials cover {self.potentials.shape[:2]} ticks x agents, spiked {spiked.shape[:2]}")
+        if self.weights.numpy("weights", "<f8", 2).shape[0] != spiked.shape[1]:
+            raise BusError(f"weights have {self.weights.shape[0]} agents, spiked has {spiked.shape[1]}")
+
+
+class BrainLayout(Message, tag="brain_layout", kw_only=True):
+    """What the brain's arrays mean, sent once before its first state: node names (neurons first,
+    then input neurons), the number of neurons, synapse labels "PRE->POST", the plastic ones."""
+
+    circuit: str
+    nodes: tuple[str, ...]
+    neurons: int
+    synapses: tuple[str, ...]
+    plastic: tuple[int, ...]
+
+    def check(self):
+        if not 0 < self.neurons <= len(self.nodes):
+            raise BusError(f"{self.neurons} neurons among {len(self.nodes)} nodes")
+        if any(not 0 <= k < len(self.synapses) for k in self.plastic):
+            raise BusError("a plastic synapse index is out of range")
+
+
+class WorldState(Message, tag="world_state", kw_only=True):
+    """The world over T consecutive ticks from `tick`: what each tick sensed, sensors [T, A, S]
+    (NaN: nothing; the names as in Sensors), then after its actions pos [T, A, 2], heading [T, A],
+    events [T, A, 4] (collision colour, ate, reset, learned), collisions [T, A], food [T, A]; and
+    the patches that changed, changes [K, 5] (tick, arena, x index, y index, new colour).
+    `final`: the last batch of the run."""
+
+    sensor_names: tuple[str, ...]
+    sensors: Array
+    pos: Array
+    heading: Array
+    events: Array
+    collisions: Array
+    food: Array
+    changes: Array
+    final: bool = False
+
+    def check(self):
+        self.changes.numpy("changes", "<i8", 2)
+        shape = self.pos.numpy("pos", "<f8", 3).shape[:2]
+        if self.sensors.numpy("sensors", "<f8", 3).shape != (*shape, len(self.sensor_names)):
+            raise BusError(f"sensors have shape {list(self.sensors.shape)} for {list(shape)} ticks x agents and "
+                           f"{len(self.sensor_names)} sensor names")
+        for name, arr, dtype, ndim in (("heading", self.heading, "<f8", 2), ("events", self.events, "<i8", 3),
+                                       ("collisions", self.collisions, "<i8", 2), ("food", self.food, "<i8", 2)):
+            if arr.numpy(name, dtype, ndim).shape[:2] != shape:
+                raise BusError(f"{name} covers {arr.shape[:2]} ticks x agents, pos {shape}")
+
+
+class WorldMap(Message, tag="world_map", kw_only=True):
+    """The arenas: grid [arenas, width, height] of colour codes, patch (0, 0) at (x_min, y_min)."""
+
+    grid: Array
+    x_min: int
+    y_min: int
+
+    def check(self):
+        self.grid.numpy("grid", "|u1", 3)
+
+
+class TickBatch:
+    """Arrays of consecutive ticks, collected until there are `size` of them; `take()` gives the
+    first tick and each array stacked on a leading tick axis (for BrainState and WorldState)."""
+
+    def __init__(self, size: int):
+        self.size, self.first = size, None
+        self.rows: dict[str, list] = {}
+
+    def add(self, tick: int, **arrays) -> None:
+        if self.first is None:
+            self.first = tick
+        for name, value in arrays.items():
+            self.rows.setdefault(name, []).append(np.array(value, copy=True))
+
+    @property
+    def full(self) -> bool:
+        return self.first is not None and len(next(iter(self.rows.values()))) >= self.size
+
+    def take(self) -> tuple[int, dict[str, np.ndarray]]:
+        first, rows = self.first, self.rows
+        self.first, self.rows = None, {}
+        return first, {name: np.stack(values) for name, values in rows.items()}
+
+
+KINDS = (Sensors, Motor, Control, BrainState, BrainLayout, WorldState, WorldMap)
+_encoder = msgspec.msgpack.Encoder()
+_decoder = msgspec.msgpack.Decoder(Sensors | Motor | Control | BrainState | BrainLayout | WorldState | WorldMap)
+
+
+def encode(message: Message) -> bytes:
+    return _encoder.encode(message)
+
+
+def decode(payload: bytes, expected: type[Message] | tuple[type[Message], ...] = KINDS) -> Message:
+    """The message in `payload`, or BusError naming what is wrong."""
+    try:
+        message = _decoder.decode(payload)
+    except msgspec.ValidationError as e:
+        raise BusError(f"invalid message: {e}") from None
+    except msgspec.DecodeError as e:
+        raise BusError(f"not a message: {e}") from None
+    if message.version != VERSION:
+        raise BusError(f"schema version {message.version}, this program speaks {VERSION}")
+    if not isinstance(message, expected):
+        names = expected.__name__ if isinstance(expected, type) else "/".join(t.__name__ for t in expected)
+        raise BusError(f"a {type(message).__name__} message where {names} was expected")
+    message.check()
+    return message

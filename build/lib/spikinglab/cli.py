@@ -1,0 +1,68 @@
+"""`spikinglab <command>`: one entry point, each command a module with its own main(argv)."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+COMMANDS = {
+    "run": ("spikinglab.run", "train the insect: world, brain and recorder as processes on the bus (the main job)"),
+    "brain": ("spikinglab.brain.service", "the brain service on the bus"),
+    "world": ("spikinglab.world.service", "the world service on the bus"),
+    "gateway": ("spikinglab.ev3_gateway.service", "the robot side: a LEGO EV3 (or a simulated one) on the bus"),
+    "record": ("spikinglab.recorder.service", "record a run to a Rerun file (.rrd)"),
+    "screenshot": ("spikinglab.recorder.screenshot", "a PNG of a recording's replay, rendered headless"),
+    "router": ("spikinglab.router", "a Zenoh router, for brain and world on different machines"),
+    "sweep": ("spikinglab.sweep", "the paper's Table 1: learning time for A+ = A- over seeds"),
+    "conditioning": ("spikinglab.brain.conditioning", "classical conditioning demo on fig. 2 and fig. 4"),
+    "bench": (None, "benchmarks and experiments: bench engine | loop | recorder | gateway | table1 | robot"),
+}
+BENCHMARKS = {
+    "engine": "spikinglab.bench.engine",
+    "loop": "spikinglab.bench.loop",
+    "recorder": "spikinglab.bench.recorder",
+    "gateway": "spikinglab.bench.gateway",
+    "table1": "spikinglab.bench.table1",
+    "robot": "spikinglab.bench.robot",
+}
+
+
+def version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("spikinglab")
+    except PackageNotFoundError:  # run from a checkout that was never installed
+        return "unknown (not installed)"
+
+
+def usage() -> str:
+    lines = ["usage: spikinglab <command> [options]   (spikinglab <command> --help for its options; "
+             "spikinglab --version)", ""]
+    lines += [f"  {name:14s} {about}" for name, (_, about) in COMMANDS.items()]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] in ("-h", "--help"):
+        print(usage())
+        return
+    if argv[0] == "--version":
+        print(f"spikinglab {version()}")
+        return
+    name, rest = argv[0], argv[1:]
+    if name == "bench":
+        if not rest or rest[0] not in BENCHMARKS:
+            sys.exit(f"usage: spikinglab bench {{{','.join(BENCHMARKS)}}} [options]")
+        module, rest = BENCHMARKS[rest[0]], rest[1:]
+    elif name in COMMANDS:
+        module = COMMANDS[name][0]
+    else:
+        sys.exit(f"spikinglab: unknown command {name!r}\n\n{usage()}")
+    code = importlib.import_module(module).main(rest)
+    sys.exit(code if isinstance(code, int) else 0)  # benchmarks return their figures
+
+
+if __name__ == "__main__":
+    main()

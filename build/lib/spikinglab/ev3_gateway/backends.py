@@ -1,0 +1,237 @@
+"""Robot backends: one small interface, a real EV3 (ev3-dc) and a simulated one (pymunk world).
+
+    connect()            open the link (RobotLinkError if it cannot)
+    read() -> Reading    colour code, ultrasonic distance in cm, touch; one round trip
+    forward(ms)          both motors forward for ms milliseconds
+    spin(ms, direction)  motors in opposite directions (+1 right, -1 left) for ms milliseconds
+    stop()               motors off now
+    close()
+
+Any failure of the link surfaces as RobotLinkError, whatever the transport said.
+"""
+
+from __future__ import annotations
+
+import math
+import socket
+import struct
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+# EV3 colour sensor, mode COL-COLOR: 0 none, 1 black, 2 blue, 3 green, 4 yellow, 5 red, 6 white, 7 brown
+NO_COLOUR, BLACK, GREEN, RED, WHITE = 0, 1, 3, 5, 6
+EV3_TOUCH, EV3_COLOR, EV3_ULTRASONIC = 16, 29, 30
+PORT_BITS = {"A": 1, "B": 2, "C": 4, "D": 8}
+
+
+class RobotLinkError(ConnectionError):
+    """The robot cannot be reached or stopped answering."""
+
+
+@dataclass(frozen=True)
+class Reading:
+    colour: int  # EV3 colour code
+    distance_cm: float  # ultrasonic; 255 = nothing seen
+    touch: bool
+    at: float  # time.monotonic() of the reading
+
+
+@dataclass(frozen=True)
+class Wiring:
+    """Where things are plugged in, and how fast the motors run (EV3 speed -100..100)."""
+
+    touch: int = 1  # sensor ports 1-4
+    colour: int = 3
+    ultrasonic: int = 4
+    motors: str = "BC"  # the two drive motors
+    speed: int = 50
+    spin_speed: int = 30
+
+    def __post_init__(self):
+        motors = self.motors.upper()
+        if len(motors) != 2 or len(set(motors)) != 2 or not set(motors) <= set(PORT_BITS):
+            raise ValueError(f"--motors must name two different motor ports of A, B, C, D, got {self.motors!r}")
+        ports = {"touch": self.touch, "colour": self.colour, "ultrasonic": self.ultrasonic}
+        if len(set(ports.values())) != 3 or not all(1 <= p <= 4 for p in ports.values()):
+            raise ValueError(f"the three sensors need three different ports of 1-4, got {ports}")
+        for name, value in (("--speed", self.speed), ("--spin-speed", self.spin_speed)):
+            if not -100 <= value <= 100:
+                raise ValueError(f"{name} must be within -100..100, got {value}")
+
+    @property
+    def motor_bits(self) -> int:
+        return sum(PORT_BITS[p] for p in self.motors.upper())
+
+
+class Backend:
+    def connect(self) -> None: ...
+    def read(self) -> Reading: ...
+    def forward(self, ms: int) -> None: ...
+    def spin(self, ms: int, direction: int) -> None: ...
+    def stop(self) -> None: ...
+    def close(self) -> None: ...
+
+
+class EV3Backend(Backend):
+    """A LEGO EV3 with stock firmware, through the direct-command protocol (ev3-dc).
+
+    protocol: "WiFi" (finds the brick by its UDP beacon), "USB" or "Bluetooth" (host: its MAC).
+    All three sensors are read in one direct command; motors get timed synchronised commands.
+    """
+
+    def __init__(self, protocol: str = "WiFi", host: str | None = None, wiring: Wiring = Wiring()):
+        self.protocol, self.host, self.wiring = protocol, host, wiring
+        self._ev3 = None
+        try:
+            import ev3_dc
+        except ImportError:
+            raise RobotLinkError("the ev3 backend needs the ev3-dc package: pip install 'spikinglab[ev3]'") from None
+        self._dc = ev3_dc
+        w, dc = wiring, ev3_dc
+        self._read_ops = b"".join(
+            dc.opInput_Device + dc.READY_SI + dc.LCX(0) + dc.LCX(port - 1) + dc.LCX(kind) + dc.LCX(mode)
+            + dc.LCX(1) + dc.GVX(4 * k)
+            for k, (port, kind, mode) in enumerate(((w.colour, EV3_COLOR, 2), (w.ultrasonic, EV3_ULTRASONIC, 0),
+                                                    (w.touch, EV3_TOUCH, 0))))
+
+    def connect(self) -> None:
+        try:
+            self._ev3 = self._dc.EV3(protocol=self.protocol, host=self.host)
+        except Exception as e:  # ev3-dc raises NoEV3, OSError, usb errors, AssertionError, ...
+            self._ev3 = None
+            raise RobotLinkError(f"cannot connect to the EV3 over {self.protocol}: {e}") from None
+        # ev3-dc leaves Nagle on: a motor command (no reply) sent while the previous small packet is
+        # unacknowledged would wait for the brick's delayed ACK, about 40 ms
+        link = getattr(getattr(self._ev3, "_physical_ev3", None), "_socket", None)
+        if isinstance(link, socket.socket) and link.family in (socket.AF_INET, socket.AF_INET6):
+            link.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+    def _send(self, ops: bytes, global_mem: int = 0) -> bytes:
+        if self._ev3 is None:
+            raise RobotLinkError("not connected")
+        try:
+            return self._ev3.send_direct_cmd(ops, global_mem=global_mem)
+        except Exception as e:  # broken pipe, empty reply (struct.error), DirCmdError, ...
+            raise RobotLinkError(f"EV3 link: {type(e).__name__}: {e}") from None
+
+    def read(self) -> Reading:
+        reply = self._send(self._read_ops, global_mem=12)
+        if len(reply) != 12:
+            raise RobotLinkError(f"EV3 link: a {len(reply)}-byte reply to a 12-byte read")
+        colour, distance, touch = struct.unpack("<3f", reply)
+        return Reading(int(round(colour)), float(distance), touch > 0.5, time.monotonic())
+
+    def _time_sync(self, speed: int, turn: int, ms: int) -> None:
+        dc = self._dc
+        self._send(dc.opOutput_Time_Sync + dc.LCX(0) + dc.LCX(self.wiring.motor_bits) + dc.LCX(speed)
+                   + dc.LCX(turn) + dc.LCX(int(ms)) + dc.LCX(1))
+
+    def forward(self, ms: int) -> None:
+        self._time_sync(self.wiring.speed, 0, ms)
+
+    def spin(self, ms: int, direction: int) -> None:
+        self._time_sync(self.wiring.spin_speed, 200 if direction > 0 else -200, ms)
+
+    def stop(self) -> None:
+        dc = self._dc
+        self._send(dc.opOutput_Stop + dc.LCX(0) + dc.LCX(self.wiring.motor_bits) + dc.LCX(1))
+
+    def close(self) -> None:
+        if self._ev3 is not None:
+            try:
+                self._ev3.__exit__(None, None, None)  # frees the socket and ev3-dc's device registry
+            except Exception:  # a link that is already gone
+                pass
+            self._ev3 = None
+
+
+class SimBackend(Backend):
+    """A simulated EV3 on the paper's floor, in real time.
+
+    The floor is the world's map, `patch_cm` a square. As in the paper, an object of the
+    ultrasonic sensor's height (`object_cm` wide) stands in the centre of every black and red
+    square, so the colour sensor sees black or red for (patch_cm - object_cm) / 2 before the
+    ultrasonic reads a collision (below 5 cm). The robot is a point at its sensors: it stalls
+    against an object, and a simulated experimenter presses the touch sensor while it is on food
+    and carries it back to the start when it leaves the floor.
+    """
+
+    def __init__(self, seed: int = 0, patch_cm: float = 30.0, object_cm: float = 15.0, speed_cm_s: float = 20.0,
+                 turn_deg_s: float = 50.0, link_ms: float = 5.0, map_path=None):
+        from spikinglab.world.physics import build_objects
+        from spikinglab.world.world import BLACK as W_BLACK, RED as W_RED, World, map_world, params_for
+
+        if not 0 < object_cm <= patch_cm:
+            raise ValueError(f"the objects ({object_cm} cm) must fit their squares ({patch_cm} cm)")
+        params, grid = params_for("paper"), None
+        if map_path:
+            params, grid = map_world(map_path, params)
+        self.world = World(params, seed=seed, grid=grid)
+        self.objects = build_objects(self.world, object_cm / patch_cm, colours=(W_BLACK, W_RED))
+        self.patch_cm, self.speed, self.turn, self.link_s = patch_cm, speed_cm_s / patch_cm, turn_deg_s, link_ms / 1000
+        self._motion = ("stop", 0, 0.0)  # kind, direction, until
+        self._last = time.monotonic()
+        self._lock = threading.Lock()
+        self.connected = False
+
+    def connect(self) -> None:
+        self.connected = True
+        self._last = time.monotonic()
+
+    def _advance(self, now: float) -> None:
+        from spikinglab.world.physics import ray
+
+        kind, direction, until = self._motion
+        dt = max(0.0, min(now, until) - self._last)
+        if kind == "forward":
+            heading = float(self.world.heading[0])
+            step = self.speed * dt
+            _, free = ray(self.objects, tuple(self.world.pos[0]), heading, step)
+            if free is not None:  # stalls against the object
+                step = max(0.0, free - 1e-6)
+            h = math.radians(heading)
+            self.world.pos[0] += step * np.array([math.sin(h), math.cos(h)])
+        elif kind == "spin":
+            self.world.heading[0] = (self.world.heading[0] + direction * self.turn * dt) % 360
+        p = self.world.params
+        x, y = self.world.pos[0]
+        if not (p.x_min - 0.5 <= x <= p.x_max + 0.5 and p.y_min - 0.5 <= y <= p.y_max + 0.5):  # off the floor
+            self.world.pos[0] = p.start
+        self._last = now
+
+    def read(self) -> Reading:
+        from spikinglab.world.physics import ray
+        from spikinglab.world.world import BLACK as W_BLACK, GREEN as W_GREEN, RED as W_RED
+
+        if not self.connected:
+            raise RobotLinkError("simulated EV3: not connected")
+        time.sleep(self.link_s)  # a USB direct command takes about 6-9 ms; WiFi a few
+        with self._lock:
+            now = time.monotonic()
+            self._advance(now)
+            under = self.world.patch_at(0)
+            colour = {W_BLACK: BLACK, W_RED: RED, W_GREEN: GREEN}.get(under, WHITE)
+            _, d = ray(self.objects, tuple(self.world.pos[0]), float(self.world.heading[0]), 255 / self.patch_cm)
+        distance = 255.0 if d is None else round(d * self.patch_cm, 1)
+        return Reading(colour, distance, under == W_GREEN, now)
+
+    def _start(self, kind: str, direction: int, ms: int) -> None:
+        with self._lock:
+            now = time.monotonic()
+            self._advance(now)
+            self._motion = (kind, direction, now + ms / 1000)
+
+    def forward(self, ms: int) -> None:
+        self._start("forward", 0, ms)
+
+    def spin(self, ms: int, direction: int) -> None:
+        self._start("spin", 1 if direction > 0 else -1, ms)
+
+    def stop(self) -> None:
+        self._start("stop", 0, 0)
+
+    def close(self) -> None:
+        self.connected = False

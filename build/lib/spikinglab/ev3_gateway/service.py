@@ -1,0 +1,269 @@
+"""The EV3 gateway: `spikinglab gateway` / `python -m spikinglab.ev3_gateway`.
+
+Reads:  spikinglab/<group>/motor (Motor events of a free-running brain), the brain's liveliness
+Writes: spikinglab/<group>/sensors (every reading), liveliness spikinglab/<group>/alive/gateway
+
+It polls the robot as fast as the link allows and publishes every reading, mapped as in the
+paper: colour black / red / green -> the three smells (fed 0: the patch is right under the
+sensor; other colours are floor), ultrasonic below 5 cm -> pain, touch -> reward. Motor events
+become timed commands: MOVE -> both motors forward for 500 ms, ROTATE -> spin for 100 ms.
+
+Busy motors: a command replaces whatever the motors are doing, with its own full duration (a
+repeated MOVE extends the walk); if ROTATE and MOVE come in the same tick, ROTATE wins.
+Safety: the motors are stopped when the brain's liveliness token goes, and when no motor command
+came within --motor-timeout (250 ms) after the last command ended; commands are followed again
+when the brain is back. A broken robot link is reported and retried every second; the brain
+keeps running meanwhile.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from spikinglab.bus import keys
+from spikinglab.bus.schemas import INSECT_SENSORS, Array, Motor, Sensors
+from spikinglab.bus.session import Bus, add_bus_args, open_session
+
+from .backends import BLACK, GREEN, RED, EV3Backend, Reading, RobotLinkError, SimBackend, Wiring
+
+log = logging.getLogger("spikinglab.gateway")
+SMELL_OF_COLOUR = {BLACK: "smell_black", RED: "smell_red", GREEN: "smell_green"}
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="spikinglab gateway", description="The robot's side of the bus.")
+    p.add_argument("--backend", choices=("ev3", "sim"), default="ev3", help="a real EV3 (default) or a simulated one")
+    robot = p.add_argument_group("EV3")
+    robot.add_argument("--protocol", choices=("WiFi", "USB", "Bluetooth"), default="WiFi")
+    robot.add_argument("--host", help="the brick's MAC address (Bluetooth: required; WiFi/USB: picks one of several)")
+    w = Wiring()
+    robot.add_argument("--touch-port", type=int, default=w.touch, choices=range(1, 5))
+    robot.add_argument("--colour-port", type=int, default=w.colour, choices=range(1, 5))
+    robot.add_argument("--ultrasonic-port", type=int, default=w.ultrasonic, choices=range(1, 5))
+    robot.add_argument("--motors", default=w.motors, help=f"the two drive motor ports (default {w.motors})")
+    robot.add_argument("--speed", type=int, default=w.speed, help="forward speed, -100..100")
+    robot.add_argument("--spin-speed", type=int, default=w.spin_speed, help="spin speed, 0..100")
+    sim = p.add_argument_group("simulated EV3")
+    sim.add_argument("--sim-seed", type=int, default=0)
+    sim.add_argument("--sim-map", type=Path)
+    sim.add_argument("--sim-patch-cm", type=float, default=30.0, help="the floor's squares (default 30 cm)")
+    sim.add_argument("--sim-object-cm", type=float, default=15.0,
+                     help="the objects in the centre of black and red squares (default 15 cm)")
+    sim.add_argument("--link-ms", type=float, default=5.0, help="simulated link round trip (default 5 ms)")
+    m = p.add_argument_group("mapping and safety")
+    m.add_argument("--move-ms", type=int, default=500, help="forward time per MOVE spike (default 500)")
+    m.add_argument("--spin-ms", type=int, default=100, help="spin time per ROTATE spike (default 100)")
+    m.add_argument("--pain-below-cm", type=float, default=5.0, help="ultrasonic distance that hurts (default 5)")
+    m.add_argument("--contact-value", type=float, default=0.0,
+                   help="value fed for pain and reward (default 0: a spike in the tick it is read)")
+    m.add_argument("--motor-timeout", type=float, default=0.25,
+                   help="stop when no command came this long after the last one ended (default 0.25 s)")
+    p.add_argument("--max-polls", type=float, default=0, metavar="PER_S",
+                   help="poll at most this often (default 0: as fast as the link allows)")
+    p.add_argument("--duration", type=float, default=0, help="stop after this many seconds (default: run until Ctrl-C)")
+    p.add_argument("--stats", type=Path,
+                   help="write polls, commands, stops, link losses and the times of collisions here (JSON) at the end")
+    add_bus_args(p)
+    return p
+
+
+def sensor_values(reading: Reading, pain_below_cm: float, contact: float) -> np.ndarray:
+    """One row of the insect's sensors (NaN: nothing) from a robot reading."""
+    values = np.full((1, len(INSECT_SENSORS)), np.nan)
+    smell = SMELL_OF_COLOUR.get(reading.colour)
+    if smell:
+        values[0, INSECT_SENSORS.index(smell)] = 0.0  # the patch is under the sensor
+    if reading.distance_cm < pain_below_cm:
+        values[0, INSECT_SENSORS.index("pain")] = contact
+    if reading.touch:
+        values[0, INSECT_SENSORS.index("reward")] = contact
+    return values
+
+
+class Gateway:
+    """The robot side: poll and publish in the calling thread, motor commands and safety in another."""
+
+    def __init__(self, backend, bus: Bus, args: argparse.Namespace):
+        self.backend, self.bus, self.args = backend, bus, args
+        self.sensors = bus.outbox(keys.sensors(bus.group))
+        self.motor = bus.inbox(keys.motor(bus.group), Motor)
+        self.brain = bus.presence("brain")
+        self.lock = threading.Lock()  # one backend call at a time (the link is one socket)
+        self.linked = threading.Event()
+        self.done = threading.Event()
+        self.busy_until = 0.0  # when the running motor command ends
+        self.stopped = True  # no motor command is running (or it was stopped)
+        self.started = time.monotonic()
+        self.stats = {"polls": 0, "commands": 0, "safety_stops": 0, "link_losses": 0, "rejected": 0,
+                      "collisions": []}
+
+    def call(self, what: str, *args) -> bool:
+        """A backend call under the lock; a link failure is noted for the poll loop to repair."""
+        if not self.linked.is_set():
+            return False
+        try:
+            with self.lock:
+                getattr(self.backend, what)(*args)
+            return True
+        except RobotLinkError as e:
+            self.link_lost(e)
+            return False
+
+    def link_lost(self, error: Exception) -> None:
+        if self.linked.is_set():
+            self.linked.clear()
+            self.stats["link_losses"] += 1
+            log.warning("robot link lost: %s; reconnecting", error)
+
+    def connect(self) -> None:
+        """(Re)connect, trying every second, until linked or done."""
+        waited = 0
+        while not self.done.is_set():
+            try:
+                with self.lock:
+                    self.backend.close()
+                    self.backend.connect()
+                self.linked.set()
+                log.info("robot linked%s", f" again after {waited} s" if self.stats["link_losses"] else "")
+                return
+            except RobotLinkError as e:
+                if waited % 10 == 0:
+                    log.warning("%s (retrying every second)", e)
+                waited += 1
+                self.done.wait(1.0)
+
+    def count_collision(self, reading: Reading, touching: bool) -> bool:
+        """The paper's collision on the robot: the ultrasonic distance below --pain-below-cm. Each
+        is noted as [start, end] in seconds since the start, to see learning on the robot."""
+        now_touching = reading.distance_cm < self.args.pain_below_cm
+        if now_touching != touching:
+            at = round(reading.at - self.started, 3)
+            if now_touching:
+                self.stats["collisions"].append([at, None])
+            else:
+                self.stats["collisions"][-1][1] = at
+        return now_touching
+
+    def poll(self) -> None:
+        tick = 0
+        names = INSECT_SENSORS
+        args = self.args
+        interval = 1.0 / args.max_polls if args.max_polls else 0.0
+        next_at = self.started = time.monotonic()
+        touching = False
+        while not self.done.is_set():
+            if interval:
+                next_at += interval
+                time.sleep(max(0.0, next_at - time.monotonic()))
+            if not self.linked.is_set():
+                self.connect()
+                continue
+            try:
+                with self.lock:
+                    reading = self.backend.read()
+            except RobotLinkError as e:
+                self.link_lost(e)
+                continue
+            touching = self.count_collision(reading, touching)
+            self.sensors.put(Sensors(tick=tick, names=names, values=Array.of(
+                sensor_values(reading, args.pain_below_cm, args.contact_value))))
+            tick += 1
+            self.stats["polls"] = tick
+
+    def commands(self) -> None:
+        """Motor events -> timed commands; the safety rules."""
+        args = self.args
+        brain_was_alive = False
+        while not self.done.is_set():
+            message = self.motor.get(timeout=0.02)
+            now = time.monotonic()
+            alive = self.brain.alive
+            if alive != brain_was_alive:
+                log.info("brain %s", "is on the bus" if alive else "lost")
+                brain_was_alive = alive
+                if not alive:
+                    self.safety_stop("the brain's liveliness token is gone")
+            if message is not None:
+                actions = dict(zip(message.names, message.actions.numpy("actions", "|u1", 2)[0]))
+                if actions.get("rotate"):
+                    sent, ms = self.call("spin", args.spin_ms, 1), args.spin_ms
+                elif actions.get("move"):
+                    sent, ms = self.call("forward", args.move_ms), args.move_ms
+                else:
+                    continue
+                if sent:
+                    self.busy_until, self.stopped = now + ms / 1000, False
+                    self.stats["commands"] += 1
+            elif not self.stopped and now > self.busy_until + args.motor_timeout:
+                self.safety_stop(f"no motor command within {args.motor_timeout * 1000:.0f} ms after the last ended")
+
+    def safety_stop(self, why: str) -> None:
+        if self.call("stop"):
+            self.stopped = True
+            self.busy_until = 0.0
+            self.stats["safety_stops"] += 1
+            log.info("motors stopped: %s", why)
+
+    def run(self) -> None:
+        worker = threading.Thread(target=self.commands, name="motor commands", daemon=True)
+        worker.start()
+        try:
+            self.poll()
+        finally:
+            self.done.set()
+            worker.join(timeout=2)
+            self.call("stop")
+            self.stats["rejected"] = self.motor.rejected_total
+            self.stats["seconds"] = round(time.monotonic() - self.started, 3)
+            if self.stats["collisions"] and self.stats["collisions"][-1][1] is None:
+                self.stats["collisions"][-1][1] = self.stats["seconds"]
+
+
+def backend_from(args: argparse.Namespace):
+    if args.backend == "sim":
+        return SimBackend(seed=args.sim_seed, patch_cm=args.sim_patch_cm, object_cm=args.sim_object_cm,
+                          link_ms=args.link_ms, map_path=args.sim_map)
+    wiring = Wiring(touch=args.touch_port, colour=args.colour_port, ultrasonic=args.ultrasonic_port,
+                    motors=args.motors, speed=args.speed, spin_speed=args.spin_speed)
+    return EV3Backend(protocol=args.protocol, host=args.host, wiring=wiring)
+
+
+def main(argv=None) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s gateway %(levelname)s %(message)s", stream=sys.stderr)
+    args = parser().parse_args(argv)
+    try:
+        backend = backend_from(args)
+    except (RobotLinkError, ValueError, OSError) as e:
+        log.error("%s", e)
+        return 2
+    session = open_session(args)
+    bus = Bus(session, args.group, "gateway")
+    gateway = Gateway(backend, bus, args)
+    # Ctrl-C and SIGTERM end the loops between two robot calls: an exception raised inside ev3-dc
+    # would leave its lock taken, and the final stop command would wait for it forever
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: gateway.done.set())
+    if args.duration:
+        threading.Timer(args.duration, gateway.done.set).start()
+    try:
+        gateway.run()
+    finally:
+        backend.close()
+        bus.close()
+        log.info("gateway done: %s", {k: len(v) if k == "collisions" else v for k, v in gateway.stats.items()})
+        if args.stats:
+            args.stats.write_text(json.dumps(gateway.stats))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,117 @@
+"""Learning time under several stated definitions, from the ticks each agent spent on a noxious patch.
+
+A "collision" here is a tick on a noxious patch: NetLogo's demo resets its error_free_counter in
+every such tick, so an insect stuck on a wall is not collision-free.
+
+The paper's Table 1 gives "the number of iterations before collision-free movement" without
+saying how long movement must stay collision-free. Each definition here is one reading of it:
+
+  free W      the tick of the last collision before the first W collision-free ticks
+              (W = 5,000 is this project's default, set before any comparison with the paper;
+              W = 35,000 is the NetLogo source's own rule for ending training:
+              required_error_free_iterations)
+  at most K in W   the tick of the last collision before the first window of W ticks that
+              holds at most K collisions (a collision rate that fell below K per W ticks)
+
+A learning time is None when the run ended before the definition was met. Medians and quartiles
+count those as later than the run (a censored statistic: the median is a real tick only when
+more than half the seeds got there).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+DEFINITIONS = {  # name -> (window W, collisions allowed in it)
+    "free 1,000": (1_000, 0),
+    "free 2,000": (2_000, 0),
+    "free 5,000": (5_000, 0),
+    "free 35,000 (NetLogo's stop rule)": (35_000, 0),
+    "at most 2 in 5,000": (5_000, 2),
+}
+DEFAULT_DEFINITION = "free 5,000"
+PAPER = {0.01: 19_000, 0.02: 15_000, 0.03: 9_000, 0.04: 7_000}  # Table 1: A+ = A- -> iterations
+
+
+def noxious_ticks(world, brain, ticks: int, on_tick: Callable[[int], None] | None = None) -> list[list[int]]:
+    """Run world and brain in the closed loop for `ticks` ticks; the ticks each agent spent on a
+    noxious patch (the pain sensor fed), from which every definition below is computed."""
+    from spikinglab.loop import closed_loop
+    from spikinglab.world.world import PAIN
+
+    noxious = [[] for _ in range(world.agents)]
+
+    def keep(t):
+        for agent in np.flatnonzero(~np.isnan(world.sensors[:, PAIN])):
+            noxious[agent].append(t)
+        if on_tick is not None:
+            on_tick(t)
+    closed_loop(world, brain, ticks, keep)
+    return noxious
+
+
+def learning_time(collision_ticks, ticks: int, window: int, allowed: int = 0) -> int | None:
+    """The tick of the last collision before the first `window` ticks that hold at most `allowed`
+    collisions (0 when the run starts that way); None when no such window ended within `ticks`."""
+    c = np.asarray(collision_ticks, dtype=np.int64)
+    # a window starts just after collision i (or after tick 0, as the world counts) and is met when
+    # the (allowed + 1)-th collision after that start comes `window` or more ticks later, or never
+    starts = np.concatenate([[1], c + 1])
+    for i, start in enumerate(starts):
+        k = i + allowed  # index of the (allowed + 1)-th collision at or after `start`
+        end = c[k] if k < len(c) else ticks
+        if end - start >= window:
+            return int(start - 1) if i > 0 else 0
+    return None
+
+
+def stats(times: list[int | None], ticks: int) -> dict:
+    """Median and quartiles (censored: None counts as later than `ticks`), and how many got there."""
+    t = np.array([np.inf if x is None else x for x in times], dtype=float)
+    q1, median, q3 = (float(np.quantile(t, q, method="inverted_cdf")) for q in (0.25, 0.5, 0.75))
+    out = lambda x: None if np.isinf(x) else x  # noqa: E731
+    return {"median": out(median), "q1": out(q1), "q3": out(q3), "reached": int(np.isfinite(t).sum()),
+            "seeds": len(times), "ticks": ticks}
+
+
+def all_definitions(collision_ticks_per_agent: list, ticks: int) -> dict[str, dict]:
+    """For every definition: each agent's learning time and their statistics."""
+    out = {}
+    for name, (window, allowed) in DEFINITIONS.items():
+        times = [learning_time(c, ticks, window, allowed) for c in collision_ticks_per_agent]
+        out[name] = {"times": times, **stats(times, ticks)}
+    return out
+
+
+def tick_text(x: float | None, ticks: int) -> str:
+    return f"{x:,.0f}" if x is not None else f"> {ticks:,}"
+
+
+def plot_table1(rows: list[dict], definition: str, path) -> None:
+    """Learning time against A+ = A- per setting (median, quartiles) beside the paper's Table 1."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 5), dpi=110)
+    names = list(dict.fromkeys(r["name"] for r in rows))
+    for k, name in enumerate(names):
+        mine = [r for r in rows if r["name"] == name]
+        x = np.array([r["a"] for r in mine]) * (1 + 0.03 * (k - len(names) / 2))  # spread the points apart
+        ticks = mine[0]["ticks"]
+        med = [r["definitions"][definition]["median"] or ticks * 1.05 for r in mine]
+        lo = [r["definitions"][definition]["q1"] or ticks * 1.05 for r in mine]
+        hi = [r["definitions"][definition]["q3"] or ticks * 1.05 for r in mine]
+        ax.errorbar(x, med, yerr=[np.subtract(med, lo), np.subtract(hi, med)], marker="o", ms=4, capsize=3,
+                    lw=1, label=name)
+    ax.plot(list(PAPER), list(PAPER.values()), "k*", ms=14, label="paper, Table 1")
+    ax.axhline(rows[0]["ticks"], color="gray", ls=":", lw=1)
+    ax.set(xlabel="A+ = A-", ylabel=f"learning time, ticks ({definition} collision-free)", yscale="log",
+           title="Table 1 against the paper: median and quartiles over seeds (top line: end of run)")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

@@ -1,0 +1,312 @@
+"""Bus messages -> a Rerun recording on a `tick` timeline, logged in batches (no zenoh here).
+
+Each kind of data is buffered per tick and sent as columns (`send_columns`) every `flush_every`
+ticks, never one log call per value. What goes where:
+
+  /world/map                 the arena (SegmentationImage + AnnotationContext); again when food is eaten
+  /world/insects             every agent's position, every tick
+  /world/heading/agent<a>    heading arrow of a detail agent
+  /world/vision/agent<a>     the vision ray of a detail agent, coloured by what it sees
+  /world/trail/agent<a>      the path of the last `trail` ticks (every 50 ticks)
+  /world/pain, /world/reward where a detail agent felt pain or found food
+  /brain/agent<a>/spikes/<node>     spike raster: the node's row index at each tick it spiked
+  /brain/agent<a>/potentials        membrane potentials of all neurons
+  /brain/agent<a>/weights           plastic weights, every N ticks
+  /learning/collisions_per_1000, /learning/food    the learning curve (mean over agents)
+  /events                    text: start, world and brain on or off the bus, learning reached,
+                             rejected messages, run ended
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from spikinglab.bus.schemas import BrainLayout, BrainState, WorldMap, WorldState
+
+EMPTY, BLACK, RED, GREEN = 0, 1, 2, 3
+PATCH_COLOURS = [(EMPTY, "floor", (24, 24, 28)), (BLACK, "wall", (215, 215, 215)),
+                 (RED, "predator", (220, 50, 47)), (GREEN, "food", (60, 190, 80))]
+SEEN_COLOUR = {BLACK: (215, 215, 215), RED: (255, 80, 80), GREEN: (90, 230, 110)}
+SMELLS = {"smell_black": BLACK, "smell_red": RED, "smell_green": GREEN}
+TRAIL_EVERY, TRAIL_STEP = 50, 5  # ticks between trail updates; keep every 5th position
+
+
+def blueprint(detail: int = 0) -> rrb.Blueprint:
+    """World view beside spike raster, potentials, weights and the learning curve."""
+    recent = [rrb.VisibleTimeRange("tick", start=rrb.TimeRangeBoundary.cursor_relative(seq=-300),
+                                   end=rrb.TimeRangeBoundary.cursor_relative())]
+    whole = [rrb.VisibleTimeRange("tick", start=rrb.TimeRangeBoundary.infinite(),
+                                  end=rrb.TimeRangeBoundary.infinite())]
+    # the whole run on the x axis, not linked to the raster's 300-tick window
+    all_ticks = rrb.archetypes.TimeAxis(link=rrb.components.LinkAxis.Independent, view_range=rrb.components.TimeRange(
+        start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite()))
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.Spatial2DView(name="world", origin="/world"),
+                rrb.TextLogView(name="events", origin="/events"),
+                row_shares=[4, 1],
+            ),
+            rrb.Vertical(
+                rrb.TimeSeriesView(name="spike raster", origin=f"/brain/agent{detail}/spikes", time_ranges=recent),
+                rrb.TimeSeriesView(name="membrane potentials", origin=f"/brain/agent{detail}/potentials",
+                                   time_ranges=recent),
+                rrb.TimeSeriesView(name="plastic weights", origin=f"/brain/agent{detail}/weights", time_ranges=whole,
+                                   axis_x=all_ticks),
+                rrb.TimeSeriesView(name="learning", origin="/learning", time_ranges=whole, axis_x=all_ticks),
+            ),
+            column_shares=[1, 1],
+        ),
+        collapse_panels=True,
+    )
+
+
+class Recorder:
+    """Turns decoded bus messages into Rerun data. `on(message)` per message, `close()` at the end."""
+
+    def __init__(self, rec: rr.RecordingStream, detail=(0,), flush_every: int = 1000, trail: int = 2000):
+        self.rec, self.detail, self.flush_every, self.trail = rec, tuple(detail), flush_every, trail
+        self.first_tick: int | None = None
+        self.last_tick = -1
+        self.layout: BrainLayout | None = None
+        self.grid = None  # [arenas, width, height] as the world last told
+        self.x_min = self.y_min = 0
+        self.spike_counts: np.ndarray | None = None  # [agents, nodes] spikes seen (tests, summary)
+        self.agents = 0
+        self._flushed_to = -1
+        self._collisions_at_bin = None
+        self.brain_done = False  # the brain's final batch has arrived
+        self.world_done = False  # the world's final batch has arrived
+        self._announced = False  # whether "recording starts at tick N" was said
+        self._trail: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # agent -> (ticks, positions)
+        self._reset_buffers()
+        rec.log("/world/map", rr.AnnotationContext([(c, name, rgb) for c, name, rgb in PATCH_COLOURS]), static=True)
+        rec.log("/learning/collisions_per_1000", rr.SeriesLines(names="collision events per 1,000 ticks",
+                                                               colors=(220, 50, 47), widths=2), static=True)
+        rec.log("/learning/food", rr.SeriesLines(names="food eaten (mean)", colors=(60, 190, 80)), static=True)
+        rec.log("/world/pain", rr.Points2D([], colors=[(255, 60, 60)]), static=True)
+
+    def _reset_buffers(self) -> None:
+        self.b = defaultdict(list)  # kind -> list of rows, flushed as columns
+
+    # --- geometry: world patches -> image pixels (north up) -------------------------------------
+    def view(self, xy: np.ndarray) -> np.ndarray:
+        out = np.empty_like(xy, dtype=np.float64)
+        out[..., 0] = xy[..., 0] - self.x_min + 0.5
+        out[..., 1] = (self.height - 1) - (xy[..., 1] - self.y_min) + 0.5
+        return out
+
+    @property
+    def height(self) -> int:
+        return self.grid.shape[2] if self.grid is not None else 60
+
+    # --- messages ---------------------------------------------------------------------------------
+    def on(self, message) -> None:
+        handler = {WorldMap: self.on_world_map, WorldState: self.on_world_state, BrainState: self.on_brain_state,
+                   BrainLayout: self.on_brain_layout}[type(message)]
+        if message.tick >= 0 and not isinstance(message, (BrainLayout, WorldMap)):
+            # the earliest tick held; said once, at the first flush (a batch may start earlier than
+            # the message that happened to come first)
+            self.first_tick = message.tick if self.first_tick is None else min(self.first_tick, message.tick)
+            self.last_tick = max(self.last_tick, message.tick)  # batches move it on further
+        handler(message)
+        if self.last_tick - self._flushed_to >= self.flush_every:
+            self.flush()
+
+    def on_world_map(self, m: WorldMap) -> None:
+        self.grid = m.grid.numpy("grid", "|u1", 3).copy()
+        self.x_min, self.y_min = m.x_min, m.y_min
+        self._log_map(m.tick)
+
+    @property
+    def arena_shown(self) -> int:
+        """The arena drawn: the first detail agent's (all agents share arena 0 when shared)."""
+        return min(self.detail[0], self.grid.shape[0] - 1)
+
+    def _log_map(self, tick: int) -> None:
+        self.rec.set_time("tick", sequence=tick)
+        self.rec.log("/world/map", rr.SegmentationImage(self.grid[self.arena_shown][:, ::-1].T.copy()))
+
+    def on_world_state(self, m: WorldState) -> None:
+        """A batch of consecutive ticks."""
+        sensed = m.sensors.numpy("sensors", "<f8", 3)
+        pos, heading = m.pos.numpy("pos", "<f8", 3), m.heading.numpy("heading", "<f8", 2)
+        events, food = m.events.numpy("events", "<i8", 3), m.food.numpy("food", "<i8", 2)
+        collisions = m.collisions.numpy("collisions", "<i8", 2)
+        changes = m.changes.numpy("changes", "<i8", 2)
+        self.agents = pos.shape[1]
+        self.last_tick = max(self.last_tick, m.tick + len(pos) - 1)
+        if self._collisions_at_bin is None:
+            self._collisions_at_bin = np.zeros(self.agents, np.int64)
+        detail_rows = [a for a in self.detail if a < self.agents]
+        for k in range(len(pos)):
+            t = m.tick + k
+            self.b["pose"].append((t, pos[k], heading[k]))
+            self.b["sensors"].append((t, m.sensor_names, sensed[k][detail_rows]))
+            mine = changes[changes[:, 0] == t]
+            if len(mine) and self.grid is not None:
+                for _, arena, ix, iy, colour in mine:
+                    self.grid[arena, ix, iy] = colour
+                if (mine[:, 1] == self.arena_shown).any():
+                    self._log_map(t)
+            if (t + 1) % 1000 == 0:  # the learning curve, per 1,000 ticks like the world's own bins
+                self.b["bins"].append((t, float((collisions[k] - self._collisions_at_bin).mean()), float(food[k].mean())))
+                self._collisions_at_bin = collisions[k].copy()
+            for a in np.flatnonzero(events[k, :, 3]):
+                self.event(f"agent {a} learned: no collision for the required run of ticks (tick {t})", "INFO", t)
+        if m.final:
+            self.world_done = True
+            self.event(f"run ended at tick {m.tick + len(pos)}", "INFO", m.tick + len(pos))
+
+    def on_brain_layout(self, m: BrainLayout) -> None:
+        self.layout = m
+        for a in self.detail:
+            base = f"/brain/agent{a}"
+            for k, name in enumerate(m.nodes):
+                colour = (255, 200, 60) if k >= m.neurons else (120, 180, 255)
+                self.rec.log(f"{base}/spikes/{k:02d}_{name}", rr.SeriesPoints(names=name, colors=colour,
+                                                                              marker_sizes=2.0), static=True)
+            self.rec.log(f"{base}/potentials", rr.SeriesLines(names=list(m.nodes[: m.neurons])), static=True)
+            self.rec.log(f"{base}/weights", rr.SeriesLines(names=[m.synapses[k] for k in m.plastic]), static=True)
+
+    def on_brain_state(self, m: BrainState) -> None:
+        """A batch of consecutive ticks, and the weights after its last one."""
+        spiked = m.spiked.numpy("spiked", "|u1", 3)
+        potentials = m.potentials.numpy("potentials", "<f4", 3)
+        agents = spiked.shape[1]
+        rows = [a for a in self.detail if a < agents]
+        if self.spike_counts is None or self.spike_counts.shape != spiked.shape[1:]:
+            self.spike_counts = np.zeros(spiked.shape[1:], np.int64)
+        self.spike_counts += spiked.sum(axis=0, dtype=np.int64)
+        for k in range(len(spiked)):
+            self.b["spikes"].append((m.tick + k, spiked[k][rows]))
+            self.b["potentials"].append((m.tick + k, potentials[k][rows]))
+        last = m.tick + len(spiked) - 1
+        self.last_tick = max(self.last_tick, last)
+        weights = m.weights.numpy("weights", "<f8", 2)
+        self.b["weights"].append((last, weights[rows]))
+        self.brain_done = m.final
+
+    def event(self, text: str, level: str = "INFO", tick: int | None = None) -> None:
+        self.rec.set_time("tick", sequence=max(tick if tick is not None else self.last_tick, 0))
+        self.rec.log("/events", rr.TextLog(text, level=level))
+
+    # --- batches ----------------------------------------------------------------------------------
+    def flush(self) -> None:
+        """Send everything buffered as columns, one call per entity."""
+        b, self.b = self.b, defaultdict(list)
+        self._flushed_to = self.last_tick
+        if not self._announced and self.first_tick is not None:
+            self._announced = True
+            if self.first_tick > 0:
+                self.event(f"recording starts at tick {self.first_tick}: the recorder started late", "WARN",
+                           self.first_tick)
+        if b["pose"]:
+            self._flush_world(b["pose"], b["sensors"])
+        if b["spikes"] or b["weights"]:
+            self._flush_brain(b["spikes"], b["potentials"], b["weights"])
+        if b["bins"]:
+            ticks = np.array([r[0] for r in b["bins"]])
+            self._columns("/learning/collisions_per_1000", ticks, rr.Scalars.columns(scalars=[r[1] for r in b["bins"]]))
+            self._columns("/learning/food", ticks, rr.Scalars.columns(scalars=[r[2] for r in b["bins"]]))
+        self.rec.flush()
+
+    def _columns(self, path: str, ticks, columns) -> None:
+        self.rec.send_columns(path, indexes=[rr.TimeColumn("tick", sequence=np.asarray(ticks))], columns=columns)
+
+    def _flush_world(self, poses, sensors) -> None:
+        ticks = np.array([p[0] for p in poses])
+        pos = np.stack([p[1] for p in poses])  # [T, A, 2]
+        heading = np.stack([p[2] for p in poses])
+        T, A = pos.shape[:2]
+        colours = np.tile(np.array([(255, 150, 40)] * A, np.uint8), (T, 1))
+        sizes = np.full((T, A), 0.45, np.float32)
+        for a in self.detail:
+            if a < A:
+                colours.reshape(T, A, 3)[:, a] = (255, 230, 0)
+                sizes[:, a] = 0.7
+        self._columns("/world/insects", ticks, rr.Points2D.columns(
+            positions=self.view(pos).reshape(-1, 2), colors=colours, radii=sizes.reshape(-1)).partition([A] * T))
+        pose_at = {int(t): (p, h) for t, p, h in poses}
+        for a in (a for a in self.detail if a < A):
+            self._flush_agent(a, ticks, pos[:, a], heading[:, a], pose_at, sensors)
+
+    def _flush_agent(self, a, ticks, pos, heading, pose_at, sensors) -> None:
+        rad = np.radians(heading)
+        ahead = np.stack([np.sin(rad), np.cos(rad)], axis=1)
+        start = self.view(pos)
+        tip = self.view(pos + 1.2 * ahead)
+        self._columns(f"/world/heading/agent{a}", ticks, rr.Arrows2D.columns(
+            origins=start, vectors=tip - start, colors=np.tile([255, 230, 0], (len(ticks), 1))).partition([1] * len(ticks)))
+        # the vision ray of tick t starts where the insect was after tick t - 1
+        k = self.detail.index(a)
+        rays, ray_colours, ray_ticks, hurt, fed = [], [], [], [], []
+        for t, names, values in sensors:
+            before = pose_at.get(t - 1) or pose_at.get(t)
+            if before is None:
+                continue
+            p, h = before[0][a], before[1][a]
+            row = dict(zip(names, values[k]))
+            seen = [(d, SMELLS[n]) for n, d in row.items() if n in SMELLS and not math.isnan(d)]
+            d, colour = min(seen) if seen else (4.0, None)
+            direction = np.array([math.sin(math.radians(h)), math.cos(math.radians(h))])
+            rays.append(self.view(np.stack([p, p + d * direction])))
+            ray_colours.append(SEEN_COLOUR.get(colour, (110, 110, 110)))
+            ray_ticks.append(t)
+            hurt.append(not math.isnan(row.get("pain", math.nan)))
+            fed.append(not math.isnan(row.get("reward", math.nan)))
+        if rays:
+            self._columns(f"/world/vision/agent{a}", ray_ticks, rr.LineStrips2D.columns(
+                strips=rays, colors=ray_colours, radii=np.full(len(rays), 0.08, np.float32)).partition([1] * len(rays)))
+            for flags, path, colour in ((hurt, "/world/pain", (255, 60, 60)), (fed, "/world/reward", (90, 230, 110))):
+                # a mark in the ticks it happens, an empty batch in the others (no stale mark)
+                marks = [ray[0] for ray, f in zip(rays, flags) if f]
+                if marks or path == "/world/pain":
+                    self._columns(path, ray_ticks, rr.Points2D.columns(
+                        positions=np.array(marks, np.float64).reshape(-1, 2),
+                        colors=np.tile(colour, (len(marks), 1)).astype(np.uint8).reshape(-1, 3),
+                        radii=np.full(len(marks), 0.9, np.float32)).partition([int(f) for f in flags]))
+        # the trail: every TRAIL_EVERY ticks, the last `trail` positions, split where it jumped (reset)
+        old_ticks, old_pos = self._trail.get(a, (np.zeros(0, np.int64), np.zeros((0, 2))))
+        history_ticks = np.concatenate([old_ticks, ticks])
+        history = np.concatenate([old_pos, pos])
+        self._trail[a] = (history_ticks[-self.trail:], history[-self.trail:])
+        strips, counts, when = [], [], []
+        for t in ticks[(ticks % TRAIL_EVERY) == 0]:
+            part = history[history_ticks <= t][-self.trail:][::TRAIL_STEP]
+            pieces = np.split(part, np.flatnonzero(np.linalg.norm(np.diff(part, axis=0), axis=1) > 3) + 1)
+            pieces = [self.view(p) for p in pieces if len(p) > 1]
+            strips += pieces
+            counts.append(len(pieces))
+            when.append(t)
+        if when:
+            self._columns(f"/world/trail/agent{a}", when, rr.LineStrips2D.columns(
+                strips=strips, colors=np.tile([255, 230, 0, 120], (len(strips), 1)).astype(np.uint8),
+                radii=np.full(len(strips), 0.1, np.float32)).partition(counts))
+
+    def _flush_brain(self, spikes, potentials, weights) -> None:
+        shown = len(spikes[0][1]) if spikes else len(weights[0][1])
+        for i, a in enumerate(self.detail[:shown]):
+            base = f"/brain/agent{a}"
+            if spikes:
+                ticks = np.array([s[0] for s in spikes])
+                spiked = np.stack([s[1][i] for s in spikes])  # [T, nodes]
+                names = self.layout.nodes if self.layout else tuple(f"n{k}" for k in range(spiked.shape[1]))
+                for k, name in enumerate(names):
+                    when = ticks[spiked[:, k] > 0]
+                    if len(when):  # the raster row: the node's row number, only in the ticks it spiked
+                        self._columns(f"{base}/spikes/{k:02d}_{name}", when,
+                                      rr.Scalars.columns(scalars=np.full(len(when), len(names) - k, np.float64)))
+                pot = np.stack([p[1][i] for p in potentials]).astype(np.float64)
+                self._columns(f"{base}/potentials", [p[0] for p in potentials], rr.Scalars.columns(scalars=pot))
+            if weights and self.layout is not None:
+                w = np.stack([x[1][i][list(self.layout.plastic)] for x in weights])
+                self._columns(f"{base}/weights", [x[0] for x in weights], rr.Scalars.columns(scalars=w))
+
+    def close(self) -> None:
+        self.flush()

@@ -1,0 +1,87 @@
+"""`spikinglab screenshot RRD`: a PNG of a recording's replay, rendered by a headless viewer.
+
+Needs a Vulkan driver; on a machine without a GPU, Mesa's software one (Debian:
+`apt-get install mesa-vulkan-drivers libvulkan1`). The viewer opens the file in its stored layout,
+the time cursor is set to --tick (default: the end), and the window is saved.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import rerun.experimental as rrx
+from rerun.chunk import RrdReader
+
+
+def last_tick(path: Path) -> int:
+    last = 0
+    for chunk in RrdReader(str(path)).stream():
+        batch = chunk.to_record_batch()
+        if "tick" in batch.schema.names and batch.num_rows:
+            last = max(last, max(batch.column("tick").to_pylist()))
+    return last
+
+
+def screenshot(recording: Path, out: Path, tick: int | None = None, size: str = "1600x900", settle: float = 2.0) -> Path:
+    """Render `recording` at `tick` into `out` (PNG) with a headless viewer."""
+    tick = last_tick(recording) if tick is None else tick
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    viewer_exe = Path(sys.executable).with_name("rerun")
+    viewer = subprocess.Popen([str(viewer_exe) if viewer_exe.exists() else "rerun", "--headless", "--window-size", size,
+                               "--port", str(port), "--hide-welcome-screen"],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                              start_new_session=True)  # its own group: the venv's `rerun` starts the real viewer
+    try:
+        client, deadline = None, time.monotonic() + 30
+        while client is None:
+            if viewer.poll() is not None:
+                raise RuntimeError(f"the headless viewer stopped: {viewer.stderr.read()[-1500:]}")
+            try:
+                client = rrx.ViewerClient(f"rerun+http://127.0.0.1:{port}/proxy")
+                client.get_state()
+            except Exception:  # not listening yet
+                client = None
+                if time.monotonic() > deadline:
+                    raise RuntimeError("the headless viewer did not start within 30 s") from None
+                time.sleep(0.2)
+        client.open(str(recording.resolve()))
+        time.sleep(settle)  # panels are empty if captured at once (NOTES.md)
+        client.set_time("tick", sequence=tick, play_state="paused")
+        time.sleep(settle)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        client.save_screenshot(str(out.resolve()))
+    finally:  # the whole group: killing the wrapper alone left a ~400 MB viewer behind per call
+        try:
+            os.killpg(viewer.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        viewer.wait()
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="spikinglab screenshot", description=__doc__.splitlines()[0])
+    p.add_argument("recording", type=Path)
+    p.add_argument("--out", type=Path, help="PNG file (default: beside the recording, replay.png)")
+    p.add_argument("--tick", type=int, help="where the time cursor goes (default: the last tick)")
+    p.add_argument("--size", default="1600x900", help="window size in points (default 1600x900)")
+    args = p.parse_args(argv)
+    if not args.recording.exists():
+        print(f"spikinglab screenshot: {args.recording}: no such recording", file=sys.stderr)
+        return 2
+    out = screenshot(args.recording, args.out or args.recording.with_name("replay.png"), args.tick, args.size)
+    print(f"screenshot written to {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

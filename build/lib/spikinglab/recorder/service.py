@@ -1,0 +1,114 @@
+"""The recorder service: `spikinglab record` / `python -m spikinglab.recorder`.
+
+Reads:  spikinglab/<group>/state/** (the world's and the brain's state batches, the map, the
+        brain's layout; one strict inbox), and the liveliness of the world and the brain
+Writes: a Rerun recording (.rrd) with its default layout; optionally also to a live viewer
+        (--viewer URL) or serves one (--serve); liveliness spikinglab/<group>/alive/recorder
+
+It ends when the world and the brain have sent their final batches (or on Ctrl-C / SIGTERM),
+flushing what it has; a
+recorder that is killed leaves a file that is readable up to its last flush.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import logging
+import os
+import sys
+import time
+from pathlib import Path
+
+import rerun as rr
+
+from spikinglab.bus import keys
+from spikinglab.bus.schemas import BrainLayout, BrainState, WorldMap, WorldState
+from spikinglab.bus.session import Bus, add_bus_args, service_main
+
+from .recorder import Recorder, blueprint
+
+log = logging.getLogger("spikinglab.recorder")
+END_GRACE = 5.0  # seconds to wait after the run's end for the brain's last messages
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="spikinglab record", description="Record a run to a Rerun file.")
+    p.add_argument("--out", type=Path, help="the .rrd file (default runs/<date>-<time>/recording.rrd)")
+    p.add_argument("--viewer", metavar="URL", help="also stream to a running viewer, e.g. rerun+http://127.0.0.1:9876/proxy")
+    p.add_argument("--serve", action="store_true", help="also serve the recording for viewers to connect (gRPC)")
+    p.add_argument("--detail", default="0", help="agents with raster, potentials, weights, ray, trail (default 0)")
+    p.add_argument("--flush-every", type=int, default=1000, help="ticks per batch written (default 1,000)")
+    p.add_argument("--forever", action="store_true", help="keep recording after the run's end")
+    p.add_argument("--nice", type=int, default=10, help="scheduling priority increment (default 10: after world and brain)")
+    add_bus_args(p)
+    return p
+
+
+def run(args: argparse.Namespace, session) -> int:
+    out = args.out or Path("runs") / f"{datetime.datetime.now():%Y%m%d-%H%M%S}" / "recording.rrd"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    detail = tuple(int(a) for a in args.detail.split(",") if a.strip())
+    rec = rr.RecordingStream("spikinglab", recording_id=f"{args.group}-{out.parent.name}")
+    sinks = [rr.FileSink(str(out))]
+    if args.viewer:
+        sinks.append(rr.GrpcSink(args.viewer))
+    rec.set_sinks(*sinks, default_blueprint=blueprint(detail[0] if detail else 0))
+    if args.serve:
+        log.info("serving the recording at %s", rec.serve_grpc(default_blueprint=blueprint(detail[0] if detail else 0)))
+    bus = Bus(session, args.group, "recorder")
+    recorder = Recorder(rec, detail=detail, flush_every=args.flush_every)
+    # only the state streams: the lock-step messages (sensors, motor) never come to the recorder
+    inbox = bus.inbox(keys.state(args.group), (WorldMap, WorldState, BrainState, BrainLayout))
+    watched = {name: bus.presence(name) for name in ("world", "brain")}
+    recorder.event(f"recorder started on group {args.group}, writing {out}")
+    log.info("recording group %s to %s", args.group, out)
+    rejected, last_flush, ending = 0, time.monotonic(), None
+    received, first_at = 0, time.monotonic()
+    try:
+        while True:
+            message = inbox.get(timeout=0.25)
+            for name, presence in watched.items():  # services coming and going
+                while not presence.events.empty():
+                    change, _ = presence.events.get()
+                    # stamped with the tick the recorder has got to, which can trail the run
+                    recorder.event(f"{name} {'is on the bus' if change == 'up' else 'left the bus'} "
+                                   f"(seen while recording tick {max(recorder.last_tick, 0)})",
+                                   "INFO" if change == "up" else "WARN")
+            if inbox.rejected_total != rejected:
+                reasons = ", ".join(f"{n} x {r}" for r, n in inbox.rejected.items())
+                recorder.event(f"rejected messages so far: {inbox.rejected_total} ({reasons})", "WARN")
+                rejected = inbox.rejected_total
+            if message is not None:
+                if received == 0:
+                    first_at = time.monotonic()
+                received += 1
+                recorder.on(message)
+                if getattr(message, "final", False) and not args.forever and ending is None:
+                    ending = time.monotonic() + END_GRACE
+            # the run is over when every stream that came has sent its final batch (the world's and
+            # the brain's come on different links, in either order)
+            if ending and ((recorder.world_done or recorder.agents == 0) and
+                           (recorder.brain_done or recorder.spike_counts is None) or time.monotonic() > ending):
+                break
+            if time.monotonic() - last_flush > 2.0:  # a killed recorder loses at most this much
+                recorder.flush()
+                last_flush = time.monotonic()
+    finally:
+        recorder.close()
+        rec.flush()
+        rec.disconnect()
+        bus.close()
+        took = max(time.monotonic() - first_at, 1e-9)
+        log.info("recording written to %s (ticks %s..%s): %d messages in %.1f s, %.0f messages/s",
+                 out, recorder.first_tick, recorder.last_tick, received, took, received / took)
+    return 0
+
+
+def main(argv=None) -> int:
+    # os.nice: behind the lock-step pair; the recorder buffers (losslessly) and catches up
+    return service_main("recorder", parser(), run, argv, interrupted=0, prepare=lambda args: os.nice(args.nice))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

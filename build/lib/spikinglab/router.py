@@ -1,0 +1,37 @@
+"""`spikinglab router`: a Zenoh router for brain, world, gateway and recorder on several machines.
+
+Run it on any machine the others can reach; start each service with --connect tcp/HOST:7447.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+
+from spikinglab.bus.session import add_bus_args, open_session
+
+log = logging.getLogger("spikinglab.router")
+
+
+def main(argv=None) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s router %(levelname)s %(message)s", stream=sys.stderr)
+    p = argparse.ArgumentParser(prog="spikinglab router", description=__doc__.splitlines()[0])
+    add_bus_args(p)
+    args = p.parse_args(argv)
+    if not args.listen:
+        args.listen = ["tcp/0.0.0.0:7447"]
+    session = open_session(args, mode="router")
+    log.info("router %s listening on %s", session.zid(), ", ".join(args.listen))
+    try:
+        while True:
+            time.sleep(1)
+    except KeyboardInterrupt:
+        return 0
+    finally:
+        session.close()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,116 @@
+"""`spikinglab sweep`: the paper's Table 1 — learning time for symmetric A+ = A- over several seeds.
+
+All seeds of one A+ value run as one population (one arena each) in one process, so a sweep takes
+seconds. Writes runs/<id>/table.md, table.json and learning.png, and prints the table beside the
+paper's numbers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from spikinglab.brain.circuit import load_circuit
+from spikinglab.brain.engine import DEFAULT_SEMANTICS
+from spikinglab.brain.service import add_engine_args
+from spikinglab.learning import all_definitions, noxious_ticks, plot_table1, stats
+from spikinglab.loop import brain_for
+from spikinglab.run import PAPER_TABLE_1
+from spikinglab.world.world import PRESETS, World, params_for
+
+
+def sweep_one(a_plus: float, seeds: int, ticks: int, preset: str, learned_after: int, progress=None,
+              semantics: str = DEFAULT_SEMANTICS, order: str = "random") -> dict:
+    world = World(params_for(preset, learned_after=learned_after), agents=seeds, seed=0)
+    brain = brain_for(world, load_circuit("insect").with_learning_rate(a_plus), semantics=semantics, order=order)
+    noxious = noxious_ticks(world, brain, ticks, (lambda t: progress.update(1)) if progress else None)
+    bins = np.array(world.metrics.bins).T  # [seeds, ticks / 1000]
+    q = bins.shape[1] // 4
+    definitions = all_definitions(noxious, ticks)
+    times = [int(t) if t >= 0 else None for t in world.metrics.learned_at]  # the world's own counter
+    main = {"times": times, **stats(times, ticks)}
+    return {
+        "name": f"{semantics} semantics, {preset} steps", "a": a_plus, "a_plus": a_plus, "seeds": seeds,
+        "ticks": ticks, "learning_time": main["times"], "reached": main["reached"], "median": main["median"],
+        "quartiles": [main["q1"], main["q3"]], "definitions": {**definitions, "project": main},
+        "collisions_first_quarter": bins[:, :q].sum(axis=1).tolist(),
+        "collisions_last_quarter": bins[:, -q:].sum(axis=1).tolist(),
+        "collisions_per_1000_ticks_mean": bins.mean(axis=0).round(2).tolist(),
+    }
+
+
+def table(rows: list[dict], learned_after: int) -> str:
+    lines = ["| A+ = A- | paper | median learning time | quartiles | reached | collisions, first -> last quarter |",
+             "|---|---|---|---|---|---|"]
+    def tick(x, ticks):
+        return f"{x:,.0f}" if x is not None else f"> {ticks:,}"
+
+    for r in rows:
+        paper = PAPER_TABLE_1.get(f"{r['a_plus']:.2f}")
+        first, last = np.mean(r["collisions_first_quarter"]), np.mean(r["collisions_last_quarter"])
+        lines.append(f"| {r['a_plus']} | {'' if paper is None else f'{paper:,}'} | {tick(r['median'], r['ticks'])} | "
+                     f"{tick(r['quartiles'][0], r['ticks'])} - {tick(r['quartiles'][1], r['ticks'])} | "
+                     f"{r['reached']}/{r['seeds']} | {first:.0f} -> {last:.0f} |")
+    lines.append(f"\nLearning time: the last tick on a noxious patch before the first {learned_after:,} ticks off "
+                 f"them. Median and quartiles over all seeds; a seed that did not get there within "
+                 f"{rows[0]['ticks']:,} ticks counts as later than that. Collisions: mean per seed.")
+    return "\n".join(lines)
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 4.5), dpi=110)
+    for r in rows:
+        y = r["collisions_per_1000_ticks_mean"]
+        ax.plot((np.arange(len(y)) + 1) * 1000, y, lw=1.5, label=f"A+ = A- = {r['a_plus']} ({r['seeds']} seeds)")
+    ax.set(xlabel="tick", ylabel="collision events per 1,000 ticks (mean over seeds)",
+           title="Learning speed against the learning rate (paper Table 1)")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="spikinglab sweep", description=__doc__.splitlines()[0])
+    p.add_argument("--a-plus", type=float, nargs="+", default=[0.01, 0.02, 0.03, 0.04])
+    p.add_argument("--seeds", type=int, default=16, help="seeds (arenas 0..N-1) per value (default 16)")
+    p.add_argument("--ticks", type=int, default=150_000)
+    p.add_argument("--preset", choices=sorted(PRESETS), default="paper")
+    p.add_argument("--learned-after", type=int, default=5000)
+    add_engine_args(p)
+    p.add_argument("--runs", type=Path, default=Path("runs"))
+    p.add_argument("--id", help="folder name (default sweep-<date>)")
+    args = p.parse_args(argv)
+    from tqdm import tqdm
+
+    folder = args.runs / (args.id or f"sweep-{datetime.datetime.now():%Y%m%d-%H%M%S}")
+    folder.mkdir(parents=True, exist_ok=True)
+    rows = []
+    with tqdm(total=args.ticks * len(args.a_plus), unit="tick", unit_scale=True, mininterval=1) as bar:
+        for a in args.a_plus:
+            bar.set_postfix_str(f"A+ = A- = {a}")
+            rows.append(sweep_one(a, args.seeds, args.ticks, args.preset, args.learned_after, bar,
+                                  args.semantics, args.order))
+    text = table(rows, args.learned_after)
+    (folder / "table.md").write_text(text + "\n")
+    (folder / "table.json").write_text(json.dumps(rows, indent=1))
+    plot(rows, folder / "learning.png")
+    plot_table1(rows, "project", folder / "table1.png")
+    print(text)
+    print(f"\nwritten to {folder}/: table.md, table.json, learning.png (collisions over time), "
+          f"table1.png (against the paper)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

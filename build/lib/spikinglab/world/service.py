@@ -1,0 +1,232 @@
+"""The world service: `spikinglab world` / `python -m spikinglab.world`.
+
+Reads:  spikinglab/<group>/motor (Motor), liveliness spikinglab/<group>/alive/brain
+Writes: spikinglab/<group>/sensors (Sensors), .../control (Control "end"), .../world/state and
+        .../world/map (for the recorder), liveliness spikinglab/<group>/alive/world
+
+Lock-step: the world publishes the sensors of tick t, waits for the brain's Motor of tick t,
+applies it and advances. Without a brain it waits and says so; it never invents a tick. When no
+answer comes within a second the sensors are sent again (the brain answers a repeated tick from
+its cache), so a brain that was restarted picks the run up where it stopped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from spikinglab.bus import keys
+from spikinglab.bus.schemas import Array, Control, Motor, Sensors, TickBatch, WorldMap, WorldState
+from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
+
+from .world import PRESETS, SENSORS, MapError, World, map_world, params_for, world_actions
+
+log = logging.getLogger("spikinglab.world")
+RESEND_AFTER = 1.0  # seconds without an answer before the sensors are sent again
+STATE_BATCH = 50  # ticks per WorldState message (one put per 50 ticks keeps recording off the loop's back)
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="spikinglab world", description="The insect's world, on the bus.")
+    add_world_args(p)
+    p.add_argument("--out", type=Path, help="write metrics.json (collisions over time, learning time, ...) here")
+    p.add_argument("--publish-state", action="store_true", help="publish poses and events every tick (recorder)")
+    p.add_argument("--progress", action="store_true", help="show a progress bar")
+    add_bus_args(p)
+    return p
+
+
+def add_world_args(p: argparse.ArgumentParser) -> None:
+    w = p.add_argument_group("world")
+    w.add_argument("--ticks", type=int, default=40_000, help="ticks to run (default %(default)s)")
+    w.add_argument("--seed", type=int, default=0, help="world seed: maps and headings (agent a uses seed + a)")
+    w.add_argument("--agents", type=int, default=1, help="insects stepped together (default 1)")
+    w.add_argument("--shared", action="store_true", help="all agents share one arena (default: one each)")
+    w.add_argument("--preset", choices=sorted(PRESETS), default="paper",
+                   help="rotation and move steps: paper (5 deg, 1 patch, default) or netlogo (4 deg, 0.4 patch)")
+    w.add_argument("--map", type=Path, help="a text map file instead of the generated arena (docs/world.md)")
+    w.add_argument("--no-training", action="store_true", help="no push on noxious patches (test mode)")
+    w.add_argument("--learned-after", type=int, default=5000,
+                   help="collision-free ticks that count as learned (default 5,000)")
+
+
+def world_from_args(args: argparse.Namespace) -> World:
+    """The World the options describe (MapError / ValueError on a bad map or option)."""
+    if args.ticks < 1 or args.agents < 1:
+        raise ValueError("--ticks and --agents must be >= 1")
+    params = params_for(args.preset, learned_after=args.learned_after)
+    grid = None
+    if args.map:
+        params, grid = map_world(args.map, params)
+    return World(params, agents=args.agents, seed=args.seed, shared=args.shared, grid=grid,
+                 training=not args.no_training)
+
+
+def actions_from(message: Motor, agents: int) -> np.ndarray | None:
+    """The Motor's actions as [agents, len(ACTIONS)] in the world's order; None if it does not fit."""
+    got = message.actions.numpy("actions", "|u1", 2)
+    return world_actions(message.names, got) if got.shape[0] == agents else None
+
+
+class Progress:
+    """A progress bar with ticks/s, collisions per 1,000 ticks and food (tqdm, on stderr)."""
+
+    def __init__(self, world: World, ticks: int, enabled: bool):
+        self.world, self.bar = world, None
+        if enabled:
+            from tqdm import tqdm
+            self.bar = tqdm(total=ticks, unit="tick", unit_scale=True, dynamic_ncols=True, mininterval=0.5)
+        self._shown = 0
+
+    def update(self, tick: int) -> None:
+        if self.bar is None or tick - self._shown < 500:
+            return
+        m = self.world.metrics
+        recent = m.bins[-1].mean() if m.bins else m.collisions.mean() * 1000 / max(tick, 1)
+        self.bar.set_postfix_str(f"collisions/1k {recent:.1f}, food {m.food.mean():.0f}", refresh=False)
+        self.bar.update(tick - self._shown)
+        self._shown = tick
+
+    def close(self, tick: int) -> None:
+        if self.bar is not None:
+            self.bar.update(tick - self._shown)
+            self.bar.close()
+
+
+def keep_state(batch: TickBatch, changes: list, world: World, t: int) -> None:
+    """Tick t as the recorder sees it: poses after the actions, this tick's events and changes."""
+    m = world.metrics
+    batch.add(t, sensors=world.sensors, pos=world.pos, heading=world.heading, events=world.events,
+              collisions=m.collisions, food=m.food)
+    for row in world.changes():
+        changes.append((t, *row))
+
+
+def state_message(batch: TickBatch, changes: list, final: bool) -> WorldState:
+    first, a = batch.take()
+    rows = np.array(changes, np.int64).reshape(-1, 5)
+    changes.clear()
+    return WorldState(tick=first, sensor_names=SENSORS, sensors=Array.of(a["sensors"]), pos=Array.of(a["pos"]),
+                      heading=Array.of(a["heading"]), events=Array.of(a["events"]), collisions=Array.of(a["collisions"]),
+                      food=Array.of(a["food"]), changes=Array.of(rows), final=final)
+
+
+def metrics_of(world: World, ticks: int, elapsed: float) -> dict:
+    m, p = world.metrics, world.params
+    return {
+        "ticks": ticks, "agents": world.agents, "seed": world.seed, "shared_arena": world.shared,
+        "training": world.training, "elapsed_s": round(elapsed, 3), "ticks_per_s": round(ticks / max(elapsed, 1e-9), 1),
+        "world": {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(p).items()},
+        "collisions_per_1000_ticks": np.array(m.bins).T.tolist() if m.bins else [[] for _ in range(world.agents)],
+        "collisions": m.collisions.tolist(),
+        "collisions_by_colour": {c: m.collisions_by_colour[:, k].tolist() for k, c in ((1, "black"), (2, "red"))},
+        "food": m.food.tolist(), "distance": np.round(m.distance, 3).tolist(), "resets": m.resets.tolist(),
+        "ticks_since_last_collision": [ticks - int(t) if t >= 0 else ticks for t in m.last_collision],
+        "learning_time": [int(t) if t >= 0 else None for t in m.learned_at],
+        "learning_time_definition": f"the last tick on a noxious patch before the first {p.learned_after} "
+                                    "ticks off them (null: not reached)",
+    }
+
+
+class Trajectory:
+    """Agent 0's path over the first and the last TRAJECTORY ticks, and the map at both times
+    (trajectory.png, the paper's fig. 8: short paths early in training, long ones late)."""
+
+    TICKS = 5000
+
+    def __init__(self, world: World, ticks: int):
+        self.world, self.n = world, min(self.TICKS, ticks)
+        self.early, self.late = np.full((self.n, 2), np.nan), np.full((self.n, 2), np.nan)
+        self.grid_early = world.grid[world.arena_of[0]].copy()
+
+    def keep(self, t: int) -> None:
+        if t < self.n:
+            self.early[t] = self.world.pos[0]
+        self.late[t % self.n] = self.world.pos[0]
+
+    def save(self, path: Path, ticks: int) -> None:
+        late = np.roll(self.late, -(ticks % self.n), axis=0)  # oldest first
+        np.savez_compressed(path, early=self.early, late=late, late_from=ticks - self.n,
+                            grid_early=self.grid_early, grid_late=self.world.grid[self.world.arena_of[0]],
+                            x_min=self.world.params.x_min, y_min=self.world.params.y_min)
+
+
+def run(args: argparse.Namespace, session) -> int:
+    try:
+        world = world_from_args(args)
+    except (MapError, ValueError) as e:
+        log.error("%s", e)
+        return 2
+    bus = Bus(session, args.group, "world")
+    try:
+        sensors = bus.outbox(keys.sensors(args.group))
+        motor = bus.inbox(keys.motor(args.group), Motor)
+        control = bus.outbox(keys.control(args.group))
+        state = bus.outbox(keys.world_state(args.group)) if args.publish_state else None
+        brain = bus.presence("brain")
+        wait_for_subscriber(sensors, "a brain", brain)
+        if state is not None:
+            wait_for_subscriber(state, "a recorder")
+            bus.outbox(keys.world_map(args.group)).put(
+                WorldMap(tick=0, grid=Array.of(world.grid), x_min=world.params.x_min, y_min=world.params.y_min))
+        progress = Progress(world, args.ticks, args.progress)
+        trajectory = Trajectory(world, args.ticks)
+        batch, changes = TickBatch(STATE_BATCH), []
+        started = time.perf_counter()
+        request = Sensors(tick=0, names=SENSORS, values=Array.of(world.sense()), training=world.training,
+                          seed=world.seed)
+        sensors.put(request)
+        for t in range(args.ticks):
+            actions = None
+            while actions is None:
+                answer = motor.get(timeout=RESEND_AFTER)
+                if answer is None:
+                    if not brain.alive:
+                        log.warning("brain lost at tick %d: waiting for it to come back", t)
+                        wait_for_subscriber(sensors, "a brain", brain)
+                        log.info("brain back: continuing at tick %d", t)
+                    sensors.put(request)
+                elif answer.tick == t:
+                    actions = actions_from(answer, world.agents)
+                    if actions is None:
+                        log.warning("ignored motor for tick %d: %d agents, the world has %d",
+                                    t, answer.actions.shape[0], world.agents)
+            world.act(actions)
+            trajectory.keep(t)
+            if state is not None:  # this tick's poses, events and changes, before the next sense()
+                keep_state(batch, changes, world, t)
+            if t + 1 < args.ticks:  # the brain's next tick first: the recorder can wait
+                request = Sensors(tick=t + 1, names=SENSORS, values=Array.of(world.sense()), seed=world.seed,
+                                  training=world.training)
+                sensors.put(request)
+            if state is not None and (batch.full or t + 1 == args.ticks):
+                state.put(state_message(batch, changes, final=t + 1 == args.ticks))
+            progress.update(t + 1)
+        elapsed = time.perf_counter() - started
+        progress.close(args.ticks)
+        control.put(Control(tick=args.ticks, command="end"))
+        result = metrics_of(world, args.ticks, elapsed)
+        result["rejected_messages"] = motor.rejected_total
+        log.info("%d ticks in %.1f s (%.0f ticks/s); collisions %s; learning time %s", args.ticks, elapsed,
+                 args.ticks / elapsed, result["collisions"][:8], result["learning_time"][:8])
+        if args.out:
+            args.out.mkdir(parents=True, exist_ok=True)
+            (args.out / "metrics.json").write_text(json.dumps(result))
+            trajectory.save(args.out / "trajectory.npz", args.ticks)
+        return 0
+    finally:
+        bus.close()
+
+
+def main(argv=None) -> int:
+    return service_main("world", parser(), run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,353 @@
+"""The insect's world (MODEL.md section 7): a patch arena with walls, predators and food.
+
+A agents are stepped together; each has its own copy of the arena (independent seeds) or all
+share one. The world is a grid of 1 x 1 patches, as in NetLogo: vision samples the patches along
+a ray every 0.2 patch, touch is the patch under the insect. Sensing and acting are numba kernels
+over all agents (docs/world.md says why this, and not per-agent pymunk queries, is the hot path;
+services/world/physics.py holds the same map in a pymunk space).
+
+One tick: sense() [vision -> touch] -> the brain -> act(actions) [actuators -> boundary check].
+Nothing here knows Zenoh.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from spikinglab.bus.schemas import INSECT_ACTIONS, INSECT_SENSORS
+
+EMPTY, BLACK, RED, GREEN = 0, 1, 2, 3
+# Sensor columns the world publishes and action columns it takes (the bus's names; the circuit
+# binds them by name).
+SENSORS, ACTIONS = INSECT_SENSORS, INSECT_ACTIONS
+PAIN, REWARD = SENSORS.index("pain"), SENSORS.index("reward")
+ROTATE, MOVE = ACTIONS.index("rotate"), ACTIONS.index("move")
+
+
+def world_actions(names, actions: np.ndarray) -> np.ndarray:
+    """Actions given per name ([A, len(names)]) in the world's ACTIONS order; other names are ignored."""
+    if tuple(names) == ACTIONS:
+        return actions
+    out = np.zeros((actions.shape[0], len(ACTIONS)), np.uint8)
+    for k, name in enumerate(names):
+        if name in ACTIONS:
+            out[:, ACTIONS.index(name)] = actions[:, k]
+    return out
+
+
+@dataclass(frozen=True)
+class WorldParams:
+    """Every number of the world, with the model's defaults (NetLogo demo, patch units)."""
+
+    x_min: int = 80
+    x_max: int = 120
+    y_min: int = 1
+    y_max: int = 60
+    wall_columns: tuple[int, ...] = (88, 94, 100, 106, 112, 118)
+    wall_from_y: int = 4  # inner wall columns run from here to the top border
+    red_fraction: float = 0.1
+    green_fraction: float = 0.1
+    start: tuple[float, float] = (102.0, 30.0)
+    view_distance: float = 4.0
+    ray_step: float = 0.2
+    rotation_step: float = 5.0  # degrees per ROTATE spike (NetLogo demo: 4)
+    move_step: float = 1.0  # patches per MOVE spike (NetLogo demo: 0.4)
+    push: float = 0.5  # forward push on a noxious patch in training
+    pain_value: float = 1.0  # value fed to the nociceptor on a noxious patch (NetLogo: 1)
+    reward_value: float = 1.0  # value fed to the reward input on food (NetLogo: 1)
+    noxious: tuple[int, ...] = (BLACK, RED)
+    rewarding: tuple[int, ...] = (GREEN,)
+    learned_after: int = 5000  # W: collision-free ticks that count as "learned"
+
+    @property
+    def width(self) -> int:
+        return self.x_max - self.x_min + 1
+
+    @property
+    def height(self) -> int:
+        return self.y_max - self.y_min + 1
+
+
+# The paper's steps are the default: with the NetLogo demo's smaller steps the insect creeps up to
+# walls and does not learn avoidance in 40,000 ticks (docs/world.md).
+PRESETS = {
+    "paper": {},
+    "netlogo": {"rotation_step": 4.0, "move_step": 0.4},
+}
+
+
+def params_for(preset: str = "paper", **overrides) -> WorldParams:
+    if preset not in PRESETS:
+        raise ValueError(f"unknown world preset {preset!r} (known: {', '.join(PRESETS)})")
+    return dataclasses.replace(WorldParams(), **{**PRESETS[preset], **overrides})
+
+
+def generate_map(params: WorldParams, seed: int) -> np.ndarray:
+    """A seeded arena: border and inner wall columns black, 10 % red, 10 % green inside."""
+    p = params
+    grid = np.zeros((p.width, p.height), dtype=np.uint8)
+    grid[0, :] = grid[-1, :] = grid[:, 0] = grid[:, -1] = BLACK
+    for x in p.wall_columns:
+        if p.x_min < x < p.x_max:
+            grid[x - p.x_min, p.wall_from_y - p.y_min:] = BLACK
+    rng = np.random.default_rng(seed)
+    u = rng.random((p.width - 2, p.height - 2))
+    inner = grid[1:-1, 1:-1]  # red and green may overwrite inner wall cells
+    inner[u < p.red_fraction] = RED
+    inner[(u >= p.red_fraction) & (u < p.red_fraction + p.green_fraction)] = GREEN
+    sx, sy = _patch(p.start[0], p.x_min), _patch(p.start[1], p.y_min)
+    grid[sx, sy] = EMPTY  # the start patch is cleared
+    return grid
+
+
+def _patch(coord: float, origin: int) -> int:
+    return int(math.floor(coord + 0.5)) - origin  # NetLogo: the patch whose centre is nearest
+
+
+MAP_CHARS = {"#": BLACK, "R": RED, "G": GREEN, ".": EMPTY}
+
+
+class MapError(ValueError):
+    """A map file is wrong; the message names the file, the line and the problem."""
+
+
+def load_map(path) -> tuple[np.ndarray, tuple[float, float]]:
+    """A text map: one line per row, top row first; # wall, R predator, G food, . empty, S start.
+
+    The arena's lower-left patch is (0, 0) in the map's own coordinates; returns the grid
+    [x, y] and the start position.
+    """
+    try:
+        lines = [ln.rstrip("\n") for ln in open(path)]
+    except OSError as e:
+        raise MapError(f"{path}: cannot read map file: {e.strerror or e}") from None
+    rows = [ln for ln in lines if ln.strip() and not ln.lstrip().startswith(";")]
+    if not rows:
+        raise MapError(f"{path}: empty map")
+    width = len(rows[0])
+    start = None
+    grid = np.zeros((width, len(rows)), dtype=np.uint8)
+    for r, row in enumerate(rows):
+        line_no = lines.index(row) + 1
+        if len(row) != width:
+            raise MapError(f"{path}: line {line_no}: row has {len(row)} cells, the first row has {width}")
+        y = len(rows) - 1 - r
+        for x, ch in enumerate(row):
+            if ch == "S":
+                if start is not None:
+                    raise MapError(f"{path}: line {line_no}: a second start 'S' (one only)")
+                start = (float(x), float(y))
+            elif ch in MAP_CHARS:
+                grid[x, y] = MAP_CHARS[ch]
+            else:
+                raise MapError(f"{path}: line {line_no}, column {x + 1}: unknown cell {ch!r} "
+                               f"(use # wall, R predator, G food, . empty, S start)")
+    if start is None:
+        raise MapError(f"{path}: no start 'S' in the map")
+    if width < 3 or len(rows) < 3:
+        raise MapError(f"{path}: the map must be at least 3 x 3")
+    return grid, start
+
+
+def map_world(path, base: WorldParams | None = None) -> tuple[WorldParams, np.ndarray]:
+    """Params and grid for a map file: the arena is the map, its lower-left patch is (0, 0)."""
+    grid, start = load_map(path)
+    params = dataclasses.replace(base or WorldParams(), x_min=0, y_min=0, x_max=grid.shape[0] - 1,
+                                 y_max=grid.shape[1] - 1, start=start, wall_columns=())
+    return params, grid
+
+
+@dataclass
+class Metrics:
+    """Per-agent counters, updated every tick."""
+
+    collisions: np.ndarray  # [A] collision events (entering a noxious patch)
+    collisions_by_colour: np.ndarray  # [A, 4]
+    food: np.ndarray  # [A] food patches eaten
+    distance: np.ndarray  # [A] patches travelled (moves and pushes)
+    last_collision: np.ndarray  # [A] tick of the last collision event (-1: none yet)
+    last_noxious: np.ndarray  # [A] last tick on a noxious patch (-1: none yet): NetLogo's error-free counter
+    learned_at: np.ndarray  # [A] learning time: last noxious tick before W collision-free ticks (-1: not yet)
+    resets: np.ndarray  # [A] times the insect left the arena and was put back at the start
+    bins: list = field(default_factory=list)  # collisions per 1,000 ticks, [A] per finished bin
+
+
+class World:
+    """A insects in their arenas. `sense()` then `act(actions)` per tick."""
+
+    def __init__(self, params: WorldParams | None = None, agents: int = 1, seed: int = 0,
+                 shared: bool = False, grid: np.ndarray | None = None, training: bool = True):
+        self.params = p = params or WorldParams()
+        self.agents, self.seed, self.shared = agents, seed, shared
+        self.training = training
+        self._custom_grid = grid
+        if grid is not None:
+            if grid.shape != (p.width, p.height):
+                raise ValueError(f"grid shape {grid.shape} does not match the params' arena {(p.width, p.height)}")
+        n_arenas = 1 if shared else agents
+        self.grid = np.zeros((n_arenas, p.width, p.height), dtype=np.uint8)
+        self.pos = np.zeros((agents, 2))
+        self.heading = np.zeros(agents)  # degrees, NetLogo convention: 0 = north, clockwise
+        self.sensors = np.full((agents, len(SENSORS)), np.nan)
+        self.last_patch = np.zeros(agents, dtype=np.int64)
+        self.arena_of = np.zeros(agents, dtype=np.int64) if shared else np.arange(agents)
+        self.fpar = np.array([p.x_min, p.y_min, p.view_distance, p.ray_step, p.rotation_step,
+                              p.move_step, p.push, p.start[0], p.start[1], p.learned_after, p.pain_value,
+                              p.reward_value], dtype=np.float64)
+        self.kind = np.zeros(4, dtype=np.uint8)  # per colour: 1 noxious, 2 rewarding
+        for c in p.noxious:
+            self.kind[c] = 1
+        for c in p.rewarding:
+            self.kind[c] = 2
+        self.reset()
+
+    def reset(self) -> None:
+        """Fresh arenas and insects from the seed (agent a's arena and heading use seed + a)."""
+        p = self.params
+        for g in range(self.grid.shape[0]):
+            self.grid[g] = self._custom_grid if self._custom_grid is not None else generate_map(p, self.seed + g)
+        self.pos[:] = p.start
+        self.heading[:] = [np.random.default_rng((self.seed, a, 1)).uniform(0, 360) for a in range(self.agents)]
+        self.tick = 0
+        self.last_patch[:] = -1
+        A = self.agents
+        self.metrics = Metrics(
+            collisions=np.zeros(A, np.int64), collisions_by_colour=np.zeros((A, 4), np.int64),
+            food=np.zeros(A, np.int64), distance=np.zeros(A), last_collision=np.full(A, -1, np.int64),
+            last_noxious=np.full(A, -1, np.int64),
+            learned_at=np.full(A, -1, np.int64), resets=np.zeros(A, np.int64),
+        )
+        self._bin = np.zeros(A, np.int64)
+        self.events = np.zeros((A, 4), np.int64)  # this tick: collision colour, ate, reset, learned
+        self.eaten = np.full((A, 2), -1, np.int64)  # this tick: grid index of the food eaten, or -1
+
+    def sense(self) -> np.ndarray:
+        """Vision then touch for tick self.tick; returns the sensors [A, len(SENSORS)] (NaN: nothing)."""
+        m = self.metrics
+        _sense(self.grid, self.arena_of, self.pos, self.heading, self.fpar, self.kind, self.training,
+               self.tick, self.sensors, self.last_patch, self.events, self.eaten, m.collisions,
+               m.collisions_by_colour, m.food, m.distance, m.last_collision, m.last_noxious, m.learned_at,
+               self._bin)
+        return self.sensors
+
+    def changes(self) -> np.ndarray:
+        """The patches that changed in this tick's sense(): rows (arena, x index, y index, colour)."""
+        who = np.flatnonzero(self.eaten[:, 0] >= 0)
+        return np.column_stack([self.arena_of[who], self.eaten[who], np.full(len(who), EMPTY)]).astype(np.int64)
+
+    def act(self, actions: np.ndarray) -> None:
+        """Apply the actions [A, len(ACTIONS)] (nonzero: that actuator spiked), check the boundary."""
+        _act(self.grid.shape[1], self.grid.shape[2], self.pos, self.heading, self.fpar,
+             np.ascontiguousarray(actions, dtype=np.uint8), self.events, self.metrics.distance,
+             self.metrics.resets)
+        self.tick += 1
+        if self.tick % 1000 == 0:
+            self.metrics.bins.append(self._bin.copy())
+            self._bin[:] = 0
+
+    def patch_at(self, agent: int = 0) -> int:
+        p = self.params
+        x, y = _patch(self.pos[agent, 0], p.x_min), _patch(self.pos[agent, 1], p.y_min)
+        if 0 <= x < p.width and 0 <= y < p.height:
+            return int(self.grid[self.arena_of[agent], x, y])
+        return EMPTY
+
+
+# fpar columns
+X_MIN, Y_MIN, VIEW, RAY_STEP, ROT_STEP, MOVE_STEP, PUSH, START_X, START_Y, LEARNED_AFTER, PAIN_VALUE, \
+    REWARD_VALUE = range(12)
+# events columns (this tick)
+EV_COLLISION, EV_ATE, EV_RESET, EV_LEARNED = range(4)
+
+
+@njit(cache=True, inline="always")
+def _colour_at(grid, g, x, y, fpar):
+    ix = int(math.floor(x + 0.5)) - int(fpar[X_MIN])
+    iy = int(math.floor(y + 0.5)) - int(fpar[Y_MIN])
+    if ix < 0 or iy < 0 or ix >= grid.shape[1] or iy >= grid.shape[2]:
+        return EMPTY, -1
+    return grid[g, ix, iy], ix * grid.shape[2] + iy
+
+
+@njit(cache=True)
+def _sense(grid, arena_of, pos, heading, fpar, kind, training, t, sensors, last_patch, events, eaten,
+           collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins):
+    steps = int(round(fpar[VIEW] / fpar[RAY_STEP]))
+    for a in range(pos.shape[0]):
+        g = arena_of[a]
+        for k in range(sensors.shape[1]):
+            sensors[a, k] = np.nan
+        for k in range(events.shape[1]):
+            events[a, k] = 0
+        eaten[a, 0] = eaten[a, 1] = -1
+        h = math.radians(heading[a])
+        dx, dy = math.sin(h), math.cos(h)
+        # vision: the first non-empty patch along the heading, sampled every ray_step. The
+        # distance is a running sum, as NetLogo's `set itemcount itemcount + 0.2`: its 10th
+        # sample is 1.9999999999999998, so a patch seen there fires its smell one tick sooner.
+        d = 0.0
+        for k in range(1, steps + 1):
+            d += fpar[RAY_STEP]
+            colour, _ = _colour_at(grid, g, pos[a, 0] + d * dx, pos[a, 1] + d * dy, fpar)
+            if colour != EMPTY:
+                if colour == BLACK:
+                    sensors[a, 0] = d
+                elif colour == RED:
+                    sensors[a, 1] = d
+                elif colour == GREEN:
+                    sensors[a, 2] = d
+                break
+        # touch: the patch under the insect
+        colour, patch = _colour_at(grid, g, pos[a, 0], pos[a, 1], fpar)
+        if kind[colour] == 1:  # noxious
+            sensors[a, PAIN] = fpar[PAIN_VALUE]
+            last_noxious[a] = t
+            if patch != last_patch[a]:  # entering it: a collision event
+                collisions[a] += 1
+                by_colour[a, colour] += 1
+                bins[a] += 1
+                last_collision[a] = t
+                events[a, EV_COLLISION] = colour
+            if training:  # pushed on, so it cannot spin on the spot forever
+                pos[a, 0] += fpar[PUSH] * dx
+                pos[a, 1] += fpar[PUSH] * dy
+                distance[a] += fpar[PUSH]
+        elif kind[colour] == 2:  # rewarding: eaten
+            sensors[a, REWARD] = fpar[REWARD_VALUE]
+            ix, iy = patch // grid.shape[2], patch % grid.shape[2]
+            grid[g, ix, iy] = EMPTY
+            eaten[a, 0], eaten[a, 1] = ix, iy
+            food[a] += 1
+            events[a, EV_ATE] = 1
+        last_patch[a] = patch
+        # learning time: the last tick on a noxious patch before the first W ticks off them (NetLogo
+        # resets its error_free_counter in every tick on one: staying on a wall is no progress)
+        if learned_at[a] < 0 and t - max(last_noxious[a], 0) >= fpar[LEARNED_AFTER]:
+            learned_at[a] = max(last_noxious[a], 0)
+            events[a, EV_LEARNED] = 1
+
+
+@njit(cache=True)
+def _act(width, height, pos, heading, fpar, actions, events, distance, resets):
+    for a in range(pos.shape[0]):
+        if actions[a, ROTATE]:
+            heading[a] = (heading[a] + fpar[ROT_STEP]) % 360.0
+        if actions[a, MOVE]:
+            h = math.radians(heading[a])
+            pos[a, 0] += fpar[MOVE_STEP] * math.sin(h)
+            pos[a, 1] += fpar[MOVE_STEP] * math.cos(h)
+            distance[a] += fpar[MOVE_STEP]
+        # boundary: leaving the arena (past the centre line of its border) puts the insect back
+        # at its start, as NetLogo's check-boundaries does
+        x = pos[a, 0] - fpar[X_MIN]
+        y = pos[a, 1] - fpar[Y_MIN]
+        if x < 0.0 or y < 0.0 or x > width - 1 or y > height - 1:
+            pos[a, 0] = fpar[START_X]
+            pos[a, 1] = fpar[START_Y]
+            resets[a] += 1
+            events[a, EV_RESET] = 1

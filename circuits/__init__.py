@@ -1,0 +1,1 @@
+"""The circuit files shipped with spikinglab (package data): insect, conditioning, association, two_actions."""
