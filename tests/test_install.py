@@ -2,6 +2,7 @@
 another directory (no checkout on the path). The venv's packages come from the registry, or
 pip's cache after the suite's own install."""
 
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -11,8 +12,10 @@ from .processes import ROOT
 
 
 def test_the_wheel_installs_and_runs_from_any_directory(tmp_path):
-    dist = tmp_path / "dist"
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", dist, ROOT], check=True,
+    source, dist = tmp_path / "source", tmp_path / "dist"  # a copy: the build writes build/ beside the sources
+    shutil.copytree(ROOT, source, ignore=shutil.ignore_patterns(".*", "runs", "build", "dist", "*.egg-info",
+                                                                "__pycache__", "bench-results"))
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", dist, source], check=True,
                    capture_output=True, timeout=300)
     (wheel,) = dist.glob("spikinglab-*.whl")
     venv.create(tmp_path / "venv", with_pip=True)
@@ -34,7 +37,8 @@ def test_the_wheel_installs_and_runs_from_any_directory(tmp_path):
                              capture_output=True, text=True, check=True).stdout
     assert str(tmp_path / "venv") in located  # the installed package, not the checkout
     done = spikinglab("run", "--ticks", 2000, "--quiet", "--id", "r")  # the circuit comes from the package
-    assert (elsewhere / "runs" / "r" / "summary.json").exists() and (elsewhere / "runs" / "r" / "recording.rrd").exists()
+    run = elsewhere / "runs" / "r"
+    assert (run / "summary.json").exists() and (run / "recording.rrd").exists()
     assert "learning time" in done.stdout
     spikinglab("conditioning", "--out", elsewhere / "figs")
     assert (elsewhere / "figs" / "fig2.png").exists()
