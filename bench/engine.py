@@ -8,7 +8,6 @@ The last line printed is JSON. Run: `spikinglab bench engine` or `python -m spik
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import time
@@ -17,6 +16,7 @@ import numpy as np
 
 from spikinglab.brain.circuit import load_circuit
 from spikinglab.brain.engine import SEMANTICS, Engine
+from spikinglab.options import Parser
 
 FEED_PROBABILITY = 0.3  # chance per tick that a sensor feeds its input neuron a value in [0, 4)
 
@@ -43,7 +43,7 @@ def best_rate(engine, feeds, repeats, agents=1):
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(prog="spikinglab bench engine", description=__doc__.splitlines()[0])
+    parser = Parser(prog="spikinglab bench engine", description=__doc__.splitlines()[0])
     parser.add_argument("--ticks", type=int, default=200_000, help="ticks per pass for one agent")
     parser.add_argument("--agents", type=int, default=1000, help="agents in the batch case")
     parser.add_argument("--batch-ticks", type=int, default=500, help="ticks per pass in the batch case")

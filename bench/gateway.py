@@ -9,7 +9,6 @@ The last line printed is JSON. Run: `spikinglab bench gateway` or `python -m spi
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import signal
@@ -22,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from spikinglab.ev3_gateway.fake_brick import FakeBrick
+from spikinglab.options import Parser
 from spikinglab.run import local_endpoints
 
 
@@ -74,7 +74,7 @@ def chain(trials: int, hz: float, max_polls: float = 0) -> tuple[list[float], di
 
 
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(prog="spikinglab bench gateway", description=__doc__.splitlines()[0])
+    p = Parser(prog="spikinglab bench gateway", description=__doc__.splitlines()[0])
     p.add_argument("--seconds", type=float, default=5.0, help="for the polls/s figure")
     p.add_argument("--trials", type=int, default=40)
     p.add_argument("--clock", type=float, default=1000.0, help="the brain's clock (Hz)")

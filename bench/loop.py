@@ -10,7 +10,6 @@ The last line printed is JSON. Run: `spikinglab bench loop` or `python -m spikin
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import subprocess
@@ -24,6 +23,7 @@ import numpy as np
 from spikinglab.brain.circuit import load_circuit
 from spikinglab.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, SEMANTICS
 from spikinglab.loop import brain_for, closed_loop
+from spikinglab.options import Parser
 from spikinglab.run import local_endpoints
 from spikinglab.world.world import World
 
@@ -53,7 +53,7 @@ def over_the_bus(ticks: int, agents: int, semantics: str) -> float:
 
 
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(prog="spikinglab bench loop", description=__doc__.splitlines()[0])
+    p = Parser(prog="spikinglab bench loop", description=__doc__.splitlines()[0])
     p.add_argument("--ticks", type=int, default=20_000, help="ticks of the one-agent runs")
     p.add_argument("--agents", type=int, default=1000)
     p.add_argument("--batch-ticks", type=int, default=2000)

@@ -7,7 +7,6 @@ Run: `spikinglab bench recorder` or `python -m spikinglab.bench.recorder`.
 
 from __future__ import annotations
 
-import argparse
 import json
 import re
 import subprocess
@@ -16,6 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from spikinglab.options import Parser
 from spikinglab.run import local_endpoints
 
 
@@ -53,11 +53,17 @@ def alone(ticks: int) -> float:
 
     from spikinglab.brain.circuit import load_circuit
     from spikinglab.brain.service import STATE_BATCH, BrainNode, layout
-    from spikinglab.bus.schemas import Array, Sensors, WorldMap, decode, encode
+    from spikinglab.bus.schemas import (
+        Array,
+        Sensors,
+        TickBatch,
+        WorldMap,
+        decode,
+        encode,
+    )
     from spikinglab.recorder.recorder import Recorder, blueprint
     from spikinglab.world.service import keep_state, state_message
     from spikinglab.world.world import SENSORS, World, world_actions
-    from spikinglab.bus.schemas import TickBatch
 
     circuit, world = load_circuit("insect"), World(seed=1)
     node = BrainNode(circuit)
@@ -86,7 +92,7 @@ def alone(ticks: int) -> float:
 
 
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(prog="spikinglab bench recorder", description=__doc__.splitlines()[0])
+    p = Parser(prog="spikinglab bench recorder", description=__doc__.splitlines()[0])
     p.add_argument("--ticks", type=int, default=30_000)
     args = p.parse_args(argv)
     with tempfile.TemporaryDirectory() as a, tempfile.TemporaryDirectory() as b:

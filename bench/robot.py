@@ -14,7 +14,6 @@ is JSON. Run: `spikinglab bench robot`.
 
 from __future__ import annotations
 
-import argparse
 import json
 import subprocess
 import sys
@@ -25,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from spikinglab.options import Parser
 from spikinglab.run import local_endpoints
 
 CONDITIONS = {  # name -> brain options
@@ -86,7 +86,7 @@ def plot(results: dict, seconds: float, out: Path) -> None:
 
 
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(prog="spikinglab bench robot", description=__doc__.split("\n\n")[0])
+    p = Parser(prog="spikinglab bench robot", description=__doc__.split("\n\n")[0])
     p.add_argument("--seconds", type=float, default=120, help="real time per run (default 120)")
     p.add_argument("--seeds", type=int, default=3, help="runs per condition (default 3)")
     p.add_argument("--bin", type=float, default=30, help="seconds per column of the table (default 30)")

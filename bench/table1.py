@@ -13,7 +13,6 @@ line printed is a JSON summary. Run: `spikinglab bench table1 [--ablation]`.
 
 from __future__ import annotations
 
-import argparse
 import json
 import multiprocessing
 import os
@@ -23,7 +22,15 @@ from pathlib import Path
 
 import numpy as np
 
-from spikinglab.learning import DEFAULT_DEFINITION, DEFINITIONS, PAPER, all_definitions, plot_table1, tick_text
+from spikinglab.learning import (
+    DEFAULT_DEFINITION,
+    DEFINITIONS,
+    PAPER,
+    all_definitions,
+    plot_table1,
+    tick_text,
+)
+from spikinglab.options import Parser
 
 A_VALUES = (0.01, 0.02, 0.03, 0.04, 0.08)
 STEPS = {"paper": "paper", "demo": "netlogo"}  # -> world preset
@@ -125,7 +132,7 @@ def definitions_markdown(rows: list[dict]) -> str:
 
 
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(prog="spikinglab bench table1", description=__doc__.splitlines()[0])
+    p = Parser(prog="spikinglab bench table1", description=__doc__.splitlines()[0])
     p.add_argument("--ablation", action="store_true", help="the ablation table instead of the grid")
     p.add_argument("--seeds", type=int, default=16)
     p.add_argument("--ticks", type=int, default=150_000)

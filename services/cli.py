@@ -54,12 +54,14 @@ def main(argv: list[str] | None = None) -> None:
     name, rest = argv[0], argv[1:]
     if name == "bench":
         if not rest or rest[0] not in BENCHMARKS:
-            sys.exit(f"usage: spikinglab bench {{{','.join(BENCHMARKS)}}} [options]")
+            print(f"spikinglab bench: which benchmark? one of {', '.join(BENCHMARKS)}", file=sys.stderr)
+            sys.exit(2)
         module, rest = BENCHMARKS[rest[0]], rest[1:]
     elif name in COMMANDS:
         module = COMMANDS[name][0]
     else:
-        sys.exit(f"spikinglab: unknown command {name!r}\n\n{usage()}")
+        print(f"spikinglab: unknown command {name!r} (spikinglab --help lists the commands)", file=sys.stderr)
+        sys.exit(2)
     code = importlib.import_module(module).main(rest)
     sys.exit(code if isinstance(code, int) else 0)  # benchmarks return their figures
 

@@ -5,19 +5,19 @@ Run it on any machine the others can reach; start each service with --connect tc
 
 from __future__ import annotations
 
-import argparse
 import logging
 import sys
 import time
 
 from spikinglab.bus.session import add_bus_args, open_session
+from spikinglab.options import Parser
 
 log = logging.getLogger("spikinglab.router")
 
 
 def main(argv=None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s router %(levelname)s %(message)s", stream=sys.stderr)
-    p = argparse.ArgumentParser(prog="spikinglab router", description=__doc__.splitlines()[0])
+    p = Parser(prog="spikinglab router", description=__doc__.splitlines()[0])
     add_bus_args(p)
     args = p.parse_args(argv)
     if not args.listen:

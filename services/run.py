@@ -14,6 +14,7 @@ import datetime
 import json
 import logging
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -22,24 +23,26 @@ from pathlib import Path
 
 import numpy as np
 
+from spikinglab.brain.brain import check_sensors
 from spikinglab.brain.checkpoint import load_weights
-from spikinglab.brain.engine import PARALLEL_FROM
 from spikinglab.brain.circuit import CircuitError, load_circuit
+from spikinglab.brain.engine import PARALLEL_FROM
 from spikinglab.brain.service import add_engine_args
 from spikinglab.learning import PAPER
+from spikinglab.options import Parser, agent_list, positive
 from spikinglab.world.service import add_world_args, world_from_args
-from spikinglab.world.world import MapError
+from spikinglab.world.world import BIN, SENSORS, MapError
 
 log = logging.getLogger("spikinglab.run")
 PAPER_TABLE_1 = {f"{a:.2f}": n for a, n in PAPER.items()}  # keyed as summary.json shows A
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="spikinglab run", description=__doc__.splitlines()[0])
+    p = Parser(prog="spikinglab run", description=__doc__.splitlines()[0])
     add_world_args(p)
     p.set_defaults(ticks=100_000)
     p.add_argument("--circuit", default="insect", help="circuit name in circuits/ or a .toml path (default insect)")
-    p.add_argument("--a-plus", type=float, default=None,
+    p.add_argument("--a-plus", type=positive, default=None,
                    help="A+ = A- of the learning neurons (default: the circuit's, 0.02 for the insect)")
     add_engine_args(p)
     p.add_argument("--load", type=Path, help="start the brain from these weights (.npz checkpoint)")
@@ -47,7 +50,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--id", help="name of the run folder (default: date, time and seed)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-record", action="store_true", help="no Rerun recording (recording.rrd)")
-    p.add_argument("--detail", default="0", help="agents recorded in detail: raster, potentials, ... (default 0)")
+    p.add_argument("--detail", default="0", type=agent_list,
+                   help="agents recorded in detail, e.g. 0,3: raster, potentials, ... (default 0)")
     return p
 
 
@@ -59,10 +63,12 @@ def local_endpoints(*names: str) -> tuple[list[str], tempfile.TemporaryDirectory
 
 
 def service(name: str, args: list, log_file: Path | None) -> subprocess.Popen:
+    """A service as a child process in a session of its own: Ctrl-C in the terminal reaches only
+    the run, which ends the children in order (the world first, so that it writes the ticks done)."""
     out = open(log_file, "w") if log_file else None
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     return subprocess.Popen([sys.executable, "-m", f"spikinglab.{name}", *map(str, args)], stdout=out,
-                            stderr=subprocess.STDOUT if out else None, env=env)
+                            stderr=subprocess.STDOUT if out else None, env=env, start_new_session=True)
 
 
 def stop(process: subprocess.Popen) -> None:
@@ -80,10 +86,14 @@ def tail(path: Path, lines: int = 15) -> str:
 
 def main(argv=None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
-    args = parser().parse_args(argv)
+    p = parser()
+    args = p.parse_args(argv)
+    if args.ticks < BIN:
+        p.error(f"argument --ticks: must be at least one bin of collisions ({BIN:,} ticks), got {args.ticks:,}")
     # check everything a user can get wrong before starting any process
     try:
         circuit = load_circuit(args.circuit)
+        check_sensors(circuit, SENSORS)
         if args.a_plus is not None:
             circuit = circuit.with_learning_rate(args.a_plus)
         world_from_args(args)
@@ -125,40 +135,66 @@ def main(argv=None) -> int:
     started = time.time()
     if not args.no_record:
         recorder = service("recorder", ["--connect", world_ep, "--connect", brain_ep, "--out",
-                                        folder / "recording.rrd", "--detail", args.detail], folder / "recorder.log")
+                                        folder / "recording.rrd", "--detail", ",".join(map(str, args.detail))], folder / "recorder.log")
     world = service("world", world_args, folder / "world.log" if args.quiet else None)
     brain = service("brain", brain_args, folder / "brain.log")
-    recorder_ok = True
+    children = {"world": world, "brain": brain, **({"recorder": recorder} if recorder else {})}
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # SIGTERM ends the run as Ctrl-C does
+    interrupted = False
     try:
-        while world.poll() is None:
-            if brain.poll() is not None:
-                log.error("the brain stopped (exit %s) before the run ended:\n%s", brain.returncode,
-                          tail(folder / "brain.log"))
-                return 1
-            if recorder is not None and recorder_ok and recorder.poll() is not None:
-                recorder_ok = False  # the recording is lost from here on, the run is not
-                log.warning("the recorder stopped (exit %s); the run goes on without it:\n%s",
-                            recorder.returncode, tail(folder / "recorder.log"))
-            time.sleep(0.1)
-        if world.returncode != 0:
-            log.error("the world stopped with exit %s", world.returncode)
+        try:
+            dead = watch(children, folder)
+        except KeyboardInterrupt:
+            interrupted, dead = True, None
+            log.warning("\ninterrupted: ending the run at the ticks done (Ctrl-C again to stop at once)")
+            world.terminate()  # as Ctrl-C: the world writes what it has and tells the brain to save
+            world.wait(30)
+        if dead is not None:
+            failed(folder, dead)
             return 1
         brain.wait(60)
         if recorder is not None:
             recorder.wait(120)
     except KeyboardInterrupt:
-        log.error("interrupted")
+        log.error("stopped at once: no result written")
+        failed(folder, "interrupted twice")
         return 130
     finally:
-        for process in (world, brain, recorder):
-            if process is not None:
-                stop(process)
+        for process in children.values():
+            stop(process)
         sockets.cleanup()
+    if not (folder / "metrics.json").exists() or not (folder / "weights.npz").exists():
+        failed(folder, "interrupted before the first tick" if interrupted else "the world or the brain wrote no result")
+        return 130 if interrupted else 1
     summary = summarise(folder, args, circuit, run_id, time.time() - started)
     plot(folder, summary)
     plot_trajectory(folder, summary)
     report(folder, summary)
-    return 0
+    return 130 if interrupted else 0
+
+
+def watch(children: dict[str, subprocess.Popen], folder: Path) -> str | None:
+    """Until the world ends: a child that stops early is noticed within 0.1 s; its name, with its
+    last log lines, is returned (the others are stopped by the caller)."""
+    world = children["world"]
+    while world.poll() is None:
+        for name, process in children.items():
+            if name != "world" and process.poll() is not None:
+                log.error("the %s stopped (exit %s) before the run ended; stopping the others. Its last lines:\n%s",
+                          name, process.returncode, tail(folder / f"{name}.log"))
+                return f"the {name} stopped (exit {process.returncode})"
+        time.sleep(0.1)
+    if world.returncode != 0:
+        log.error("the world stopped (exit %s) before the run ended; stopping the others. Its last lines:\n%s",
+                  world.returncode, tail(folder / "world.log") or "(above)")
+        return f"the world stopped (exit {world.returncode})"
+    return None
+
+
+def failed(folder: Path, why: str) -> None:
+    """A run folder without a result says so (its logs stay for reading)."""
+    (folder / "FAILED.txt").write_text(f"this run has no result: {why}; the logs beside this file say more\n")
+    log.error("no result in %s (%s); its logs are there", folder, why)
 
 
 def learning_rate(circuit, which: str = "a_plus") -> float | list[float]:
@@ -168,10 +204,28 @@ def learning_rate(circuit, which: str = "a_plus") -> float | list[float]:
 
 
 def summarise(folder: Path, args, circuit, run_id: str, wall_s: float) -> dict:
+    from spikinglab.cli import version
+
     metrics = json.loads((folder / "metrics.json").read_text())
     weights = load_weights(folder / "weights.npz", circuit)
     plastic = circuit.plastic_synapses
+    bins = np.array(metrics["collisions_per_1000_ticks"], dtype=float).reshape(args.agents, -1)
+    q = max(bins.shape[1] // 4, 1)
+    times = metrics["learning_time"]
+    learned = sum(t is not None for t in times)
     summary = {
+        "headline": {
+            "learned": "yes" if learned == len(times) else "no" if not learned else f"{learned} of {len(times)}",
+            "learning_time": times if len(times) > 1 else times[0],
+            "collisions_first_quarter": round(float(bins[:, :q].sum(axis=1).mean()), 1),
+            "collisions_last_quarter": round(float(bins[:, -q:].sum(axis=1).mean()), 1),
+            "ticks_done": metrics["ticks"],
+            "partial": metrics.get("partial", False),
+        },
+        "initial_weights": {circuit.synapse_label(k): circuit.synapses[k].weight for k in plastic},
+        "final_weights": {circuit.synapse_label(k): weights[:, k].round(4).tolist() for k in plastic},
+        "spikinglab": version(),
+        "command": " ".join(["spikinglab", "run", *sys.argv[2:]]) if sys.argv[1:2] == ["run"] else " ".join(sys.argv),
         "run": run_id,
         "parameters": {"ticks": args.ticks, "seed": args.seed, "agents": args.agents, "a_plus": learning_rate(circuit),
                        "a_minus": learning_rate(circuit, "a_minus"), "circuit": circuit.source, "preset": args.preset,
@@ -186,7 +240,6 @@ def summarise(folder: Path, args, circuit, run_id: str, wall_s: float) -> dict:
         "collisions_per_1000_ticks": metrics["collisions_per_1000_ticks"],
         "collisions": metrics["collisions"],
         "food": metrics["food"],
-        "final_weights": {circuit.synapse_label(k): weights[:, k].round(4).tolist() for k in plastic},
         "all_final_weights": {circuit.synapse_label(k): weights[:, k].tolist() for k in range(weights.shape[1])},
         "world": metrics["world"],
     }
@@ -252,18 +305,18 @@ def plot_trajectory(folder: Path, summary: dict) -> None:
 
 
 def report(folder: Path, summary: dict) -> None:
-    bins = np.array(summary["collisions_per_1000_ticks"], dtype=float)
-    q = max(bins.shape[1] // 4, 1)
-    first, last = bins[:, :q].sum(axis=1).mean(), bins[:, -q:].sum(axis=1).mean()
+    head = summary["headline"]
     w = summary["final_weights"]
     mean = {k: float(np.mean(v)) for k, v in w.items()}
-    print(f"\ncollisions: {first:.0f} in the first quarter, {last:.0f} in the last quarter "
-          f"({summary['parameters']['ticks']:,} ticks, {summary['ticks_per_s']:,.0f} ticks/s)")
+    if head["partial"]:
+        print(f"\nPARTIAL: interrupted after {head['ticks_done']:,} of {summary['parameters']['ticks']:,} ticks")
+    print(f"\ncollisions: {head['collisions_first_quarter']:.0f} in the first quarter, "
+          f"{head['collisions_last_quarter']:.0f} in the last quarter "
+          f"({head['ticks_done']:,} ticks, {summary['ticks_per_s']:,.0f} ticks/s)")
     times = summary["learning_time"]
-    learned = sum(t is not None for t in times)
     p = summary["parameters"]
-    paper = summary["paper_table_1_learning_time"].get(str(p["a_plus"]))
-    print(f"learned: {'yes' if learned == len(times) else 'no' if not learned else f'{learned} of {len(times)}'}"
+    paper = summary["paper_table_1_learning_time"].get(f"{p['a_plus']:.2f}") if isinstance(p["a_plus"], float) else None
+    print(f"learned: {head['learned']}"
           f" (criterion: {p['learned_after']:,} ticks off noxious patches); learning time: "
           + ", ".join("not reached" if t is None else f"tick {t:,}" for t in times[:8])
           + (f" (paper, A+ = A- = {p['a_plus']}: {paper:,}; docs/results.md compares)" if paper else ""))

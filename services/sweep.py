@@ -7,7 +7,6 @@ paper's numbers.
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import json
 import sys
@@ -20,8 +19,9 @@ from spikinglab.brain.engine import DEFAULT_SEMANTICS
 from spikinglab.brain.service import add_engine_args
 from spikinglab.learning import all_definitions, noxious_ticks, plot_table1, stats
 from spikinglab.loop import brain_for
+from spikinglab.options import Parser, at_least, positive
 from spikinglab.run import PAPER_TABLE_1
-from spikinglab.world.world import PRESETS, World, params_for
+from spikinglab.world.world import BIN, PRESETS, World, params_for
 
 
 def sweep_one(a_plus: float, seeds: int, ticks: int, preset: str, learned_after: int, progress=None,
@@ -81,12 +81,13 @@ def plot(rows: list[dict], path: Path) -> None:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="spikinglab sweep", description=__doc__.splitlines()[0])
-    p.add_argument("--a-plus", type=float, nargs="+", default=[0.01, 0.02, 0.03, 0.04])
-    p.add_argument("--seeds", type=int, default=16, help="seeds (arenas 0..N-1) per value (default 16)")
-    p.add_argument("--ticks", type=int, default=150_000)
+    p = Parser(prog="spikinglab sweep", description=__doc__.splitlines()[0])
+    p.add_argument("--a-plus", type=positive, nargs="+", default=[0.01, 0.02, 0.03, 0.04])
+    p.add_argument("--seeds", type=at_least(1), default=16, help="seeds (arenas 0..N-1) per value (default 16)")
+    p.add_argument("--ticks", type=at_least(BIN), default=150_000,
+                   help=f"ticks per seed, at least one bin of {BIN:,} (default 150,000)")
     p.add_argument("--preset", choices=sorted(PRESETS), default="paper")
-    p.add_argument("--learned-after", type=int, default=5000)
+    p.add_argument("--learned-after", type=at_least(1), default=5000)
     add_engine_args(p)
     p.add_argument("--runs", type=Path, default=Path("runs"))
     p.add_argument("--id", help="folder name (default sweep-<date>)")

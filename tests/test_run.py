@@ -1,15 +1,18 @@
 """`spikinglab run` as a user runs it: the run folder, the summary and plot, bad input, checkpoints."""
 
 import json
+import os
+import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 
 from spikinglab.brain.checkpoint import load_weights
 from spikinglab.brain.circuit import load_circuit
 
-from .processes import ROOT
+from .processes import ROOT, running_with
 
 
 def spikinglab(*args, timeout=180):
@@ -49,21 +52,6 @@ def load_weights_initial():
     return np.array([[s.weight for s in load_circuit("insect").synapses]])
 
 
-def test_bad_input_is_named_and_nothing_starts(tmp_path):
-    bad_circuit = tmp_path / "bad.toml"
-    bad_circuit.write_text('[neurons]\nA = "regular"\n[[synapses]]\nfrom = "A"\nto = "B"\nweight = 5\ndelay = 1\n')
-    done = spikinglab("run", "--circuit", bad_circuit, "--runs", tmp_path)
-    assert done.returncode == 2
-    assert f"{bad_circuit}: synapses[0] (A -> B): to: unknown neuron 'B'" in done.stderr
-    bad_map = tmp_path / "bad.txt"
-    bad_map.write_text("###\n#S?\n###\n")
-    done = spikinglab("run", "--map", bad_map, "--runs", tmp_path)
-    assert done.returncode == 2 and f"{bad_map}: line 2, column 3: unknown cell '?'" in done.stderr
-    done = spikinglab("run", "--load", tmp_path / "missing.npz", "--runs", tmp_path)
-    assert done.returncode == 2 and "missing.npz: not a weights checkpoint" in done.stderr
-    assert not any(p.is_dir() for p in tmp_path.iterdir())  # no run folder was made
-
-
 def test_unknown_command_and_help():
     done = spikinglab("fly")
     assert done.returncode != 0 and "unknown command 'fly'" in done.stderr
@@ -87,3 +75,44 @@ def test_benchmarks_run_and_end_with_json():
                             "netlogo_batch1000_agent_ticks_per_s"}
     assert all(v > 0 for v in figures.values())
     assert spikinglab("bench", "nothing").returncode != 0
+
+
+def start_run(tmp_path, *args):
+    return subprocess.Popen([sys.executable, "-m", "spikinglab.cli", "run", "--runs", tmp_path, "--id", "r", "--quiet",
+                             *map(str, args)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def wait_for_ticks(folder, timeout=60):
+    """Until the brain has answered (it logs its first sensors), so the run is under way."""
+    deadline = time.monotonic() + timeout
+    while "brain for 1 agent" not in ((folder / "brain.log").read_text() if (folder / "brain.log").exists() else ""):
+        assert time.monotonic() < deadline, "the run did not start"
+        time.sleep(0.2)
+    time.sleep(2)
+
+
+def test_ctrl_c_writes_a_partial_result_and_leaves_nothing_running(tmp_path):
+    run = start_run(tmp_path, "--ticks", 200_000)
+    wait_for_ticks(tmp_path / "r")
+    run.send_signal(signal.SIGINT)
+    out, err = run.communicate(timeout=90)
+    assert run.returncode == 130, err
+    head = json.loads((tmp_path / "r" / "summary.json").read_text())["headline"]
+    assert head["partial"] is True and 0 < head["ticks_done"] < 200_000
+    assert "PARTIAL: interrupted after" in out
+    assert (tmp_path / "r" / "collisions.png").exists() and (tmp_path / "r" / "weights.npz").exists()
+    assert not running_with(str(tmp_path))
+
+
+def test_a_dead_service_ends_the_run_and_is_named(tmp_path):
+    run = start_run(tmp_path, "--ticks", 200_000)
+    wait_for_ticks(tmp_path / "r")
+    (brain,) = [pid for pid, cmdline in running_with(str(tmp_path)).items() if "spikinglab.brain" in cmdline]
+    os.kill(brain, signal.SIGKILL)
+    killed = time.monotonic()
+    _, err = run.communicate(timeout=60)
+    assert time.monotonic() - killed < 10
+    assert run.returncode == 1
+    assert "the brain stopped (exit -9) before the run ended" in err and "Traceback" not in err
+    assert (tmp_path / "r" / "FAILED.txt").exists() and not (tmp_path / "r" / "summary.json").exists()
+    assert not running_with(str(tmp_path))

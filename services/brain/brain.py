@@ -8,6 +8,14 @@ from .circuit import Circuit
 from .engine import Engine
 
 
+def check_sensors(circuit: Circuit, sensors) -> None:
+    """ValueError unless every sensor the circuit binds is among `sensors` (what the world publishes)."""
+    unknown = sorted(set(circuit.sensors) - set(sensors))
+    if unknown:
+        raise ValueError(f"circuit {circuit.name!r} binds sensors {unknown} that the world does not "
+                         f"publish (it publishes {list(sensors)})")
+
+
 class Brain:
     """Maps the sensor columns a world (or robot) publishes onto the circuit's input neurons, steps
     the engine, and reports which actions fired. Sensors the circuit does not bind are ignored;
@@ -17,12 +25,9 @@ class Brain:
                  agents: int = 1, training: bool = True, **engine_options):
         """`engine_options`: the Engine's semantics, order, seed (and without, for ablations)."""
         self.circuit, self.sensor_names, self.action_names = circuit, tuple(sensors), tuple(actions)
+        check_sensors(circuit, sensors)
         self.engine = Engine(circuit, agents=agents, training=training, **engine_options)
         bound = circuit.sensors
-        unknown = sorted(set(bound) - set(sensors))
-        if unknown:
-            raise ValueError(f"circuit {circuit.name!r} binds sensors {unknown} that the world does not "
-                             f"publish (it publishes {list(sensors)})")
         self._sensor_cols = np.array([sensors.index(s) for s in bound], dtype=np.int64)
         self._input_cols = np.array(list(bound.values()), dtype=np.int64)
         self._action_cols = np.array([actions.index(a) for a in circuit.actuators if a in actions], dtype=np.int64)

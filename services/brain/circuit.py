@@ -11,8 +11,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import tomllib
-from importlib import resources
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 
 CIRCUITS_DIR = Path(str(resources.files("spikinglab.circuits")))  # shipped with the package

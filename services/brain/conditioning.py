@@ -8,11 +8,12 @@ spike rasters before and after the pairing (the paper's fig. 2b and 4b) to OUT/f
 
 from __future__ import annotations
 
-import argparse
 import datetime
 from pathlib import Path
 
 import numpy as np
+
+from spikinglab.options import Parser, at_least, positive
 
 from .circuit import load_circuit
 from .engine import Engine
@@ -82,9 +83,9 @@ def plot_rasters(path: Path, title: str, circuit, before: np.ndarray, after: np.
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(prog="spikinglab conditioning", description=__doc__.splitlines()[0])
-    parser.add_argument("--trials", type=int, default=400)
-    parser.add_argument("--a-plus", type=float, default=0.02, help="A+ = A- of the learning neurons")
+    parser = Parser(prog="spikinglab conditioning", description=__doc__.splitlines()[0])
+    parser.add_argument("--trials", type=at_least(1), default=400, help="pairings (default 400)")
+    parser.add_argument("--a-plus", type=positive, default=0.02, help="A+ = A- of the learning neurons")
     parser.add_argument("--out", type=Path, help="folder for the raster PNGs (default runs/conditioning-<date>)")
     args = parser.parse_args(argv)
     out = args.out or Path("runs") / f"conditioning-{datetime.datetime.now():%Y%m%d-%H%M%S}"

@@ -23,8 +23,17 @@ from pathlib import Path
 import numpy as np
 
 from spikinglab.bus import keys
-from spikinglab.bus.schemas import Array, BrainLayout, BrainState, Control, Motor, Sensors, TickBatch
+from spikinglab.bus.schemas import (
+    Array,
+    BrainLayout,
+    BrainState,
+    Control,
+    Motor,
+    Sensors,
+    TickBatch,
+)
 from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
+from spikinglab.options import Parser
 
 from .brain import Brain
 from .checkpoint import load_weights, save_weights
@@ -36,7 +45,7 @@ STATE_BATCH = 50  # ticks per BrainState message (one put per 50 ticks keeps rec
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="spikinglab brain", description="The spiking-network brain, on the bus.")
+    p = Parser(prog="spikinglab brain", description="The spiking-network brain, on the bus.")
     p.add_argument("--circuit", default="insect", help="circuit name in circuits/ or a .toml path (default insect)")
     p.add_argument("--a-plus", type=float, help="A+ = A- of the learning neurons (default: the circuit's)")
     p.add_argument("--no-training", action="store_true", help="weights stay as they are")

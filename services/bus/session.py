@@ -26,11 +26,30 @@ from .schemas import BusError, Message, decode, encode
 log = logging.getLogger("spikinglab.bus")
 
 
+PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream", "unixpipe", "vsock", "serial")
+NOTHING_ANSWERS_AFTER = 10.0  # seconds: then a --connect that reached nobody is reported
+
+
+def endpoint(text: str) -> str:
+    """A Zenoh endpoint, checked before anything starts: <protocol>/<address>, and host:port for
+    the IP protocols (argparse turns the ValueError into a usage error naming the option)."""
+    protocol, _, address = text.partition("/")
+    if protocol not in PROTOCOLS or not address:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an endpoint: expected <protocol>/<address> with protocol "
+                                         f"one of {', '.join(PROTOCOLS)}, e.g. tcp/192.168.1.10:7447")
+    if protocol in ("tcp", "udp", "tls", "quic"):
+        host, _, port = address.split("#")[0].split("?")[0].rpartition(":")
+        if not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+            raise argparse.ArgumentTypeError(f"{text!r}: a {protocol} endpoint needs host:port with a port of "
+                                             "0-65535, e.g. tcp/192.168.1.10:7447")
+    return text
+
+
 def add_bus_args(parser: argparse.ArgumentParser) -> None:
     bus = parser.add_argument_group("bus")
-    bus.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+    bus.add_argument("--connect", action="append", default=[], metavar="ENDPOINT", type=endpoint,
                      help="endpoint to connect to, e.g. tcp/192.168.1.10:7447 (repeatable)")
-    bus.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+    bus.add_argument("--listen", action="append", default=[], metavar="ENDPOINT", type=endpoint,
                      help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
     bus.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 config file (TLS, access control, ...)")
     bus.add_argument("--group", default=keys.DEFAULT_GROUP,
@@ -63,9 +82,30 @@ def open_session(args: argparse.Namespace, mode: str = "peer") -> zenoh.Session:
         except (OSError, AttributeError) as e:
             log.warning("cannot pin to CPU %d: %s", args.cpu, e)
     try:
-        return zenoh.open(make_config(args.connect, args.listen, args.zenoh_config, mode))
+        session = zenoh.open(make_config(args.connect, args.listen, args.zenoh_config, mode))
     except zenoh.ZError as e:
-        raise SystemExit(f"cannot open the bus session ({mode}; connect {args.connect}, listen {args.listen}): {e}")
+        reason = str(e).split(" at /")[0]  # without the Rust source location
+        raise SystemExit(f"cannot open the bus session ({mode}; connect {args.connect}, listen {args.listen}): "
+                         f"{reason}") from None
+    if args.connect:
+        threading.Thread(target=report_if_alone, args=(session, args.connect), daemon=True,
+                         name="connection check").start()
+    return session
+
+
+def report_if_alone(session: zenoh.Session, connect: list[str]) -> None:
+    """Say so when none of the --connect endpoints answered within NOTHING_ANSWERS_AFTER seconds;
+    Zenoh keeps trying meanwhile (the other side may start later)."""
+    deadline = time.monotonic() + NOTHING_ANSWERS_AFTER
+    while time.monotonic() < deadline:
+        try:
+            if any(True for _ in session.info.peers_zid()) or any(True for _ in session.info.routers_zid()):
+                return
+        except Exception:  # the session closed meanwhile
+            return
+        time.sleep(0.25)
+    log.warning("nothing answers at %s after %.0f s (is the other side running, and is the endpoint right?); "
+                "still trying", ", ".join(connect), NOTHING_ANSWERS_AFTER)
 
 
 class Inbox:

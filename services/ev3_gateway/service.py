@@ -32,15 +32,25 @@ import numpy as np
 from spikinglab.bus import keys
 from spikinglab.bus.schemas import INSECT_SENSORS, Array, Motor, Sensors
 from spikinglab.bus.session import Bus, add_bus_args, open_session
+from spikinglab.options import Parser
 
-from .backends import BLACK, GREEN, RED, EV3Backend, Reading, RobotLinkError, SimBackend, Wiring
+from .backends import (
+    BLACK,
+    GREEN,
+    RED,
+    EV3Backend,
+    Reading,
+    RobotLinkError,
+    SimBackend,
+    Wiring,
+)
 
 log = logging.getLogger("spikinglab.gateway")
 SMELL_OF_COLOUR = {BLACK: "smell_black", RED: "smell_red", GREEN: "smell_green"}
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="spikinglab gateway", description="The robot's side of the bus.")
+    p = Parser(prog="spikinglab gateway", description="The robot's side of the bus.")
     p.add_argument("--backend", choices=("ev3", "sim"), default="ev3", help="a real EV3 (default) or a simulated one")
     robot = p.add_argument_group("EV3")
     robot.add_argument("--protocol", choices=("WiFi", "USB", "Bluetooth"), default="WiFi")

@@ -7,7 +7,6 @@ the time cursor is set to --tick (default: the end), and the window is saved.
 
 from __future__ import annotations
 
-import argparse
 import os
 import signal
 import socket
@@ -18,6 +17,8 @@ from pathlib import Path
 
 import rerun.experimental as rrx
 from rerun.chunk import RrdReader
+
+from spikinglab.options import Parser
 
 
 def last_tick(path: Path) -> int:
@@ -69,16 +70,25 @@ def screenshot(recording: Path, out: Path, tick: int | None = None, size: str = 
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="spikinglab screenshot", description=__doc__.splitlines()[0])
+    p = Parser(prog="spikinglab screenshot", description=__doc__.splitlines()[0])
     p.add_argument("recording", type=Path)
     p.add_argument("--out", type=Path, help="PNG file (default: beside the recording, replay.png)")
     p.add_argument("--tick", type=int, help="where the time cursor goes (default: the last tick)")
     p.add_argument("--size", default="1600x900", help="window size in points (default 1600x900)")
     args = p.parse_args(argv)
-    if not args.recording.exists():
+    if not args.recording.is_file():
         print(f"spikinglab screenshot: {args.recording}: no such recording", file=sys.stderr)
         return 2
-    out = screenshot(args.recording, args.out or args.recording.with_name("replay.png"), args.tick, args.size)
+    try:
+        tick = last_tick(args.recording) if args.tick is None else args.tick
+    except RuntimeError as e:  # rerun's reader: not an .rrd, or a damaged one
+        print(f"spikinglab screenshot: {args.recording}: not a Rerun recording (.rrd): {e}", file=sys.stderr)
+        return 2
+    try:
+        out = screenshot(args.recording, args.out or args.recording.with_name("replay.png"), tick, args.size)
+    except RuntimeError as e:  # the headless viewer could not start or render
+        print(f"spikinglab screenshot: {e}", file=sys.stderr)
+        return 1
     print(f"screenshot written to {out}")
     return 0
 

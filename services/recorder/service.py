@@ -16,8 +16,10 @@ import argparse
 import datetime
 import logging
 import os
+import socket
 import sys
 import time
+import urllib.parse
 from pathlib import Path
 
 import rerun as rr
@@ -25,6 +27,7 @@ import rerun as rr
 from spikinglab.bus import keys
 from spikinglab.bus.schemas import BrainLayout, BrainState, WorldMap, WorldState
 from spikinglab.bus.session import Bus, add_bus_args, service_main
+from spikinglab.options import Parser, agent_list
 
 from .recorder import Recorder, blueprint
 
@@ -33,11 +36,13 @@ END_GRACE = 5.0  # seconds to wait after the run's end for the brain's last mess
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="spikinglab record", description="Record a run to a Rerun file.")
+    p = Parser(prog="spikinglab record", description="Record a run to a Rerun file.")
     p.add_argument("--out", type=Path, help="the .rrd file (default runs/<date>-<time>/recording.rrd)")
-    p.add_argument("--viewer", metavar="URL", help="also stream to a running viewer, e.g. rerun+http://127.0.0.1:9876/proxy")
+    p.add_argument("--viewer", metavar="URL", type=viewer_url,
+                   help="also stream to a running viewer, e.g. rerun+http://127.0.0.1:9876/proxy")
     p.add_argument("--serve", action="store_true", help="also serve the recording for viewers to connect (gRPC)")
-    p.add_argument("--detail", default="0", help="agents with raster, potentials, weights, ray, trail (default 0)")
+    p.add_argument("--detail", default=(0,), type=agent_list,
+                   help="agents with raster, potentials, weights, ray, trail, e.g. 0,3 (default 0)")
     p.add_argument("--flush-every", type=int, default=1000, help="ticks per batch written (default 1,000)")
     p.add_argument("--forever", action="store_true", help="keep recording after the run's end")
     p.add_argument("--nice", type=int, default=10, help="scheduling priority increment (default 10: after world and brain)")
@@ -45,10 +50,32 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
+def viewer_url(text: str) -> str:
+    """A viewer's gRPC URL (rerun+http://host:port/proxy), checked before anything starts."""
+    url = urllib.parse.urlsplit(text)
+    if url.scheme not in ("rerun", "rerun+http", "rerun+https") or not url.hostname:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a viewer URL: expected rerun+http://HOST:PORT/proxy, "
+                                         "e.g. rerun+http://127.0.0.1:9876/proxy")
+    return text
+
+
+def viewer_answers(text: str, timeout: float = 3.0) -> bool:
+    url = urllib.parse.urlsplit(text)
+    port = url.port or (443 if url.scheme.endswith("https") else 9876)
+    try:
+        socket.create_connection((url.hostname, port), timeout=timeout).close()
+        return True
+    except OSError:
+        return False
+
+
 def run(args: argparse.Namespace, session) -> int:
+    if args.viewer and not viewer_answers(args.viewer):
+        log.error("no viewer answers at %s (start one with `rerun`, or leave out --viewer)", args.viewer)
+        return 1
     out = args.out or Path("runs") / f"{datetime.datetime.now():%Y%m%d-%H%M%S}" / "recording.rrd"
     out.parent.mkdir(parents=True, exist_ok=True)
-    detail = tuple(int(a) for a in args.detail.split(",") if a.strip())
+    detail = args.detail
     rec = rr.RecordingStream("spikinglab", recording_id=f"{args.group}-{out.parent.name}")
     sinks = [rr.FileSink(str(out))]
     if args.viewer:

@@ -22,10 +22,27 @@ from pathlib import Path
 import numpy as np
 
 from spikinglab.bus import keys
-from spikinglab.bus.schemas import Array, Control, Motor, Sensors, TickBatch, WorldMap, WorldState
+from spikinglab.bus.schemas import (
+    Array,
+    Control,
+    Motor,
+    Sensors,
+    TickBatch,
+    WorldMap,
+    WorldState,
+)
 from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
+from spikinglab.options import Parser, at_least
 
-from .world import PRESETS, SENSORS, MapError, World, map_world, params_for, world_actions
+from .world import (
+    PRESETS,
+    SENSORS,
+    MapError,
+    World,
+    map_world,
+    params_for,
+    world_actions,
+)
 
 log = logging.getLogger("spikinglab.world")
 RESEND_AFTER = 1.0  # seconds without an answer before the sensors are sent again
@@ -33,7 +50,7 @@ STATE_BATCH = 50  # ticks per WorldState message (one put per 50 ticks keeps rec
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="spikinglab world", description="The insect's world, on the bus.")
+    p = Parser(prog="spikinglab world", description="The insect's world, on the bus.")
     add_world_args(p)
     p.add_argument("--out", type=Path, help="write metrics.json (collisions over time, learning time, ...) here")
     p.add_argument("--publish-state", action="store_true", help="publish poses and events every tick (recorder)")
@@ -44,15 +61,15 @@ def parser() -> argparse.ArgumentParser:
 
 def add_world_args(p: argparse.ArgumentParser) -> None:
     w = p.add_argument_group("world")
-    w.add_argument("--ticks", type=int, default=40_000, help="ticks to run (default %(default)s)")
+    w.add_argument("--ticks", type=at_least(1), default=40_000, help="ticks to run (default %(default)s)")
     w.add_argument("--seed", type=int, default=0, help="world seed: maps and headings (agent a uses seed + a)")
-    w.add_argument("--agents", type=int, default=1, help="insects stepped together (default 1)")
+    w.add_argument("--agents", type=at_least(1), default=1, help="insects stepped together (default 1)")
     w.add_argument("--shared", action="store_true", help="all agents share one arena (default: one each)")
     w.add_argument("--preset", choices=sorted(PRESETS), default="paper",
                    help="rotation and move steps: paper (5 deg, 1 patch, default) or netlogo (4 deg, 0.4 patch)")
     w.add_argument("--map", type=Path, help="a text map file instead of the generated arena (docs/world.md)")
     w.add_argument("--no-training", action="store_true", help="no push on noxious patches (test mode)")
-    w.add_argument("--learned-after", type=int, default=5000,
+    w.add_argument("--learned-after", type=at_least(1), default=5000,
                    help="collision-free ticks that count as learned (default 5,000)")
 
 
@@ -182,46 +199,61 @@ def run(args: argparse.Namespace, session) -> int:
         request = Sensors(tick=0, names=SENSORS, values=Array.of(world.sense()), training=world.training,
                           seed=world.seed)
         sensors.put(request)
-        for t in range(args.ticks):
-            actions = None
-            while actions is None:
-                answer = motor.get(timeout=RESEND_AFTER)
-                if answer is None:
-                    if not brain.alive:
-                        log.warning("brain lost at tick %d: waiting for it to come back", t)
-                        wait_for_subscriber(sensors, "a brain", brain)
-                        log.info("brain back: continuing at tick %d", t)
-                    sensors.put(request)
-                elif answer.tick == t:
-                    actions = actions_from(answer, world.agents)
-                    if actions is None:
-                        log.warning("ignored motor for tick %d: %d agents, the world has %d",
-                                    t, answer.actions.shape[0], world.agents)
-            world.act(actions)
-            trajectory.keep(t)
-            if state is not None:  # this tick's poses, events and changes, before the next sense()
-                keep_state(batch, changes, world, t)
-            if t + 1 < args.ticks:  # the brain's next tick first: the recorder can wait
-                request = Sensors(tick=t + 1, names=SENSORS, values=Array.of(world.sense()), seed=world.seed,
-                                  training=world.training)
-                sensors.put(request)
-            if state is not None and (batch.full or t + 1 == args.ticks):
-                state.put(state_message(batch, changes, final=t + 1 == args.ticks))
-            progress.update(t + 1)
+        done = 0
+        try:
+            done = tick_loop(args, world, sensors, motor, brain, state, request, progress, trajectory, batch, changes)
+        except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the ticks done are a result too, marked partial
+            done = world.tick
+            log.warning("interrupted at tick %d of %d: ending the run there", done, args.ticks)
+            if state is not None:
+                state.put(state_message(batch, changes, final=True))
         elapsed = time.perf_counter() - started
-        progress.close(args.ticks)
-        control.put(Control(tick=args.ticks, command="end"))
-        result = metrics_of(world, args.ticks, elapsed)
+        progress.close(done)
+        control.put(Control(tick=done, command="end"))
+        result = metrics_of(world, done, elapsed)
         result["rejected_messages"] = motor.rejected_total
-        log.info("%d ticks in %.1f s (%.0f ticks/s); collisions %s; learning time %s", args.ticks, elapsed,
-                 args.ticks / elapsed, result["collisions"][:8], result["learning_time"][:8])
+        result["partial"] = done < args.ticks
+        log.info("%d ticks in %.1f s (%.0f ticks/s); collisions %s; learning time %s", done, elapsed,
+                 done / max(elapsed, 1e-9), result["collisions"][:8], result["learning_time"][:8])
         if args.out:
             args.out.mkdir(parents=True, exist_ok=True)
             (args.out / "metrics.json").write_text(json.dumps(result))
-            trajectory.save(args.out / "trajectory.npz", args.ticks)
-        return 0
+            if done:
+                trajectory.save(args.out / "trajectory.npz", done)
+        return 0 if done == args.ticks else 130
     finally:
         bus.close()
+
+
+def tick_loop(args, world, sensors, motor, brain, state, request, progress, trajectory, batch, changes) -> int:
+    """The lock-step ticks: each waits for the brain's answer to the last sensors sent."""
+    for t in range(args.ticks):
+        actions = None
+        while actions is None:
+            answer = motor.get(timeout=RESEND_AFTER)
+            if answer is None:
+                if not brain.alive:
+                    log.warning("brain lost at tick %d: waiting for it to come back", t)
+                    wait_for_subscriber(sensors, "a brain", brain)
+                    log.info("brain back: continuing at tick %d", t)
+                sensors.put(request)
+            elif answer.tick == t:
+                actions = actions_from(answer, world.agents)
+                if actions is None:
+                    log.warning("ignored motor for tick %d: %d agents, the world has %d",
+                                t, answer.actions.shape[0], world.agents)
+        world.act(actions)
+        trajectory.keep(t)
+        if state is not None:  # this tick's poses, events and changes, before the next sense()
+            keep_state(batch, changes, world, t)
+        if t + 1 < args.ticks:  # the brain's next tick first: the recorder can wait
+            request = Sensors(tick=t + 1, names=SENSORS, values=Array.of(world.sense()), seed=world.seed,
+                              training=world.training)
+            sensors.put(request)
+        if state is not None and (batch.full or t + 1 == args.ticks):
+            state.put(state_message(batch, changes, final=t + 1 == args.ticks))
+        progress.update(t + 1)
+    return args.ticks
 
 
 def main(argv=None) -> int:

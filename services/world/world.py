@@ -26,6 +26,7 @@ EMPTY, BLACK, RED, GREEN = 0, 1, 2, 3
 # binds them by name).
 SENSORS, ACTIONS = INSECT_SENSORS, INSECT_ACTIONS
 PAIN, REWARD = SENSORS.index("pain"), SENSORS.index("reward")
+BIN = 1000  # ticks per bin of the collision counts (metrics.bins)
 ROTATE, MOVE = ACTIONS.index("rotate"), ACTIONS.index("move")
 
 
@@ -246,7 +247,7 @@ class World:
              np.ascontiguousarray(actions, dtype=np.uint8), self.events, self.metrics.distance,
              self.metrics.resets)
         self.tick += 1
-        if self.tick % 1000 == 0:
+        if self.tick % BIN == 0:
             self.metrics.bins.append(self._bin.copy())
             self._bin[:] = 0
 

@@ -5,8 +5,20 @@ import numpy as np
 import pytest
 
 from spikinglab.bus import keys
-from spikinglab.bus.schemas import (VERSION, Array, BrainLayout, BrainState, BusError, Control, Motor, Sensors, WorldMap,
-                                  WorldState, decode, encode)
+from spikinglab.bus.schemas import (
+    VERSION,
+    Array,
+    BrainLayout,
+    BrainState,
+    BusError,
+    Control,
+    Motor,
+    Sensors,
+    WorldMap,
+    WorldState,
+    decode,
+    encode,
+)
 
 A = 3
 GOOD = [

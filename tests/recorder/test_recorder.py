@@ -11,8 +11,8 @@ import pytest
 from rerun.chunk import RrdReader
 
 from spikinglab.brain.checkpoint import load_weights
-from spikinglab.bus import keys
 from spikinglab.brain.circuit import load_circuit
+from spikinglab.bus import keys
 from spikinglab.loop import brain_for, closed_loop
 from spikinglab.world.world import World, generate_map, params_for
 
@@ -125,7 +125,7 @@ def test_screenshot_of_the_replay_is_not_blank(recorded_run, tmp_path):
 
 
 def test_a_killed_recorder_leaves_a_readable_file(tmp_path):
-    from .. processes import endpoint, free_port
+    from ..processes import endpoint, free_port
 
     world_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
     recorder = start("recorder", "--connect", world_ep, "--connect", brain_ep, "--out", tmp_path / "rec.rrd",
@@ -149,7 +149,7 @@ def test_a_killed_recorder_leaves_a_readable_file(tmp_path):
 
 
 def test_a_late_recorder_says_from_which_tick_it_has_data(tmp_path):
-    from .. processes import endpoint, free_port
+    from ..processes import endpoint, free_port
 
     world_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
     early = Watcher([world_ep, brain_ep], [keys.world_state("insect"), keys.brain_state("insect")])

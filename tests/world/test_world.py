@@ -5,8 +5,21 @@ import math
 import numpy as np
 import pytest
 
-from spikinglab.world.world import (ACTIONS, BLACK, EMPTY, GREEN, RED, SENSORS, MapError, World, WorldParams,
-                                  generate_map, load_map, map_world, params_for)
+from spikinglab.world.world import (
+    ACTIONS,
+    BLACK,
+    EMPTY,
+    GREEN,
+    RED,
+    SENSORS,
+    MapError,
+    World,
+    WorldParams,
+    generate_map,
+    load_map,
+    map_world,
+    params_for,
+)
 
 SMELL = {BLACK: SENSORS.index("smell_black"), RED: SENSORS.index("smell_red"), GREEN: SENSORS.index("smell_green")}
 PAIN, REWARD = SENSORS.index("pain"), SENSORS.index("reward")

@@ -1,0 +1,56 @@
+"""Command-line options shared by every command: a parser whose errors are one line, and checks
+that refuse a bad value before anything starts (argparse names the option in the message)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line naming the option and what was wrong (exit 2), and
+    options are spelled out (no abbreviations: `--tick` is not silently `--ticks`)."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
+
+    def error(self, message: str):
+        print(f"{self.prog}: {message} (see {self.prog} --help)", file=sys.stderr)
+        sys.exit(2)
+
+
+def at_least(minimum: int):
+    """An int option of at least `minimum`."""
+    def check(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be at least {minimum:,}, got {value:,}")
+        return value
+    return check
+
+
+def positive(text: str) -> float:
+    """A float option above 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a number above 0, got {text}")
+    return value
+
+
+def agent_list(text: str) -> tuple[int, ...]:
+    """Agent numbers separated by commas (`0`, `0,3,7`), or nothing."""
+    try:
+        agents = tuple(int(a) for a in text.split(",") if a.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected agent numbers separated by commas, e.g. 0,3,7; got {text!r}") \
+            from None
+    if any(a < 0 for a in agents):
+        raise argparse.ArgumentTypeError(f"agent numbers start at 0, got {text!r}")
+    return agents

@@ -1,0 +1,104 @@
+"""Bad input, one row per case, as a user meets it: the exit code (2: usage, 1: at run time), one
+line naming what was wrong, no traceback, nothing left running, no run folder with a result."""
+
+import os
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from spikinglab.brain.checkpoint import save_weights
+from spikinglab.brain.circuit import load_circuit
+from spikinglab.brain.engine import Engine
+
+from .processes import free_port, running_with
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("inputs")
+    circuit = load_circuit("insect")
+    save_weights(folder / "good.npz", Engine(circuit), circuit)
+    data = (folder / "good.npz").read_bytes()
+    (folder / "truncated.npz").write_bytes(data[: len(data) // 2])
+    np.savez(folder / "foreign.npz", x=np.arange(3))
+    (folder / "nostart.txt").write_text("#####\n#...#\n#####\n")
+    (folder / "not.rrd").write_text("not a recording\n")
+    (folder / "bad.toml").write_text('[neurons]\nA = "regular"\n[[synapses]]\nfrom = "A"\nto = "B"\nweight = 5\n'
+                                     'delay = 1\n')
+    return folder
+
+
+@pytest.fixture(scope="module")
+def busy_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        yield s.getsockname()[1]
+
+
+CLOSED = free_port()  # nothing listens there
+CASES = [  # id, arguments ({f}: the input files, {busy}: a port in use), exit code, what the one line says
+    ("run ticks below one bin", "run --ticks 500", 2, "argument --ticks: must be at least one bin of collisions"),
+    ("run agents 0", "run --agents 0", 2, "argument --agents: must be at least 1, got 0"),
+    ("run negative A", "run --a-plus -0.1", 2, "argument --a-plus: must be a number above 0, got -0.1"),
+    ("run circuit for another body", "run --circuit conditioning", 2,
+     "circuit 'conditioning' binds sensors ['c', 'u'] that the world does not publish"),
+    ("run broken circuit file", "run --circuit {f}/bad.toml", 2, "synapses[0] (A -> B): to: unknown neuron 'B'"),
+    ("run detail not agents", "run --detail x", 2, "argument --detail: expected agent numbers separated by commas"),
+    ("run truncated checkpoint", "run --load {f}/truncated.npz", 2,
+     "truncated.npz: not a weights checkpoint (not an .npz archive: truncated, or another kind of file"),
+    ("run foreign npz", "run --load {f}/foreign.npz", 2,
+     "foreign.npz: not a weights checkpoint (an .npz without the arrays weights and synapses"),
+    ("run missing checkpoint", "run --load {f}/missing.npz", 2, "missing.npz: cannot read it (No such file"),
+    ("run map without start", "run --map {f}/nostart.txt", 2, "nostart.txt: no start 'S' in the map"),
+    ("run abbreviated option", "run --tick 5", 2, "unrecognized arguments: --tick 5"),
+    ("sweep 500 ticks", "sweep --ticks 500", 2, "argument --ticks: must be at least 1,000, got 500"),
+    ("sweep no seeds", "sweep --seeds 0", 2, "argument --seeds: must be at least 1, got 0"),
+    ("conditioning no trials", "conditioning --trials 0", 2, "argument --trials: must be at least 1, got 0"),
+    ("screenshot of a text file", "screenshot {f}/not.rrd", 2, "not.rrd: not a Rerun recording (.rrd)"),
+    ("screenshot of nothing", "screenshot {f}/none.rrd", 2, "none.rrd: no such recording"),
+    ("record viewer not a URL", "record --viewer nothing", 2, "argument --viewer: 'nothing' is not a viewer URL"),
+    ("record viewer where none runs", f"record --viewer rerun+http://127.0.0.1:{CLOSED}/proxy --out {{f}}/r.rrd", 1,
+     f"no viewer answers at rerun+http://127.0.0.1:{CLOSED}/proxy"),
+    ("malformed endpoint", "brain --connect localhost:7447", 2, "argument --connect: 'localhost:7447' is not an endpoint"),
+    ("endpoint without port", "world --listen tcp/127.0.0.1", 2, "a tcp endpoint needs host:port"),
+    ("port in use", "brain --listen tcp/127.0.0.1:{busy}", 1, "Address already in use"),
+    ("unknown command", "fly", 2, "unknown command 'fly'"),
+]
+
+
+@pytest.mark.parametrize("case, command, code, says", CASES, ids=[c[0] for c in CASES])
+def test_bad_input(case, command, code, says, files, busy_port, tmp_path):
+    argv = command.format(f=files, busy=busy_port).split()
+    if argv[0] in ("run", "sweep"):
+        argv += ["--runs", str(tmp_path / "runs")]
+    elif argv[0] == "conditioning":
+        argv += ["--out", str(tmp_path / "figures")]
+    done = subprocess.run([sys.executable, "-m", "spikinglab.cli", *argv], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=120)
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert done.returncode == code, done.stderr
+    assert lines and says in lines[-1], done.stderr
+    assert "Traceback" not in done.stderr + done.stdout
+    assert not list(tmp_path.rglob("summary.json")) and not list(tmp_path.rglob("*.png"))
+    assert not running_with(str(tmp_path))
+
+
+def test_connecting_where_nothing_answers_is_reported_within_10_s(tmp_path):
+    log = tmp_path / "brain.log"
+    brain = subprocess.Popen([sys.executable, "-m", "spikinglab.brain", "--connect", f"tcp/127.0.0.1:{CLOSED}",
+                              "--group", tmp_path.name], stderr=open(log, "w"))
+    try:
+        started, said = time.monotonic(), ""
+        while "nothing answers" not in said and time.monotonic() - started < 15:
+            time.sleep(0.2)
+            said = log.read_text()
+        assert f"nothing answers at tcp/127.0.0.1:{CLOSED} after 10 s" in said
+        assert brain.poll() is None  # it goes on trying: the other side may start later
+    finally:
+        brain.terminate()
+        brain.wait(10)
