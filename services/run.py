@@ -315,7 +315,7 @@ def report(folder: Path, summary: dict) -> None:
           f"({head['ticks_done']:,} ticks, {summary['ticks_per_s']:,.0f} ticks/s)")
     times = summary["learning_time"]
     p = summary["parameters"]
-    paper = summary["paper_table_1_learning_time"].get(f"{p['a_plus']:.2f}") if isinstance(p["a_plus"], float) else None
+    paper = PAPER.get(p["a_plus"]) if isinstance(p["a_plus"], float) else None  # not when the rates differ
     print(f"learned: {head['learned']}"
           f" (criterion: {p['learned_after']:,} ticks off noxious patches); learning time: "
           + ", ".join("not reached" if t is None else f"tick {t:,}" for t in times[:8])
