@@ -53,14 +53,7 @@ def alone(ticks: int) -> float:
 
     from spikinglab.brain.circuit import load_circuit
     from spikinglab.brain.service import STATE_BATCH, BrainNode, layout
-    from spikinglab.bus.schemas import (
-        Array,
-        Sensors,
-        TickBatch,
-        WorldMap,
-        decode,
-        encode,
-    )
+    from spikinglab.bus.schemas import Array, Sensors, TickBatch, WorldMap, decode, encode
     from spikinglab.recorder.recorder import Recorder, blueprint
     from spikinglab.world.service import keep_state, state_message
     from spikinglab.world.world import SENSORS, World, world_actions

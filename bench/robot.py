@@ -15,8 +15,6 @@ is JSON. Run: `spikinglab bench robot`.
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -25,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from spikinglab.options import Parser
-from spikinglab.run import local_endpoints
+from spikinglab.run import local_endpoints, service, stop
 
 CONDITIONS = {  # name -> brain options
     "learning, A = 0.08 (the paper's robot)": ["--a-plus", 0.08],
@@ -40,18 +38,16 @@ def one_run(brain_options: list, seed: int, seconds: float, gateway_options: lis
         (gateway_ep,), sockets = local_endpoints("gateway")
         with sockets:
             stats = Path(tmp) / "gateway.json"
-            python = [sys.executable, "-m"]
-            gateway = subprocess.Popen([*python, "spikinglab.ev3_gateway", "--backend", "sim", "--sim-seed", str(seed),
-                                        "--listen", gateway_ep, "--duration", str(seconds), "--stats", str(stats),
-                                        *map(str, gateway_options)], stderr=subprocess.DEVNULL)
-            brain = subprocess.Popen([*python, "spikinglab.brain", "--connect", gateway_ep, "--clock", "1000",
-                                      "--seed", str(seed), *map(str, brain_options)], stderr=subprocess.DEVNULL)
+            gateway = service("ev3_gateway", ["--backend", "sim", "--sim-seed", seed, "--listen", gateway_ep,
+                                              "--duration", seconds, "--stats", stats, *gateway_options],
+                              Path(tmp) / "gateway.log")
+            brain = service("brain", ["--connect", gateway_ep, "--clock", 1000, "--seed", seed, *brain_options],
+                            Path(tmp) / "brain.log")
             try:
                 gateway.wait(seconds + 60)
             finally:
-                for p in (brain, gateway):
-                    p.terminate()
-                    p.wait(10)
+                stop(brain)
+                stop(gateway)
             return json.loads(stats.read_text())
 
 

@@ -22,14 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spikinglab.learning import (
-    DEFAULT_DEFINITION,
-    DEFINITIONS,
-    PAPER,
-    all_definitions,
-    plot_table1,
-    tick_text,
-)
+from spikinglab.learning import DEFAULT_DEFINITION, DEFINITIONS, PAPER, all_definitions, plot_table1, tick_text
 from spikinglab.options import Parser
 
 A_VALUES = (0.01, 0.02, 0.03, 0.04, 0.08)

@@ -28,6 +28,7 @@ from spikinglab.brain.checkpoint import load_weights
 from spikinglab.brain.circuit import CircuitError, load_circuit
 from spikinglab.brain.engine import PARALLEL_FROM
 from spikinglab.brain.service import add_engine_args
+from spikinglab.cli import version
 from spikinglab.learning import PAPER
 from spikinglab.options import Parser, agent_list, positive
 from spikinglab.world.service import add_world_args, world_from_args
@@ -204,8 +205,6 @@ def learning_rate(circuit, which: str = "a_plus") -> float | list[float]:
 
 
 def summarise(folder: Path, args, circuit, run_id: str, wall_s: float) -> dict:
-    from spikinglab.cli import version
-
     metrics = json.loads((folder / "metrics.json").read_text())
     weights = load_weights(folder / "weights.npz", circuit)
     plastic = circuit.plastic_synapses

@@ -1,7 +1,6 @@
 """Bad input, one row per case, as a user meets it: the exit code (2: usage, 1: at run time), one
 line naming what was wrong, no traceback, nothing left running, no run folder with a result."""
 
-import os
 import socket
 import subprocess
 import sys

@@ -23,15 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from spikinglab.bus import keys
-from spikinglab.bus.schemas import (
-    Array,
-    BrainLayout,
-    BrainState,
-    Control,
-    Motor,
-    Sensors,
-    TickBatch,
-)
+from spikinglab.bus.schemas import Array, BrainLayout, BrainState, Control, Motor, Sensors, TickBatch
 from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 from spikinglab.options import Parser
 

@@ -32,7 +32,7 @@ NOTHING_ANSWERS_AFTER = 10.0  # seconds: then a --connect that reached nobody is
 
 def endpoint(text: str) -> str:
     """A Zenoh endpoint, checked before anything starts: <protocol>/<address>, and host:port for
-    the IP protocols (argparse turns the ValueError into a usage error naming the option)."""
+    the IP protocols (argparse turns the ArgumentTypeError into a usage error naming the option)."""
     protocol, _, address = text.partition("/")
     if protocol not in PROTOCOLS or not address:
         raise argparse.ArgumentTypeError(f"{text!r} is not an endpoint: expected <protocol>/<address> with protocol "

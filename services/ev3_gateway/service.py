@@ -34,16 +34,7 @@ from spikinglab.bus.schemas import INSECT_SENSORS, Array, Motor, Sensors
 from spikinglab.bus.session import Bus, add_bus_args, open_session
 from spikinglab.options import Parser
 
-from .backends import (
-    BLACK,
-    GREEN,
-    RED,
-    EV3Backend,
-    Reading,
-    RobotLinkError,
-    SimBackend,
-    Wiring,
-)
+from .backends import BLACK, GREEN, RED, EV3Backend, Reading, RobotLinkError, SimBackend, Wiring
 
 log = logging.getLogger("spikinglab.gateway")
 SMELL_OF_COLOUR = {BLACK: "smell_black", RED: "smell_red", GREEN: "smell_green"}

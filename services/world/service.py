@@ -22,27 +22,11 @@ from pathlib import Path
 import numpy as np
 
 from spikinglab.bus import keys
-from spikinglab.bus.schemas import (
-    Array,
-    Control,
-    Motor,
-    Sensors,
-    TickBatch,
-    WorldMap,
-    WorldState,
-)
+from spikinglab.bus.schemas import Array, Control, Motor, Sensors, TickBatch, WorldMap, WorldState
 from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 from spikinglab.options import Parser, at_least
 
-from .world import (
-    PRESETS,
-    SENSORS,
-    MapError,
-    World,
-    map_world,
-    params_for,
-    world_actions,
-)
+from .world import PRESETS, SENSORS, MapError, World, map_world, params_for, world_actions
 
 log = logging.getLogger("spikinglab.world")
 RESEND_AFTER = 1.0  # seconds without an answer before the sensors are sent again
@@ -199,14 +183,13 @@ def run(args: argparse.Namespace, session) -> int:
         request = Sensors(tick=0, names=SENSORS, values=Array.of(world.sense()), training=world.training,
                           seed=world.seed)
         sensors.put(request)
-        done = 0
         try:
-            done = tick_loop(args, world, sensors, motor, brain, state, request, progress, trajectory, batch, changes)
+            tick_loop(args, world, sensors, motor, brain, state, request, progress, trajectory, batch, changes)
         except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the ticks done are a result too, marked partial
-            done = world.tick
-            log.warning("interrupted at tick %d of %d: ending the run there", done, args.ticks)
+            log.warning("interrupted at tick %d of %d: ending the run there", world.tick, args.ticks)
             if state is not None:
                 state.put(state_message(batch, changes, final=True))
+        done = world.tick
         elapsed = time.perf_counter() - started
         progress.close(done)
         control.put(Control(tick=done, command="end"))
@@ -225,7 +208,7 @@ def run(args: argparse.Namespace, session) -> int:
         bus.close()
 
 
-def tick_loop(args, world, sensors, motor, brain, state, request, progress, trajectory, batch, changes) -> int:
+def tick_loop(args, world, sensors, motor, brain, state, request, progress, trajectory, batch, changes) -> None:
     """The lock-step ticks: each waits for the brain's answer to the last sensors sent."""
     for t in range(args.ticks):
         actions = None
@@ -253,7 +236,6 @@ def tick_loop(args, world, sensors, motor, brain, state, request, progress, traj
         if state is not None and (batch.full or t + 1 == args.ticks):
             state.put(state_message(batch, changes, final=t + 1 == args.ticks))
         progress.update(t + 1)
-    return args.ticks
 
 
 def main(argv=None) -> int:
