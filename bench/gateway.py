@@ -13,7 +13,6 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -21,20 +20,16 @@ from pathlib import Path
 import numpy as np
 
 from spikinglab.ev3_gateway.fake_brick import FakeBrick
+from spikinglab.launch import local_endpoints, spawn
 from spikinglab.options import Parser
-from spikinglab.run import local_endpoints
-
-
-def service(name: str, *args) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", name, *map(str, args)], stderr=subprocess.DEVNULL)
 
 
 def polls_per_s(seconds: float) -> float:
     with FakeBrick(), tempfile.TemporaryDirectory() as tmp:
         (gateway_ep,), sockets = local_endpoints("gateway")
         with sockets:
-            gateway = service("spikinglab.ev3_gateway", "--listen", gateway_ep, "--duration", seconds, "--stats",
-                              Path(tmp) / "g.json")
+            gateway = spawn("gateway", ["--listen", gateway_ep, "--duration", seconds, "--stats",
+                              Path(tmp) / "g.json"], subprocess.DEVNULL)
             gateway.wait(seconds + 30)
         return json.loads((Path(tmp) / "g.json").read_text())["polls"] / seconds
 
@@ -46,9 +41,9 @@ def chain(trials: int, hz: float, max_polls: float = 0) -> tuple[list[float], di
     with FakeBrick() as brick, tempfile.TemporaryDirectory() as tmp:
         (gateway_ep, brain_ep), sockets = local_endpoints("gateway", "brain")
         with sockets:
-            gateway = service("spikinglab.ev3_gateway", "--listen", gateway_ep, "--cpu", 0, "--max-polls", max_polls)
-            brain = service("spikinglab.brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", hz,
-                            "--stats", Path(tmp) / "b.json", "--cpu", 1)
+            gateway = spawn("gateway", ["--listen", gateway_ep, "--cpu", 0, "--max-polls", max_polls], subprocess.DEVNULL)
+            brain = spawn("brain", ["--listen", brain_ep, "--connect", gateway_ep, "--clock", hz,
+                            "--stats", Path(tmp) / "b.json", "--cpu", 1], subprocess.DEVNULL)
             latencies = []
             try:
                 deadline = time.monotonic() + 60

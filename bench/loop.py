@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -22,9 +21,9 @@ import numpy as np
 
 from spikinglab.brain.circuit import load_circuit
 from spikinglab.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, SEMANTICS
+from spikinglab.launch import local_endpoints, spawn
 from spikinglab.loop import brain_for, closed_loop
 from spikinglab.options import Parser
-from spikinglab.run import local_endpoints
 from spikinglab.world.world import World
 
 
@@ -41,12 +40,11 @@ def over_the_bus(ticks: int, agents: int, semantics: str) -> float:
     """Ticks/s measured by the world process itself (from its first to its last tick)."""
     (world_ep, brain_ep), sockets = local_endpoints("world", "brain")
     with sockets, tempfile.TemporaryDirectory() as tmp:
-        run = [sys.executable, "-m"]
         pin = ([["--cpu", "0"], ["--cpu", "1"]] if agents < PARALLEL_FROM and os.cpu_count() >= 2 else [[], []])
-        world = subprocess.Popen(run + ["spikinglab.world", "--listen", world_ep, "--ticks", str(ticks), "--agents",
-                                        str(agents), "--out", tmp] + pin[0], stderr=subprocess.DEVNULL)
-        brain = subprocess.Popen(run + ["spikinglab.brain", "--listen", brain_ep, "--connect", world_ep, "--once",
-                                        "--semantics", semantics] + pin[1], stderr=subprocess.DEVNULL)
+        world = spawn("world", ["--listen", world_ep, "--ticks", ticks, "--agents", agents, "--out", tmp] + pin[0],
+                      subprocess.DEVNULL)
+        brain = spawn("brain", ["--listen", brain_ep, "--connect", world_ep, "--once", "--semantics", semantics]
+                      + pin[1], subprocess.DEVNULL)
         if world.wait(600) != 0 or brain.wait(60) != 0:
             raise SystemExit("the world or the brain failed")
         return json.loads((Path(tmp) / "metrics.json").read_text())["ticks_per_s"]

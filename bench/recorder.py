@@ -10,29 +10,26 @@ from __future__ import annotations
 import json
 import re
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
+from spikinglab.launch import local_endpoints, spawn
 from spikinglab.options import Parser
-from spikinglab.run import local_endpoints
 
 
 def one_run(ticks: int, record: bool, folder: Path) -> dict:
     (world_ep, brain_ep), sockets = local_endpoints("world", "brain")
-    py = [sys.executable, "-m"]
     state = ["--publish-state"] if record else []
     with sockets:
         recorder = None
         if record:
-            recorder = subprocess.Popen(py + ["spikinglab.recorder", "--connect", world_ep, "--connect", brain_ep,
-                                              "--out", str(folder / "recording.rrd")],
-                                        stderr=open(folder / "recorder.log", "w"))
-        world = subprocess.Popen(py + ["spikinglab.world", "--listen", world_ep, "--ticks", str(ticks), "--out",
-                                       str(folder), "--cpu", "0"] + state, stderr=subprocess.DEVNULL)
-        brain = subprocess.Popen(py + ["spikinglab.brain", "--listen", brain_ep, "--connect", world_ep, "--once",
-                                       "--cpu", "1"] + state, stderr=subprocess.DEVNULL)
+            recorder = spawn("record", ["--connect", world_ep, "--connect", brain_ep, "--out",
+                                        folder / "recording.rrd"], folder / "recorder.log")
+        world = spawn("world", ["--listen", world_ep, "--ticks", ticks, "--out", folder, "--cpu", 0] + state,
+                      subprocess.DEVNULL)
+        brain = spawn("brain", ["--listen", brain_ep, "--connect", world_ep, "--once", "--cpu", 1] + state,
+                      subprocess.DEVNULL)
         world.wait()
         world_done = time.monotonic()
         brain.wait(60)

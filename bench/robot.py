@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from spikinglab.launch import local_endpoints, spawn, stop
 from spikinglab.options import Parser
-from spikinglab.run import local_endpoints, service, stop
 
 CONDITIONS = {  # name -> brain options
     "learning, A = 0.08 (the paper's robot)": ["--a-plus", 0.08],
@@ -38,10 +38,10 @@ def one_run(brain_options: list, seed: int, seconds: float, gateway_options: lis
         (gateway_ep,), sockets = local_endpoints("gateway")
         with sockets:
             stats = Path(tmp) / "gateway.json"
-            gateway = service("ev3_gateway", ["--backend", "sim", "--sim-seed", seed, "--listen", gateway_ep,
+            gateway = spawn("gateway", ["--backend", "sim", "--sim-seed", seed, "--listen", gateway_ep,
                                               "--duration", seconds, "--stats", stats, *gateway_options],
                               Path(tmp) / "gateway.log")
-            brain = service("brain", ["--connect", gateway_ep, "--clock", 1000, "--seed", seed, *brain_options],
+            brain = spawn("brain", ["--connect", gateway_ep, "--clock", 1000, "--seed", seed, *brain_options],
                             Path(tmp) / "brain.log")
             try:
                 gateway.wait(seconds + 60)

@@ -7,6 +7,7 @@ import sys
 
 COMMANDS = {
     "run": ("spikinglab.run", "train the insect: world, brain and recorder as processes on the bus (the main job)"),
+    "launch": ("spikinglab.launch", "start the services a launch file names (simulation, robot, remote-...)"),
     "brain": ("spikinglab.brain.service", "the brain service on the bus"),
     "world": ("spikinglab.world.service", "the world service on the bus"),
     "gateway": ("spikinglab.ev3_gateway.service", "the robot side: a LEGO EV3 (or a simulated one) on the bus"),

@@ -7,15 +7,22 @@ import argparse
 import sys
 
 
+class UsageError(Exception):
+    """A usage error from a Parser with exit_on_error = False (a launch file's options)."""
+
+
 class Parser(argparse.ArgumentParser):
     """argparse, but a usage error is one line naming the option and what was wrong (exit 2), and
-    options are spelled out (no abbreviations: `--tick` is not silently `--ticks`)."""
+    options are spelled out (no abbreviations: `--tick` is not silently `--ticks`). With
+    exit_on_error = False, errors raise (argparse.ArgumentError or UsageError) instead."""
 
     def __init__(self, *args, **kwargs):
         kwargs.setdefault("allow_abbrev", False)
         super().__init__(*args, **kwargs)
 
     def error(self, message: str):
+        if not self.exit_on_error:
+            raise UsageError(message)
         print(f"{self.prog}: {message} (see {self.prog} --help)", file=sys.stderr)
         sys.exit(2)
 

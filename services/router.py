@@ -15,11 +15,15 @@ from spikinglab.options import Parser
 log = logging.getLogger("spikinglab.router")
 
 
-def main(argv=None) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s router %(levelname)s %(message)s", stream=sys.stderr)
+def parser() -> Parser:
     p = Parser(prog="spikinglab router", description=__doc__.splitlines()[0])
     add_bus_args(p)
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv=None) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s router %(levelname)s %(message)s", stream=sys.stderr)
+    args = parser().parse_args(argv)
     if not args.listen:
         args.listen = ["tcp/0.0.0.0:7447"]
     session = open_session(args, mode="router")

@@ -15,9 +15,7 @@ import json
 import logging
 import os
 import signal
-import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -29,6 +27,7 @@ from spikinglab.brain.circuit import CircuitError, load_circuit
 from spikinglab.brain.engine import PARALLEL_FROM
 from spikinglab.brain.service import add_engine_args
 from spikinglab.cli import version
+from spikinglab.launch import Launcher, Process, local_endpoints, options_for
 from spikinglab.learning import PAPER
 from spikinglab.options import Parser, agent_list, positive
 from spikinglab.world.service import add_world_args, world_from_args
@@ -56,35 +55,6 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
-def local_endpoints(*names: str) -> tuple[list[str], tempfile.TemporaryDirectory]:
-    """Unix-socket endpoints for processes on this machine (5-10 % faster lock-step than TCP
-    loopback); the socket files live in a short temporary folder (paths are limited to 108 bytes)."""
-    folder = tempfile.TemporaryDirectory(prefix="spikinglab-")
-    return [f"unixsock-stream/{folder.name}/{n}.sock" for n in names], folder
-
-
-def service(name: str, args: list, log_file: Path | None) -> subprocess.Popen:
-    """A service as a child process in a session of its own: Ctrl-C in the terminal reaches only
-    the run, which ends the children in order (the world first, so that it writes the ticks done)."""
-    out = open(log_file, "w") if log_file else None
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    return subprocess.Popen([sys.executable, "-m", f"spikinglab.{name}", *map(str, args)], stdout=out,
-                            stderr=subprocess.STDOUT if out else None, env=env, start_new_session=True)
-
-
-def stop(process: subprocess.Popen) -> None:
-    if process.poll() is None:
-        process.terminate()
-        try:
-            process.wait(5)
-        except subprocess.TimeoutExpired:
-            process.kill()
-
-
-def tail(path: Path, lines: int = 15) -> str:
-    return "\n".join(path.read_text(errors="replace").splitlines()[-lines:]) if path.exists() else ""
-
-
 def main(argv=None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
     p = parser()
@@ -108,61 +78,43 @@ def main(argv=None) -> int:
     folder.mkdir(parents=True, exist_ok=True)
     (world_ep, brain_ep), sockets = local_endpoints("world", "brain")
 
-    world_args = ["--listen", world_ep, "--ticks", args.ticks, "--seed", args.seed, "--agents", args.agents,
-                  "--preset", args.preset, "--learned-after", args.learned_after, "--out", folder]
-    world_args += ["--map", args.map] if args.map else []
-    world_args += ["--shared"] if args.shared else []
-    world_args += ["--no-training"] if args.no_training else []
-    world_args += [] if args.quiet else ["--progress"]
-    brain_args = ["--listen", brain_ep, "--connect", world_ep, "--circuit", args.circuit, "--once",
-                  "--save", folder / "weights.npz", "--semantics", args.semantics,
-                  "--order", args.order]
-    brain_args += ["--a-plus", args.a_plus] if args.a_plus is not None else []
-    brain_args += ["--no-training"] if args.no_training else []
-    brain_args += ["--load", args.load] if args.load else []
+    world = Process("world", "world", options_for("world", args), log=folder / "world.log" if args.quiet else None,
+                    raw=True)
+    world.options.update(listen=world_ep, out=folder, progress=not args.quiet, publish_state=not args.no_record)
+    brain = Process("brain", "brain", options_for("brain", args), log=folder / "brain.log")
+    brain.options.update(listen=brain_ep, connect=world_ep, once=True, save=folder / "weights.npz",
+                         publish_state=not args.no_record)  # they wait for the recorder to listen
+    recorder = Process("recorder", "record", {"connect": [world_ep, brain_ep], "out": folder / "recording.rrd",
+                                              "detail": ",".join(map(str, args.detail))}, log=folder / "recorder.log")
     if args.agents < PARALLEL_FROM and len(os.sched_getaffinity(0)) >= 2:
         # lock-step latency: world and brain on a core each (a population keeps the brain's threads)
-        first, second = sorted(os.sched_getaffinity(0))[:2]
-        world_args += ["--cpu", first]
-        brain_args += ["--cpu", second]
-
-    recorder = None
-    if not args.no_record:  # world and brain publish their state; they wait for the recorder to listen
-        world_args.append("--publish-state")
-        brain_args.append("--publish-state")
+        world.options["cpu"], brain.options["cpu"] = sorted(os.sched_getaffinity(0))[:2]
     log.info("run %s: %d ticks, seed %d, %d agent(s), A+ = A- = %s, world %s%s, %s semantics", run_id, args.ticks,
              args.seed, args.agents, learning_rate(circuit), args.preset, f", map {args.map}" if args.map else "",
              args.semantics)
     started = time.time()
-    if not args.no_record:
-        recorder = service("recorder", ["--connect", world_ep, "--connect", brain_ep, "--out",
-                                        folder / "recording.rrd", "--detail", ",".join(map(str, args.detail))], folder / "recorder.log")
-    world = service("world", world_args, folder / "world.log" if args.quiet else None)
-    brain = service("brain", brain_args, folder / "brain.log")
-    children = {"world": world, "brain": brain, **({"recorder": recorder} if recorder else {})}
+    launcher = Launcher()
     signal.signal(signal.SIGTERM, signal.default_int_handler)  # SIGTERM ends the run as Ctrl-C does
     interrupted = False
     try:
         try:
-            dead = watch(children, folder)
+            for process in ([] if args.no_record else [recorder]) + [world, brain]:
+                launcher.start(process)
+            dead = launcher.watch(until="world")
         except KeyboardInterrupt:
             interrupted, dead = True, None
             log.warning("\ninterrupted: ending the run at the ticks done (Ctrl-C again to stop at once)")
-            world.terminate()  # as Ctrl-C: the world writes what it has and tells the brain to save
-            world.wait(30)
+            launcher.stop("world")  # as Ctrl-C: the world writes what it has and tells the brain to save
         if dead is not None:
             failed(folder, dead)
             return 1
-        brain.wait(60)
-        if recorder is not None:
-            recorder.wait(120)
+        launcher.finish()  # the brain saves, the recorder writes the rest
     except KeyboardInterrupt:
         log.error("stopped at once: no result written")
         failed(folder, "interrupted twice")
         return 130
     finally:
-        for process in children.values():
-            stop(process)
+        launcher.stop_all()
         sockets.cleanup()
     if not (folder / "metrics.json").exists() or not (folder / "weights.npz").exists():
         failed(folder, "interrupted before the first tick" if interrupted else "the world or the brain wrote no result")
@@ -172,24 +124,6 @@ def main(argv=None) -> int:
     plot_trajectory(folder, summary)
     report(folder, summary)
     return 130 if interrupted else 0
-
-
-def watch(children: dict[str, subprocess.Popen], folder: Path) -> str | None:
-    """Until the world ends: a child that stops early is noticed within 0.1 s; its name, with its
-    last log lines, is returned (the others are stopped by the caller)."""
-    world = children["world"]
-    while world.poll() is None:
-        for name, process in children.items():
-            if name != "world" and process.poll() is not None:
-                log.error("the %s stopped (exit %s) before the run ended; stopping the others. Its last lines:\n%s",
-                          name, process.returncode, tail(folder / f"{name}.log"))
-                return f"the {name} stopped (exit {process.returncode})"
-        time.sleep(0.1)
-    if world.returncode != 0:
-        log.error("the world stopped (exit %s) before the run ended; stopping the others. Its last lines:\n%s",
-                  world.returncode, tail(folder / "world.log") or "(above)")
-        return f"the world stopped (exit {world.returncode})"
-    return None
 
 
 def failed(folder: Path, why: str) -> None:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 import socket
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -13,6 +12,7 @@ import zenoh
 
 from spikinglab.bus.schemas import BusError, decode
 from spikinglab.bus.session import make_config
+from spikinglab.launch import spawn
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -28,11 +28,9 @@ def endpoint(port: int) -> str:
 
 
 def start(service: str, *args, log: Path | None = None) -> subprocess.Popen:
-    """`python -m spikinglab.<service> args...`, its output into `log` (read it when a test fails)."""
-    out = open(log, "w") if log else subprocess.DEVNULL
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    return subprocess.Popen([sys.executable, "-m", f"spikinglab.{service}", *map(str, args)], cwd=ROOT,
-                            stdout=out, stderr=subprocess.STDOUT, env=env)
+    """A service (launch.SERVICES: world, brain, record, gateway, ...) with `args`, its output into
+    `log` (read it when a test fails)."""
+    return spawn(service, list(args), log or subprocess.DEVNULL, cwd=ROOT)
 
 
 def finish(process: subprocess.Popen, timeout: float, log: Path | None = None) -> int:

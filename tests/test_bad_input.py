@@ -13,7 +13,7 @@ from spikinglab.brain.checkpoint import save_weights
 from spikinglab.brain.circuit import load_circuit
 from spikinglab.brain.engine import Engine
 
-from .processes import free_port, running_with
+from .processes import free_port, running_with, start
 
 
 @pytest.fixture(scope="module")
@@ -26,6 +26,10 @@ def files(tmp_path_factory):
     np.savez(folder / "foreign.npz", x=np.arange(3))
     (folder / "nostart.txt").write_text("#####\n#...#\n#####\n")
     (folder / "not.rrd").write_text("not a recording\n")
+    (folder / "typo.toml").write_text('[world]\ntick = 2000\n')
+    (folder / "badvalue.toml").write_text('[world]\nticks = 0\n')
+    (folder / "noservice.toml").write_text('[mind]\nonce = true\n')
+    (folder / "broken.toml").write_text('[world\nticks = 2000\n')
     (folder / "bad.toml").write_text('[neurons]\nA = "regular"\n[[synapses]]\nfrom = "A"\nto = "B"\nweight = 5\n'
                                      'delay = 1\n')
     return folder
@@ -67,6 +71,12 @@ CASES = [  # id, arguments ({f}: the input files, {busy}: a port in use), exit c
     ("endpoint without port", "world --listen tcp/127.0.0.1", 2, "a tcp endpoint needs host:port"),
     ("port in use", "brain --listen tcp/127.0.0.1:{busy}", 1, "Address already in use"),
     ("unknown command", "fly", 2, "unknown command 'fly'"),
+    ("launch file missing", "launch {f}/none.toml", 2, "no launch file"),
+    ("launch file not TOML", "launch {f}/broken.toml", 2, "broken.toml is not valid TOML"),
+    ("launch file misspelt option", "launch {f}/typo.toml", 2, "typo.toml, [world]: unrecognized arguments: --tick"),
+    ("launch file bad value", "launch {f}/badvalue.toml", 2,
+     "badvalue.toml, [world]: argument --ticks: must be at least 1, got 0"),
+    ("launch file unknown service", "launch {f}/noservice.toml", 2, "noservice.toml, [mind]: unknown service 'mind'"),
 ]
 
 
@@ -89,8 +99,7 @@ def test_bad_input(case, command, code, says, files, busy_port, tmp_path):
 
 def test_connecting_where_nothing_answers_is_reported_within_10_s(tmp_path):
     log = tmp_path / "brain.log"
-    brain = subprocess.Popen([sys.executable, "-m", "spikinglab.brain", "--connect", f"tcp/127.0.0.1:{CLOSED}",
-                              "--group", tmp_path.name], stderr=open(log, "w"))
+    brain = start("brain", "--connect", f"tcp/127.0.0.1:{CLOSED}", "--group", tmp_path.name, log=log)
     try:
         started, said = time.monotonic(), ""
         while "nothing answers" not in said and time.monotonic() - started < 15:

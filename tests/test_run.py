@@ -113,6 +113,6 @@ def test_a_dead_service_ends_the_run_and_is_named(tmp_path):
     _, err = run.communicate(timeout=60)
     assert time.monotonic() - killed < 10
     assert run.returncode == 1
-    assert "the brain stopped (exit -9) before the run ended" in err and "Traceback" not in err
+    assert "the brain stopped (exit -9) before the world ended" in err and "Traceback" not in err
     assert (tmp_path / "r" / "FAILED.txt").exists() and not (tmp_path / "r" / "summary.json").exists()
     assert not running_with(str(tmp_path))

@@ -263,17 +263,32 @@ class FakeBrick:
         return i
 
 
-def main() -> None:  # a fake brick to try the gateway by hand: python -m spikinglab.ev3_gateway.fake_brick
+def parser():
+    from spikinglab.options import Parser
+
+    p = Parser(prog="python -m spikinglab.ev3_gateway.fake_brick",
+               description="A fake EV3 brick on loopback for the gateway (--backend ev3) to find and drive.")
+    p.add_argument("--colour", type=int, default=6, help="the colour sensor's reading (default 6: white)")
+    p.add_argument("--distance-cm", type=float, default=100.0, help="the ultrasonic sensor's reading (default 100)")
+    p.add_argument("--report-every", type=float, default=10.0, help="seconds between status lines (default 10)")
+    return p
+
+
+def main(argv=None) -> int:  # to try the gateway by hand, or in a launch file (service = "fake-brick")
     logging.basicConfig(level=logging.INFO)
-    brick = FakeBrick().start()
-    print(f"fake EV3 on 127.0.0.1:{brick.port}, beaconing to UDP {BEACON_PORT}; Ctrl-C to stop")
+    args = parser().parse_args(argv)
+    brick = FakeBrick(colour=args.colour, distance_cm=args.distance_cm).start()
+    print(f"fake EV3 on 127.0.0.1:{brick.port}, beaconing to UDP {BEACON_PORT}; Ctrl-C to stop", flush=True)
     try:
         while True:
-            time.sleep(1)
-            print(f"reads {brick.reads}, motor commands {len(brick.commands)}, connected {brick.connected}")
+            time.sleep(args.report_every)
+            print(f"reads {brick.reads}, motor commands {len(brick.commands)}, connected {brick.connected}", flush=True)
     except KeyboardInterrupt:
         brick.stop()
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    sys.exit(main())

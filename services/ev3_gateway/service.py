@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from spikinglab.bus import keys
-from spikinglab.bus.schemas import INSECT_SENSORS, Array, Motor, Sensors
+from spikinglab.bus.schemas import INSECT_SENSORS, Array, Control, Motor, Sensors
 from spikinglab.bus.session import Bus, add_bus_args, open_session
 from spikinglab.options import Parser
 
@@ -249,6 +249,7 @@ def main(argv=None) -> int:
     session = open_session(args)
     bus = Bus(session, args.group, "gateway")
     gateway = Gateway(backend, bus, args)
+    control = bus.outbox(keys.control(args.group))
     # Ctrl-C and SIGTERM end the loops between two robot calls: an exception raised inside ev3-dc
     # would leave its lock taken, and the final stop command would wait for it forever
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -258,6 +259,7 @@ def main(argv=None) -> int:
     try:
         gateway.run()
     finally:
+        control.put(Control(tick=gateway.stats["polls"], command="end"))  # the brain saves, the recorder ends
         backend.close()
         bus.close()
         log.info("gateway done: %s", {k: len(v) if k == "collisions" else v for k, v in gateway.stats.items()})

@@ -13,9 +13,9 @@ from ..recorder.test_recorder import read
 def test_robot_chain_senses_moves_survives_a_lost_link_and_stops_without_a_brain(tmp_path):
     gateway_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
     with FakeBrick() as brick:
-        recorder = start("recorder", "--connect", gateway_ep, "--connect", brain_ep, "--out", tmp_path / "robot.rrd",
+        recorder = start("record", "--connect", gateway_ep, "--connect", brain_ep, "--out", tmp_path / "robot.rrd",
                          log=tmp_path / "recorder.log")
-        gateway = start("ev3_gateway", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json",
+        gateway = start("gateway", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json",
                         log=tmp_path / "gateway.log")
         brain = start("brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", 1000, "--publish-state",
                       "--stats", tmp_path / "brain.json", log=tmp_path / "brain.log")
@@ -65,7 +65,7 @@ def test_robot_chain_senses_moves_survives_a_lost_link_and_stops_without_a_brain
 
 def test_the_brain_drives_a_simulated_ev3(tmp_path):
     gateway_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
-    gateway = start("ev3_gateway", "--backend", "sim", "--listen", gateway_ep, "--duration", 4, "--stats",
+    gateway = start("gateway", "--backend", "sim", "--listen", gateway_ep, "--duration", 4, "--stats",
                     tmp_path / "gateway.json", log=tmp_path / "gateway.log")
     brain = start("brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", 1000, log=tmp_path / "brain.log")
     try:
@@ -78,9 +78,9 @@ def test_the_brain_drives_a_simulated_ev3(tmp_path):
 
 
 def test_wrong_wiring_is_refused_before_anything_starts(tmp_path):
-    bad = start("ev3_gateway", "--motors", "BX", log=tmp_path / "bad.log")
+    bad = start("gateway", "--motors", "BX", log=tmp_path / "bad.log")
     assert finish(bad, 30, tmp_path / "bad.log") == 2
     assert "--motors must name two different motor ports of A, B, C, D, got 'BX'" in (tmp_path / "bad.log").read_text()
-    bad = start("ev3_gateway", "--touch-port", 3, "--colour-port", 3, log=tmp_path / "bad2.log")
+    bad = start("gateway", "--touch-port", 3, "--colour-port", 3, log=tmp_path / "bad2.log")
     assert finish(bad, 30, tmp_path / "bad2.log") == 2
     assert "three different ports" in (tmp_path / "bad2.log").read_text()

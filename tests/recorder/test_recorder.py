@@ -128,7 +128,7 @@ def test_a_killed_recorder_leaves_a_readable_file(tmp_path):
     from ..processes import endpoint, free_port
 
     world_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
-    recorder = start("recorder", "--connect", world_ep, "--connect", brain_ep, "--out", tmp_path / "rec.rrd",
+    recorder = start("record", "--connect", world_ep, "--connect", brain_ep, "--out", tmp_path / "rec.rrd",
                      "--flush-every", 500, log=tmp_path / "recorder.log")
     world = start("world", "--listen", world_ep, "--ticks", 20000, "--publish-state", log=tmp_path / "world.log")
     brain = start("brain", "--listen", brain_ep, "--connect", world_ep, "--once", "--publish-state",
@@ -160,7 +160,7 @@ def test_a_late_recorder_says_from_which_tick_it_has_data(tmp_path):
     try:
         wait_for(lambda: len(ticks_in(early.messages[keys.world_state("insect")])) > 1500, 60,
                  "the run to get going")
-        recorder = start("recorder", "--connect", world_ep, "--connect", brain_ep, "--out", tmp_path / "late.rrd",
+        recorder = start("record", "--connect", world_ep, "--connect", brain_ep, "--out", tmp_path / "late.rrd",
                          log=tmp_path / "recorder.log")
         assert finish(world, 120, tmp_path / "world.log") == 0
         assert finish(recorder, 60, tmp_path / "recorder.log") == 0

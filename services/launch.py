@@ -1,0 +1,347 @@
+"""`spikinglab launch FILE`: start the services a launch file names, show their logs, end them together.
+
+This module is the one way to start a service process in the code base: `run`, `launch`, the
+benchmarks and the tests all call `spawn()` or a `Launcher`. A launch file (TOML, docs/launch.md)
+has one table per process, started in file order; its keys are the service's own options (the
+same names as on its command line, checked by the service's own parser before anything starts):
+
+    [launch]
+    until = "world"            # the launch ends when this process ends (default: when all have)
+
+    [world]                    # a process named "world"; `service` defaults to the table's name
+    listen = ["tcp/127.0.0.1:7447"]
+    ticks = 20000
+
+    [brain]
+    connect = ["tcp/127.0.0.1:7447"]
+    once = true
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import importlib
+import itertools
+import logging
+import os
+import re
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+from spikinglab.options import Parser, UsageError
+
+log = logging.getLogger("spikinglab.launch")
+SERVICES = {  # a launch file's `service` -> the module run as `python -m` (it has parser() and main())
+    "world": "spikinglab.world.service",
+    "brain": "spikinglab.brain.service",
+    "record": "spikinglab.recorder.service",
+    "gateway": "spikinglab.ev3_gateway.service",
+    "router": "spikinglab.router",
+    "fake-brick": "spikinglab.ev3_gateway.fake_brick",
+}
+COLOURS = (36, 33, 35, 32, 34, 31)  # ANSI: cyan, yellow, magenta, green, blue, red
+ENDLESS = ("router", "fake-brick")  # serve the others and never end by themselves: stopped once they have
+PROGRESS_S = 5.0  # a progress bar's state is shown this often (it redraws itself many times a second)
+FINISH_S = 120.0  # after the `until` process ended: how long the others may take to end by themselves
+STOP_S = 30.0  # after SIGTERM: how long a service may take to write what it has (the world's metrics)
+
+
+class LaunchError(Exception):
+    """A launch file or process that cannot be started: the message names the file, table and key."""
+
+
+@dataclass
+class Process:
+    """One service process: `options` are its command-line options by name (`ticks`, `connect`,
+    ...; True is a flag, a list repeats the option), `log` a file for its output (None: its lines
+    on the terminal, prefixed with its name), `raw` its output on the terminal as it is (a
+    progress bar)."""
+
+    name: str
+    service: str
+    options: dict = field(default_factory=dict)
+    log: Path | None = None
+    raw: bool = False
+
+    def argv(self) -> list[str]:
+        out = []
+        for key, value in self.options.items():
+            flag = "--" + key.replace("_", "-")
+            if value is True:
+                out.append(flag)
+            elif isinstance(value, (list, tuple)):
+                for item in value:
+                    out += [flag, str(item)]
+            elif value is not False and value is not None:
+                out += [flag, str(value)]
+        return out
+
+    def check(self, where: str = "") -> argparse.Namespace:
+        """The options as the service's own parser reads them; LaunchError names what is wrong."""
+        where = where or self.name
+        if self.service not in SERVICES:
+            raise LaunchError(f"{where}: unknown service {self.service!r} (one of {', '.join(SERVICES)})")
+        parser = importlib.import_module(SERVICES[self.service]).parser()
+        parser.exit_on_error = False  # raise, so that the error can name the launch file
+        try:
+            return parser.parse_args(self.argv())
+        except (argparse.ArgumentError, UsageError) as e:
+            raise LaunchError(f"{where}: {e}") from None
+
+
+def local_endpoints(*names: str) -> tuple[list[str], tempfile.TemporaryDirectory]:
+    """Unix-socket endpoints for processes on this machine (5-10 % faster lock-step than TCP
+    loopback); the socket files live in a short temporary folder (paths are limited to 108 bytes)."""
+    folder = tempfile.TemporaryDirectory(prefix="spikinglab-")
+    return [f"unixsock-stream/{folder.name}/{n}.sock" for n in names], folder
+
+
+def options_for(service: str, args: argparse.Namespace) -> dict:
+    """The options in `args` (another command's, e.g. run's) that `service` has too, by name: run
+    declares them with the service's own add_*_args, so the name means the same in both."""
+    own = {action.dest for action in importlib.import_module(SERVICES[service]).parser()._actions} - {"help"}
+    return {name: value for name, value in vars(args).items() if name in own}
+
+
+def spawn(service: str, argv: list, output: Path | int | None = None, cwd: Path | None = None) -> subprocess.Popen:
+    """`python -m <service's module> argv` in a session of its own: Ctrl-C in the terminal reaches
+    only the launcher, which ends the services in order (the world first, so that it writes the
+    ticks done). Output (stdout and stderr) goes to the file `output`, to the terminal as it is
+    (None), or to subprocess.PIPE / DEVNULL."""
+    out = open(output, "a") if isinstance(output, Path) else output
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    try:
+        return subprocess.Popen([sys.executable, "-m", SERVICES.get(service, service), *map(str, argv)], stdout=out,
+                                stderr=None if out is None else subprocess.STDOUT, env=env, cwd=cwd,
+                                start_new_session=True)
+    finally:
+        if isinstance(output, Path):
+            out.close()  # the child has its own copy
+
+
+def stop(popen: subprocess.Popen, timeout: float = STOP_S) -> None:
+    """SIGTERM (a service writes what it has, as on Ctrl-C), then SIGKILL after `timeout`."""
+    if popen.poll() is None:
+        popen.terminate()
+        try:
+            popen.wait(timeout)
+        except subprocess.TimeoutExpired:
+            popen.kill()
+            popen.wait()
+
+
+class Child:
+    def __init__(self, process: Process, popen: subprocess.Popen, colour: int | None, logs: Path | None):
+        self.process, self.popen = process, popen
+        self.last_lines: collections.deque[str] = collections.deque(maxlen=15)
+        self.reader = None
+        if popen.stdout is not None:
+            prefix = f"{process.name:>8} | "
+            if colour is not None:
+                prefix = f"\033[{colour}m{prefix}\033[0m"
+            copy = open(logs / f"{process.name}.log", "w") if logs else None
+            self.reader = threading.Thread(target=self._show, args=(prefix, copy), daemon=True)
+            self.reader.start()
+
+    def _show(self, prefix: str, copy) -> None:
+        """Each line, prefixed; a progress bar (lines ended by \r) every PROGRESS_S at most."""
+        shown_at, pending = 0.0, b""
+        for chunk in iter(lambda: self.popen.stdout.read1(65536), b""):
+            pending += chunk
+            *pieces, pending = re.split(rb"(\r\n|\n|\r)", pending)
+            for text, end in zip(pieces[::2], pieces[1::2]):
+                line = text.decode(errors="replace")
+                if end == b"\r" and time.monotonic() - shown_at < PROGRESS_S or not line.strip():
+                    continue
+                shown_at = time.monotonic() if end == b"\r" else shown_at
+                self.last_lines.append(line)
+                sys.stdout.write(prefix + line + "\n")
+                sys.stdout.flush()
+                if copy:
+                    copy.write(line + "\n")
+                    copy.flush()
+        if copy:
+            copy.close()
+
+    def tail(self) -> str:
+        if self.reader is not None:
+            self.reader.join(1)
+            return "\n".join(self.last_lines)
+        path = self.process.log
+        if path is None or not path.exists():
+            return "(above)"
+        return "\n".join(path.read_text(errors="replace").splitlines()[-15:])
+
+
+class Launcher:
+    """Service processes started together, watched, and ended together."""
+
+    def __init__(self, logs: Path | None = None, colour: bool | None = None):
+        self.children: dict[str, Child] = {}
+        self.logs = logs
+        if colour is None:
+            colour = sys.stdout.isatty() and "NO_COLOR" not in os.environ
+        self._colours = itertools.cycle(COLOURS) if colour else itertools.repeat(None)
+
+    def start(self, process: Process) -> subprocess.Popen:
+        if process.name in self.children:
+            raise LaunchError(f"two processes named {process.name!r}")
+        output = process.log or (None if process.raw else subprocess.PIPE)
+        popen = spawn(process.service, process.argv(), output)
+        self.children[process.name] = Child(process, popen, next(self._colours), self.logs)
+        return popen
+
+    def watch(self, until: str | None = None, poll_s: float = 0.1) -> str | None:
+        """Until `until` has ended (None: every process): a process that ends first, or fails, is
+        noticed within `poll_s`; then a line saying which, and its last lines, are logged and returned."""
+        while True:
+            for name, child in self.children.items():
+                code = child.popen.poll()
+                if code is None:
+                    continue
+                if code != 0 or (until is not None and name != until and self.running(until)):
+                    why = f"the {name} stopped (exit {code})" + (f" before the {until} ended" if name != until and
+                                                                 until else "")
+                    log.error("%s; stopping the others. Its last lines:\n%s", why, child.tail())
+                    return why
+            if until is not None and not self.running(until) or until is None and not any(
+                    self.running(n) for n in self.children):
+                return None
+            time.sleep(poll_s)
+
+    def running(self, name: str) -> bool:
+        return self.children[name].popen.poll() is None
+
+    def finish(self, timeout: float = FINISH_S) -> None:
+        """Let every process end by itself (a brain saving, a recorder writing) within `timeout`;
+        then stop the rest (a router, a fake brick)."""
+        deadline = time.monotonic() + timeout
+        for child in self.children.values():
+            if child.process.service in ENDLESS:
+                continue
+            try:
+                child.popen.wait(max(deadline - time.monotonic(), 0.1))
+            except subprocess.TimeoutExpired:
+                log.warning("the %s did not end within %.0f s; stopping it", child.process.name, timeout)
+
+    def stop(self, name: str, timeout: float = STOP_S) -> None:
+        stop(self.children[name].popen, timeout)
+
+    def stop_all(self, timeout: float = 5.0) -> None:
+        for name in self.children:
+            self.stop(name, timeout)
+        for child in self.children.values():
+            if child.popen.stdout is not None and child.reader is not None:
+                child.reader.join(1)
+
+
+def read_launch_file(path: Path) -> tuple[list[Process], str | None]:
+    """The processes of a launch file, each checked by its service's parser, and its `until`."""
+    try:
+        data = tomllib.loads(path.read_text())
+    except OSError as e:
+        raise LaunchError(f"cannot read launch file {path}: {e.strerror}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise LaunchError(f"{path} is not valid TOML: {e}") from None
+    settings = data.pop("launch", {})
+    unknown = sorted(set(settings) - {"until"})
+    if unknown:
+        raise LaunchError(f"{path}, [launch]: unknown key(s) {', '.join(unknown)} (known: until)")
+    processes = []
+    for name, table in data.items():
+        if not isinstance(table, dict):
+            raise LaunchError(f"{path}: {name!r} should be a table [{name}] of a process's options")
+        options = dict(table)
+        process = Process(name, str(options.pop("service", name)), options)
+        process.check(f"{path}, [{name}]")
+        processes.append(process)
+    if not processes:
+        raise LaunchError(f"{path} names no process: add a table such as [world]")
+    until = settings.get("until")
+    if until is not None and until not in data:
+        raise LaunchError(f"{path}, [launch]: until = {until!r} is not one of its processes ({', '.join(data)})")
+    return processes, until
+
+
+def shipped() -> dict[str, Path]:
+    """The launch files shipped with spikinglab, by name."""
+    folder = Path(str(resources.files("spikinglab.launch_files")))
+    return {path.stem: path for path in sorted(folder.glob("*.toml"))}
+
+
+def launch_file(text: str) -> Path:
+    """A launch file's path, or the name of a shipped one (simulation, robot, ...)."""
+    path = Path(text)
+    if path.suffix == "" and not path.exists() and text in shipped():
+        return shipped()[text]
+    if not path.is_file():
+        raise argparse.ArgumentTypeError(f"no launch file {text!r} (a .toml path, or one of the shipped: "
+                                         f"{', '.join(shipped())})")
+    return path
+
+
+def parser() -> argparse.ArgumentParser:
+    p = Parser(prog="spikinglab launch", description="Start the services a launch file names, show their logs, "
+                                                     "end them together (docs/launch.md).")
+    p.add_argument("file", type=launch_file, nargs="?",
+                   help=f"a launch file (.toml), or a shipped one: {', '.join(shipped())}")
+    p.add_argument("--list", action="store_true", help="name the shipped launch files and where they are")
+    p.add_argument("--logs", type=Path, help="also write each process's output to LOGS/<name>.log")
+    p.add_argument("--no-colour", action="store_true", help="no colours in the prefixes")
+    return p
+
+
+def main(argv=None) -> int:
+    logging.basicConfig(level=logging.INFO, format="launch: %(message)s", stream=sys.stderr)
+    p = parser()
+    args = p.parse_args(argv)
+    if args.list:
+        for name, path in shipped().items():
+            print(f"{name:14s} {path}")
+        return 0
+    if args.file is None:
+        p.error("which launch file? a .toml path, or one of the shipped: " + ", ".join(shipped()))
+    try:
+        processes, until = read_launch_file(args.file)
+    except LaunchError as e:
+        log.error("%s", e)
+        return 2
+    if args.logs:
+        args.logs.mkdir(parents=True, exist_ok=True)
+    launcher = Launcher(logs=args.logs, colour=False if args.no_colour else None)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # SIGTERM ends the launch as Ctrl-C does
+    try:
+        try:
+            for process in processes:
+                launcher.start(process)
+            log.info("started %s%s", ", ".join(p.name for p in processes),
+                     f"; until the {until} ends" if until else "; Ctrl-C ends them")
+            failure = launcher.watch(until)
+            if failure is None:
+                launcher.finish()
+        except KeyboardInterrupt:
+            log.warning("interrupted: ending %s in order", ", ".join(launcher.children))
+            for name in launcher.children:  # in start order: the world first writes what it has
+                launcher.stop(name)
+            return 130
+    except KeyboardInterrupt:
+        return 130
+    finally:
+        launcher.stop_all()
+    if failure:
+        return 1
+    log.info("all ended")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
