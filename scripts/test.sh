@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
-# Set up and run the whole test suite on a fresh machine: the system packages the headless-viewer
-# screenshot test needs (Mesa's software Vulkan driver), a virtual environment, then pytest.
+# Set up and run the whole test suite on a fresh machine: the system packages the viewer tests need
+# (Mesa's software Vulkan driver for headless screenshots, Chromium for the web viewer), a virtual
+# environment, then pytest.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if command -v apt-get >/dev/null && command -v dpkg >/dev/null; then
     missing=()
-    for package in libvulkan1 mesa-vulkan-drivers; do
+    for package in libvulkan1 mesa-vulkan-drivers chromium; do
         dpkg -s "$package" >/dev/null 2>&1 || missing+=("$package")
     done
     if [ ${#missing[@]} -gt 0 ]; then

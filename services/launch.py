@@ -50,6 +50,7 @@ SERVICES = {  # a launch file's `service` -> the module run as `python -m` (it h
 }
 COLOURS = (36, 33, 35, 32, 34, 31)  # ANSI: cyan, yellow, magenta, green, blue, red
 ENDLESS = ("router", "fake-brick")  # serve the others and never end by themselves: stopped once they have
+ENDING_S = 5.0  # a process that ends before `until` is an error only if `until` has not ended this much later
 PROGRESS_S = 5.0  # a progress bar's state is shown this often (it redraws itself many times a second)
 FINISH_S = 120.0  # after the `until` process ended: how long the others may take to end by themselves
 STOP_S = 30.0  # after SIGTERM: how long a service may take to write what it has (the world's metrics)
@@ -201,16 +202,19 @@ class Launcher:
         return popen
 
     def watch(self, until: str | None = None, poll_s: float = 0.1) -> str | None:
-        """Until `until` has ended (None: every process): a process that ends first, or fails, is
-        noticed within `poll_s`; then a line saying which, and its last lines, are logged and returned."""
+        """Until `until` has ended (None: every process): a process that fails, or ends while
+        `until` goes on (for longer than ENDING_S: `until` may be ending too), is noticed within
+        `poll_s`; then a line saying which, and its last lines, are logged and returned."""
+        ended_at: dict[str, float] = {}
         while True:
             for name, child in self.children.items():
                 code = child.popen.poll()
                 if code is None:
                     continue
-                if code != 0 or (until is not None and name != until and self.running(until)):
-                    why = f"the {name} stopped (exit {code})" + (f" before the {until} ended" if name != until and
-                                                                 until else "")
+                ended_at.setdefault(name, time.monotonic())
+                early = until is not None and name != until and self.running(until)
+                if code != 0 or early and time.monotonic() - ended_at[name] > ENDING_S:
+                    why = f"the {name} stopped (exit {code})" + (f" before the {until} ended" if early else "")
                     log.error("%s; stopping the others. Its last lines:\n%s", why, child.tail())
                     return why
             if until is not None and not self.running(until) or until is None and not any(

@@ -15,6 +15,8 @@ import json
 import logging
 import os
 import signal
+import socket
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -30,6 +32,8 @@ from spikinglab.cli import version
 from spikinglab.launch import Launcher, Process, local_endpoints, options_for
 from spikinglab.learning import PAPER
 from spikinglab.options import Parser, agent_list, positive
+from spikinglab.recorder.screenshot import viewer_command
+from spikinglab.recorder.service import web_viewer_url
 from spikinglab.world.service import add_world_args, world_from_args
 from spikinglab.world.world import BIN, SENSORS, MapError
 
@@ -50,6 +54,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--id", help="name of the run folder (default: date, time and seed)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-record", action="store_true", help="no Rerun recording (recording.rrd)")
+    p.add_argument("--view", action="store_true",
+                   help="watch the run live: the Rerun viewer when there is a display, else the Rerun web viewer "
+                        "(its address is printed: open it in a browser)")
     p.add_argument("--detail", default="0", type=agent_list,
                    help="agents recorded in detail, e.g. 0,3: raster, potentials, ... (default 0)")
     return p
@@ -61,6 +68,8 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.ticks < BIN:
         p.error(f"argument --ticks: must be at least one bin of collisions ({BIN:,} ticks), got {args.ticks:,}")
+    if args.view and args.no_record:
+        p.error("argument --view: the live view comes from the recorder, which --no-record leaves out")
     # check everything a user can get wrong before starting any process
     try:
         circuit = load_circuit(args.circuit)
@@ -86,6 +95,11 @@ def main(argv=None) -> int:
                          publish_state=not args.no_record)  # they wait for the recorder to listen
     recorder = Process("recorder", "record", {"connect": [world_ep, brain_ep], "out": folder / "recording.rrd",
                                               "detail": ",".join(map(str, args.detail))}, log=folder / "recorder.log")
+    native = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) and viewer_command() is not None
+    if args.view:  # the recorder serves the run; a viewer window, or a web viewer, shows it
+        recorder.options.update(serve=True, grpc_port=free_port(9876), web=not native)
+        if not native:
+            recorder.options["web_port"] = free_port(9090)
     if args.agents < PARALLEL_FROM and len(os.sched_getaffinity(0)) >= 2:
         # lock-step latency: world and brain on a core each (a population keeps the brain's threads)
         world.options["cpu"], brain.options["cpu"] = sorted(os.sched_getaffinity(0))[:2]
@@ -100,6 +114,8 @@ def main(argv=None) -> int:
         try:
             for process in ([] if args.no_record else [recorder]) + [world, brain]:
                 launcher.start(process)
+            if args.view:
+                show_live(recorder.options, native)
             dead = launcher.watch(until="world")
         except KeyboardInterrupt:
             interrupted, dead = True, None
@@ -124,6 +140,29 @@ def main(argv=None) -> int:
     plot_trajectory(folder, summary)
     report(folder, summary)
     return 130 if interrupted else 0
+
+
+def free_port(preferred: int) -> int:
+    """`preferred` if nothing listens there, else any free port."""
+    with socket.socket() as s:
+        try:
+            s.bind(("0.0.0.0", preferred))
+        except OSError:
+            s.bind(("0.0.0.0", 0))
+        return s.getsockname()[1]
+
+
+def show_live(options: dict, native: bool) -> None:
+    """Open the Rerun viewer on the served run (a window of the user's: left open), or print the
+    web viewer's address."""
+    source = f"rerun+http://127.0.0.1:{options['grpc_port']}/proxy"
+    if native:
+        subprocess.Popen([*viewer_command(), source], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                         start_new_session=True)
+        log.info("live view: the Rerun viewer shows %s", source)
+    else:
+        log.info("live view (no display here): open %s in a browser; it ends with the run, the recording stays",
+                 web_viewer_url(options["web_port"], options["grpc_port"]))
 
 
 def failed(folder: Path, why: str) -> None:

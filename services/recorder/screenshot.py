@@ -8,6 +8,7 @@ the time cursor is set to --tick (default: the end), and the window is saved.
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -19,6 +20,13 @@ import rerun.experimental as rrx
 from rerun.chunk import RrdReader
 
 from spikinglab.options import Parser
+
+
+def viewer_command() -> list[str] | None:
+    """The Rerun viewer: the `rerun` beside this Python (a venv's), else one on PATH."""
+    beside = Path(sys.executable).with_name("rerun")
+    found = str(beside) if beside.exists() else shutil.which("rerun")
+    return [found] if found else None
 
 
 def last_tick(path: Path) -> int:
@@ -36,9 +44,11 @@ def screenshot(recording: Path, out: Path, tick: int | None = None, size: str = 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    viewer_exe = Path(sys.executable).with_name("rerun")
-    viewer = subprocess.Popen([str(viewer_exe) if viewer_exe.exists() else "rerun", "--headless", "--window-size", size,
-                               "--port", str(port), "--hide-welcome-screen"],
+    command = viewer_command()
+    if command is None:
+        raise RuntimeError("no Rerun viewer: the rerun command comes with rerun-sdk (pip install rerun-sdk)")
+    viewer = subprocess.Popen([*command, "--headless", "--window-size", size, "--port", str(port),
+                               "--hide-welcome-screen"],
                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                               start_new_session=True)  # its own group: the venv's `rerun` starts the real viewer
     try:

@@ -40,7 +40,13 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, help="the .rrd file (default runs/<date>-<time>/recording.rrd)")
     p.add_argument("--viewer", metavar="URL", type=viewer_url,
                    help="also stream to a running viewer, e.g. rerun+http://127.0.0.1:9876/proxy")
-    p.add_argument("--serve", action="store_true", help="also serve the recording for viewers to connect (gRPC)")
+    live = p.add_argument_group("live view")
+    live.add_argument("--serve", action="store_true",
+                      help="also serve the run live over gRPC for viewers: rerun rerun+http://HOST:GRPC_PORT/proxy")
+    live.add_argument("--web", action="store_true",
+                      help="also host the web viewer over HTTP, showing the served run (implies --serve)")
+    live.add_argument("--grpc-port", type=port, default=9876, help="--serve's port (default 9876)")
+    live.add_argument("--web-port", type=port, default=9090, help="--web's port (default 9090)")
     p.add_argument("--detail", default=(0,), type=agent_list,
                    help="agents with raster, potentials, weights, ray, trail, e.g. 0,3 (default 0)")
     p.add_argument("--flush-every", type=int, default=1000, help="ticks per batch written (default 1,000)")
@@ -59,6 +65,31 @@ def viewer_url(text: str) -> str:
     return text
 
 
+def port(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a port number, got {text!r}") from None
+    if not 0 < value < 65536:
+        raise argparse.ArgumentTypeError(f"a port is 1..65535, got {value}")
+    return value
+
+
+def web_viewer_url(web_port: int, grpc_port: int, host: str = "127.0.0.1") -> str:
+    """The page of the web viewer at web_port showing the run served at grpc_port."""
+    source = urllib.parse.quote(f"rerun+http://{host}:{grpc_port}/proxy", safe="")
+    return f"http://{host}:{web_port}/?url={source}"
+
+
+def port_free(number: int) -> bool:
+    with socket.socket() as s:
+        try:
+            s.bind(("0.0.0.0", number))
+            return True
+        except OSError:
+            return False
+
+
 def viewer_answers(text: str, timeout: float = 3.0) -> bool:
     url = urllib.parse.urlsplit(text)
     port = url.port or (443 if url.scheme.endswith("https") else 9876)
@@ -73,6 +104,11 @@ def run(args: argparse.Namespace, session) -> int:
     if args.viewer and not viewer_answers(args.viewer):
         log.error("no viewer answers at %s (start one with `rerun`, or leave out --viewer)", args.viewer)
         return 1
+    serve = args.serve or args.web
+    for wanted, number, option in ((serve, args.grpc_port, "--grpc-port"), (args.web, args.web_port, "--web-port")):
+        if wanted and not port_free(number):
+            log.error("port %d is in use: nothing can be served there (choose another with %s)", number, option)
+            return 1
     out = args.out or Path("runs") / f"{datetime.datetime.now():%Y%m%d-%H%M%S}" / "recording.rrd"
     out.parent.mkdir(parents=True, exist_ok=True)
     detail = args.detail
@@ -80,9 +116,15 @@ def run(args: argparse.Namespace, session) -> int:
     sinks = [rr.FileSink(str(out))]
     if args.viewer:
         sinks.append(rr.GrpcSink(args.viewer))
+    if serve:  # beside the file: the recording is written whoever watches
+        sinks.append(rr.GrpcServerSink(port=args.grpc_port))
     rec.set_sinks(*sinks, default_blueprint=blueprint(detail[0] if detail else 0))
-    if args.serve:
-        log.info("serving the recording at %s", rec.serve_grpc(default_blueprint=blueprint(detail[0] if detail else 0)))
+    if serve:
+        log.info("serving the run live: rerun rerun+http://127.0.0.1:%d/proxy", args.grpc_port)
+    if args.web:
+        rr.serve_web_viewer(web_port=args.web_port, open_browser=False,
+                            connect_to=f"rerun+http://127.0.0.1:{args.grpc_port}/proxy")
+        log.info("web viewer: %s", web_viewer_url(args.web_port, args.grpc_port))
     bus = Bus(session, args.group, "recorder")
     recorder = Recorder(rec, detail=detail, flush_every=args.flush_every)
     # only the state streams: the lock-step messages (sensors, motor) never come to the recorder
