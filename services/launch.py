@@ -211,7 +211,9 @@ class Launcher:
                 code = child.popen.poll()
                 if code is None:
                     continue
-                ended_at.setdefault(name, time.monotonic())
+                if name not in ended_at:
+                    ended_at[name] = time.monotonic()
+                    log.info("the %s ended (exit %s)", name, code)
                 early = until is not None and name != until and self.running(until)
                 if code != 0 or early and time.monotonic() - ended_at[name] > ENDING_S:
                     why = f"the {name} stopped (exit {code})" + (f" before the {until} ended" if early else "")

@@ -234,10 +234,14 @@ def plot(folder: Path, summary: dict) -> None:
     smooth = np.convolve(mean, np.ones(window) / window, mode="valid")
     who = f"mean of {bins.shape[0]} agents" if len(bins) > 1 else "one insect"
     ax.plot(x[window - 1:], smooth, color="tab:red", lw=2.5, label=f"{who}, rolling mean over {window},000 ticks")
-    for t in summary["learning_time"][:20]:
-        if t is not None:
-            ax.axvline(t, color="tab:green", ls="--", lw=1)
     p = summary["parameters"]
+    learned = [t for t in summary["learning_time"][:20] if t is not None]
+    for k, t in enumerate(learned):  # the criterion: the last collision before p["learned_after"] free ticks
+        ax.axvline(t, color="tab:green", ls="--", lw=1, label=None if k else
+                   f"learned: last collision before {p['learned_after']:,} collision-free ticks")
+    paper = PAPER.get(p["a_plus"]) if isinstance(p["a_plus"], float) else None
+    if paper:
+        ax.axvline(paper, color="black", ls=":", lw=1.5, label=f"the paper's learning time at this A: {paper:,}")
     ax.set(xlabel="tick", ylabel="collision events per 1,000 ticks",
            title=f"Insect learning to avoid walls and predators (A+ = A- = {p['a_plus']}, seed {p['seed']})")
     ax.grid(alpha=0.3)

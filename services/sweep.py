@@ -17,10 +17,9 @@ import numpy as np
 from spikinglab.brain.circuit import load_circuit
 from spikinglab.brain.engine import DEFAULT_SEMANTICS
 from spikinglab.brain.service import add_engine_args
-from spikinglab.learning import all_definitions, noxious_ticks, plot_table1, stats
+from spikinglab.learning import PAPER, all_definitions, noxious_ticks, plot_table1, stats
 from spikinglab.loop import brain_for
 from spikinglab.options import Parser, at_least, positive
-from spikinglab.run import PAPER_TABLE_1
 from spikinglab.world.world import BIN, PRESETS, World, params_for
 
 
@@ -51,7 +50,7 @@ def table(rows: list[dict], learned_after: int) -> str:
         return f"{x:,.0f}" if x is not None else f"> {ticks:,}"
 
     for r in rows:
-        paper = PAPER_TABLE_1.get(f"{r['a_plus']:.2f}")
+        paper = PAPER.get(r["a_plus"])
         first, last = np.mean(r["collisions_first_quarter"]), np.mean(r["collisions_last_quarter"])
         lines.append(f"| {r['a_plus']} | {'' if paper is None else f'{paper:,}'} | {tick(r['median'], r['ticks'])} | "
                      f"{tick(r['quartiles'][0], r['ticks'])} - {tick(r['quartiles'][1], r['ticks'])} | "
@@ -70,7 +69,13 @@ def plot(rows: list[dict], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(8, 4.5), dpi=110)
     for r in rows:
         y = r["collisions_per_1000_ticks_mean"]
-        ax.plot((np.arange(len(y)) + 1) * 1000, y, lw=1.5, label=f"A+ = A- = {r['a_plus']} ({r['seeds']} seeds)")
+        line, = ax.plot((np.arange(len(y)) + 1) * 1000, y, lw=1.5, label=f"A+ = A- = {r['a_plus']} ({r['seeds']} seeds)")
+        if r["median"] is not None:  # the median learning time (dashed) and the paper's (dotted), in its colour
+            ax.axvline(r["median"], color=line.get_color(), ls="--", lw=1)
+        if PAPER.get(r["a_plus"]):
+            ax.axvline(PAPER[r["a_plus"]], color=line.get_color(), ls=":", lw=1.5)
+    ax.plot([], [], color="gray", ls="--", label="median learning time")
+    ax.plot([], [], color="gray", ls=":", label="the paper's learning time (Table 1)")
     ax.set(xlabel="tick", ylabel="collision events per 1,000 ticks (mean over seeds)",
            title="Learning speed against the learning rate (paper Table 1)")
     ax.grid(alpha=0.3)

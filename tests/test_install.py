@@ -44,3 +44,6 @@ def test_the_wheel_installs_and_runs_from_any_directory(tmp_path):
     assert (elsewhere / "figs" / "fig2.png").exists()
     spikinglab("bench", "engine", "--help")
     spikinglab("gateway", "--help")
+    shipped = spikinglab("launch", "--list").stdout  # the launch files come from the package too
+    assert all(name in shipped for name in ("simulation", "robot", "remote-world", "remote-brain"))
+    assert str(tmp_path / "venv") in shipped

@@ -24,7 +24,7 @@ class CircuitError(ValueError):
 
 @dataclass(frozen=True)
 class NeuronType:
-    """Parameters of one neuron type (MODEL.md sections 2 and 4). Times are in ticks."""
+    """Parameters of one neuron type (the NetLogo source's types 1 and 2). Times are in ticks."""
 
     name: str
     rest: float = -65.0

@@ -193,12 +193,7 @@ def run(args: argparse.Namespace, session) -> int:
             order = control.get(timeout=0)
             if order is None:
                 continue
-            if order.command == "training":
-                node.training = bool(order.arg)
-                if node.brain:
-                    node.brain.engine.training = node.training
-                log.info("training %s at tick %d", "on" if node.training else "off", order.tick)
-            elif order.command == "end":
+            if order.command == "end":
                 if state is not None and node.brain is not None:  # the rest, and the final weights
                     state.put(node.state_message(final=True))
                 log.info("run ended at tick %d; rejected messages: %d on sensors, %d on control", order.tick,
@@ -272,8 +267,6 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
                 order = control.get(timeout=0)
                 if order is not None and order.command == "end":
                     break
-                if order is not None and order.command == "training":
-                    engine.training = bool(order.arg)
             tick += 1
             next_at += period
             gap = next_at - time.monotonic()

@@ -15,7 +15,7 @@ import math
 import msgspec
 import numpy as np
 
-VERSION = 2  # 2: brain and world states come in batches of consecutive ticks
+VERSION = 3  # 2: brain and world states come in batches of consecutive ticks; 3: no training switch on the bus
 # The insect's senses and actions: what a world or a robot gateway publishes and takes. The brain
 # binds them to its circuit by name (circuit files: `sensor = ...`, [actuators]).
 INSECT_SENSORS = ("smell_black", "smell_red", "smell_green", "pain", "reward")
@@ -64,7 +64,6 @@ class Sensors(Message, tag="sensors", kw_only=True):
 
     names: tuple[str, ...]
     values: Array
-    training: bool = True
     seed: int = 0  # the world's seed: the brain's netlogo order uses seed + a for agent a, as the arenas
 
     def check(self):
@@ -86,13 +85,12 @@ class Motor(Message, tag="motor", kw_only=True):
 
 
 class Control(Message, tag="control", kw_only=True):
-    """Run control. command: "end" (the run is over: save and stop) or "training" (arg 0/1)."""
+    """Run control. command: "end" (the run is over: save and stop)."""
 
     command: str
-    arg: float = 0.0
 
     def check(self):
-        if self.command not in ("end", "training"):
+        if self.command != "end":
             raise BusError(f"unknown control command {self.command!r}")
 
 

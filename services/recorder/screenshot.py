@@ -65,7 +65,7 @@ def screenshot(recording: Path, out: Path, tick: int | None = None, size: str = 
                     raise RuntimeError("the headless viewer did not start within 30 s") from None
                 time.sleep(0.2)
         client.open(str(recording.resolve()))
-        time.sleep(settle)  # panels are empty if captured at once (NOTES.md)
+        time.sleep(settle)  # panels are still empty if captured at once
         client.set_time("tick", sequence=tick, play_state="paused")
         time.sleep(settle)
         out.parent.mkdir(parents=True, exist_ok=True)

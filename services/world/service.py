@@ -180,8 +180,7 @@ def run(args: argparse.Namespace, session) -> int:
         trajectory = Trajectory(world, args.ticks)
         batch, changes = TickBatch(STATE_BATCH), []
         started = time.perf_counter()
-        request = Sensors(tick=0, names=SENSORS, values=Array.of(world.sense()), training=world.training,
-                          seed=world.seed)
+        request = Sensors(tick=0, names=SENSORS, values=Array.of(world.sense()), seed=world.seed)
         sensors.put(request)
         try:
             tick_loop(args, world, sensors, motor, brain, state, request, progress, trajectory, batch, changes)
@@ -230,8 +229,7 @@ def tick_loop(args, world, sensors, motor, brain, state, request, progress, traj
         if state is not None:  # this tick's poses, events and changes, before the next sense()
             keep_state(batch, changes, world, t)
         if t + 1 < args.ticks:  # the brain's next tick first: the recorder can wait
-            request = Sensors(tick=t + 1, names=SENSORS, values=Array.of(world.sense()), seed=world.seed,
-                              training=world.training)
+            request = Sensors(tick=t + 1, names=SENSORS, values=Array.of(world.sense()), seed=world.seed)
             sensors.put(request)
         if state is not None and (batch.full or t + 1 == args.ticks):
             state.put(state_message(batch, changes, final=t + 1 == args.ticks))

@@ -1,4 +1,4 @@
-"""The insect's world (MODEL.md section 7): a patch arena with walls, predators and food.
+"""The insect's world (the NetLogo demo's): a patch arena with walls, predators and food.
 
 A agents are stepped together; each has its own copy of the arena (independent seeds) or all
 share one. The world is a grid of 1 x 1 patches, as in NetLogo: vision samples the patches along

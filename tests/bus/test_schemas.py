@@ -22,7 +22,7 @@ from spikinglab.bus.schemas import (
 
 A = 3
 GOOD = [
-    Sensors(tick=7, names=("smell_black", "pain"), values=Array.of(np.array([[0.4, np.nan]] * A)), training=False),
+    Sensors(tick=7, names=("smell_black", "pain"), values=Array.of(np.array([[0.4, np.nan]] * A)), seed=4),
     Motor(tick=7, names=("rotate", "move"), actions=Array.of(np.array([[1, 0]] * A, np.uint8))),
     Control(tick=40000, command="end"),
     BrainState(tick=7, spiked=Array.of(np.zeros((50, A, 15), np.uint8)),
