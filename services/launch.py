@@ -141,6 +141,8 @@ def stop(popen: subprocess.Popen, timeout: float = STOP_S) -> None:
 
 
 class Child:
+    """A started process, and a thread that shows its piped output prefixed (keeping its last lines)."""
+
     def __init__(self, process: Process, popen: subprocess.Popen, colour: int | None, logs: Path | None):
         self.process, self.popen = process, popen
         self.last_lines: collections.deque[str] = collections.deque(maxlen=15)
@@ -246,7 +248,7 @@ class Launcher:
         for name in self.children:
             self.stop(name, timeout)
         for child in self.children.values():
-            if child.popen.stdout is not None and child.reader is not None:
+            if child.reader is not None:
                 child.reader.join(1)
 
 
