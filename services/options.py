@@ -27,17 +27,29 @@ class Parser(argparse.ArgumentParser):
         sys.exit(2)
 
 
+def whole_number(text: str, what: str = "a whole number") -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+
+
 def at_least(minimum: int):
     """An int option of at least `minimum`."""
     def check(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+        value = whole_number(text)
         if value < minimum:
             raise argparse.ArgumentTypeError(f"must be at least {minimum:,}, got {value:,}")
         return value
     return check
+
+
+def port(text: str) -> int:
+    """A TCP port option, 1..65535."""
+    value = whole_number(text, "a port number")
+    if not 0 < value < 65536:
+        raise argparse.ArgumentTypeError(f"a port is 1..65535, got {value}")
+    return value
 
 
 def positive(text: str) -> float:

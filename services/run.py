@@ -15,7 +15,6 @@ import json
 import logging
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -33,7 +32,7 @@ from spikinglab.launch import Launcher, Process, local_endpoints, options_for
 from spikinglab.learning import PAPER
 from spikinglab.options import Parser, agent_list, positive
 from spikinglab.recorder.screenshot import viewer_command
-from spikinglab.recorder.service import web_viewer_url
+from spikinglab.recorder.service import free_port, web_viewer_url
 from spikinglab.world.service import add_world_args, world_from_args
 from spikinglab.world.world import BIN, SENSORS, MapError
 
@@ -95,7 +94,8 @@ def main(argv=None) -> int:
                          publish_state=not args.no_record)  # they wait for the recorder to listen
     recorder = Process("recorder", "record", {"connect": [world_ep, brain_ep], "out": folder / "recording.rrd",
                                               "detail": ",".join(map(str, args.detail))}, log=folder / "recorder.log")
-    native = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) and viewer_command() is not None
+    native = args.view and bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) \
+        and viewer_command() is not None
     if args.view:  # the recorder serves the run; a viewer window, or a web viewer, shows it
         recorder.options.update(serve=True, grpc_port=free_port(9876), web=not native)
         if not native:
@@ -140,16 +140,6 @@ def main(argv=None) -> int:
     plot_trajectory(folder, summary)
     report(folder, summary)
     return 130 if interrupted else 0
-
-
-def free_port(preferred: int) -> int:
-    """`preferred` if nothing listens there, else any free port."""
-    with socket.socket() as s:
-        try:
-            s.bind(("0.0.0.0", preferred))
-        except OSError:
-            s.bind(("0.0.0.0", 0))
-        return s.getsockname()[1]
 
 
 def show_live(options: dict, native: bool) -> None:
@@ -219,6 +209,12 @@ def summarise(folder: Path, args, circuit, run_id: str, wall_s: float) -> dict:
     return summary
 
 
+def paper_time(parameters: dict) -> int | None:
+    """The paper's Table 1 learning time for the run's A (none when the learning neurons' rates differ)."""
+    a_plus = parameters["a_plus"]
+    return PAPER.get(a_plus) if isinstance(a_plus, float) else None
+
+
 def plot(folder: Path, summary: dict) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -239,7 +235,7 @@ def plot(folder: Path, summary: dict) -> None:
     for k, t in enumerate(learned):  # the criterion: the last collision before p["learned_after"] free ticks
         ax.axvline(t, color="tab:green", ls="--", lw=1, label=None if k else
                    f"learned: last collision before {p['learned_after']:,} collision-free ticks")
-    paper = PAPER.get(p["a_plus"]) if isinstance(p["a_plus"], float) else None
+    paper = paper_time(p)
     if paper:
         ax.axvline(paper, color="black", ls=":", lw=1.5, label=f"the paper's learning time at this A: {paper:,}")
     ax.set(xlabel="tick", ylabel="collision events per 1,000 ticks",
@@ -291,7 +287,7 @@ def report(folder: Path, summary: dict) -> None:
           f"({head['ticks_done']:,} ticks, {summary['ticks_per_s']:,.0f} ticks/s)")
     times = summary["learning_time"]
     p = summary["parameters"]
-    paper = PAPER.get(p["a_plus"]) if isinstance(p["a_plus"], float) else None  # not when the rates differ
+    paper = paper_time(p)
     print(f"learned: {head['learned']}"
           f" (criterion: {p['learned_after']:,} ticks off noxious patches); learning time: "
           + ", ".join("not reached" if t is None else f"tick {t:,}" for t in times[:8])

@@ -27,7 +27,7 @@ import rerun as rr
 from spikinglab.bus import keys
 from spikinglab.bus.schemas import BrainLayout, BrainState, WorldMap, WorldState
 from spikinglab.bus.session import Bus, add_bus_args, service_main
-from spikinglab.options import Parser, agent_list
+from spikinglab.options import Parser, agent_list, port
 
 from .recorder import Recorder, blueprint
 
@@ -65,29 +65,20 @@ def viewer_url(text: str) -> str:
     return text
 
 
-def port(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a port number, got {text!r}") from None
-    if not 0 < value < 65536:
-        raise argparse.ArgumentTypeError(f"a port is 1..65535, got {value}")
-    return value
-
-
 def web_viewer_url(web_port: int, grpc_port: int, host: str = "127.0.0.1") -> str:
     """The page of the web viewer at web_port showing the run served at grpc_port."""
     source = urllib.parse.quote(f"rerun+http://{host}:{grpc_port}/proxy", safe="")
     return f"http://{host}:{web_port}/?url={source}"
 
 
-def port_free(number: int) -> bool:
+def free_port(preferred: int) -> int:
+    """`preferred` if nothing listens there, else any free port."""
     with socket.socket() as s:
         try:
-            s.bind(("0.0.0.0", number))
-            return True
+            s.bind(("0.0.0.0", preferred))
         except OSError:
-            return False
+            s.bind(("0.0.0.0", 0))
+        return s.getsockname()[1]
 
 
 def viewer_answers(text: str, timeout: float = 3.0) -> bool:
@@ -106,7 +97,7 @@ def run(args: argparse.Namespace, session) -> int:
         return 1
     serve = args.serve or args.web
     for wanted, number, option in ((serve, args.grpc_port, "--grpc-port"), (args.web, args.web_port, "--web-port")):
-        if wanted and not port_free(number):
+        if wanted and free_port(number) != number:
             log.error("port %d is in use: nothing can be served there (choose another with %s)", number, option)
             return 1
     out = args.out or Path("runs") / f"{datetime.datetime.now():%Y%m%d-%H%M%S}" / "recording.rrd"
