@@ -180,7 +180,7 @@ def run(args: argparse.Namespace, session) -> int:
         trajectory = Trajectory(world, args.ticks)
         batch, changes = TickBatch(STATE_BATCH), []
         started = time.perf_counter()
-        request = Sensors(tick=0, names=SENSORS, values=Array.of(world.sense()), seed=world.seed)
+        request = sensing(world, 0)
         sensors.put(request)
         try:
             tick_loop(args, world, sensors, motor, brain, state, request, progress, trajectory, batch, changes)
@@ -207,6 +207,11 @@ def run(args: argparse.Namespace, session) -> int:
         bus.close()
 
 
+def sensing(world: World, tick: int) -> Sensors:
+    """What the world's insects sense for `tick` (the seed: the brain's netlogo order follows it)."""
+    return Sensors(tick=tick, names=SENSORS, values=Array.of(world.sense()), seed=world.seed)
+
+
 def tick_loop(args, world, sensors, motor, brain, state, request, progress, trajectory, batch, changes) -> None:
     """The lock-step ticks: each waits for the brain's answer to the last sensors sent."""
     for t in range(args.ticks):
@@ -229,7 +234,7 @@ def tick_loop(args, world, sensors, motor, brain, state, request, progress, traj
         if state is not None:  # this tick's poses, events and changes, before the next sense()
             keep_state(batch, changes, world, t)
         if t + 1 < args.ticks:  # the brain's next tick first: the recorder can wait
-            request = Sensors(tick=t + 1, names=SENSORS, values=Array.of(world.sense()), seed=world.seed)
+            request = sensing(world, t + 1)
             sensors.put(request)
         if state is not None and (batch.full or t + 1 == args.ticks):
             state.put(state_message(batch, changes, final=t + 1 == args.ticks))
