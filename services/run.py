@@ -32,11 +32,12 @@ from spikinglab.launch import Launcher, Process, local_endpoints, options_for
 from spikinglab.learning import PAPER
 from spikinglab.options import Parser, agent_list, positive
 from spikinglab.recorder.screenshot import viewer_command
-from spikinglab.recorder.service import free_port, web_viewer_url
+from spikinglab.recorder.service import free_port, viewer_answers, web_viewer_url
 from spikinglab.world.service import add_world_args, world_from_args
 from spikinglab.world.world import BIN, SENSORS, MapError
 
 log = logging.getLogger("spikinglab.run")
+LIVE_VIEW_WITHIN_S = 60.0  # the recorder's viewer servers are up well within this (a few seconds here)
 PAPER_TABLE_1 = {f"{a:.2f}": n for a, n in PAPER.items()}  # keyed as summary.json shows A
 
 
@@ -115,7 +116,7 @@ def main(argv=None) -> int:
             for process in ([] if args.no_record else [recorder]) + [world, brain]:
                 launcher.start(process)
             if args.view:
-                show_live(recorder.options, native)
+                show_live(launcher, recorder.options, native)
             dead = launcher.watch(until="world")
         except KeyboardInterrupt:
             interrupted, dead = True, None
@@ -142,17 +143,25 @@ def main(argv=None) -> int:
     return 130 if interrupted else 0
 
 
-def show_live(options: dict, native: bool) -> None:
-    """Open the Rerun viewer on the served run (a window of the user's: left open), or print the
-    web viewer's address."""
+def show_live(launcher: Launcher, options: dict, native: bool) -> None:
+    """Once the recorder serves the run: open the Rerun viewer on it (a window of the user's: left
+    open), or print the web viewer's address (printed earlier, it would refuse connections)."""
     source = f"rerun+http://127.0.0.1:{options['grpc_port']}/proxy"
+    page = None if native else web_viewer_url(options["web_port"], options["grpc_port"])
+    deadline = time.monotonic() + LIVE_VIEW_WITHIN_S
+    while not (viewer_answers(source) and (page is None or viewer_answers(page))):
+        if not all(map(launcher.running, launcher.children)):
+            return  # a service ended: watch() says which
+        if time.monotonic() > deadline:
+            log.warning("no live view: the recorder does not serve the run (its log: recorder.log); the run goes on")
+            return
+        time.sleep(0.2)
     if native:
         subprocess.Popen([*viewer_command(), source], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                          start_new_session=True)
         log.info("live view: the Rerun viewer shows %s", source)
     else:
-        log.info("live view (no display here): open %s in a browser; it ends with the run, the recording stays",
-                 web_viewer_url(options["web_port"], options["grpc_port"]))
+        log.info("live view (no display here): open %s in a browser; it ends with the run, the recording stays", page)
 
 
 def failed(folder: Path, why: str) -> None:

@@ -59,7 +59,9 @@ def test_run_view_serves_a_web_viewer_that_renders_the_run(tmp_path):
             browser.close()
         assert title == "Rerun Viewer"
         # the map of the run, drawn from the served data: walls, predators and food in their colours
-        assert min(found.values()) > 500, f"pixels of each map colour: {found} (screenshot: {tmp_path}/web_view.png)"
+        logs = "\n".join(f"--- {log.name}\n{log.read_text()[-1500:]}" for log in (tmp_path / "live").glob("*.log"))
+        assert min(found.values()) > 500, f"pixels of each map colour: {found} (screenshot: {tmp_path}/web_view.png)" \
+                                          f"\n{logs}"
         assert pixels_of(shot, (0, 0, 0), tolerance=0) < 0.9 * 1400 * 800  # not a blank page
     finally:
         run.send_signal(signal.SIGINT)  # the run ends at its ticks done, with viewer servers and services
