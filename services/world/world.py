@@ -6,7 +6,8 @@ a ray every 0.2 patch, touch is the patch under the insect. Sensing and acting a
 over all agents (docs/world.md says why this, and not per-agent pymunk queries, is the hot path;
 services/world/physics.py holds the same map in a pymunk space).
 
-One tick: sense() [vision -> touch] -> the brain -> act(actions) [actuators -> boundary check].
+One tick: sense() [vision, touch: reads only] -> the brain -> act(actions) [what the touch does:
+collision, push, food; then actuators -> boundary check].
 Nothing here knows Zenoh.
 """
 
@@ -228,21 +229,24 @@ class World:
         self.eaten = np.full((A, 2), -1, np.int64)  # this tick: grid index of the food eaten, or -1
 
     def sense(self) -> np.ndarray:
-        """Vision then touch for tick self.tick; returns the sensors [A, len(SENSORS)] (NaN: nothing)."""
-        m = self.metrics
-        _sense(self.grid, self.arena_of, self.pos, self.heading, self.fpar, self.kind, self.training,
-               self.tick, self.sensors, self.last_patch, self.events, self.eaten, m.collisions,
-               m.collisions_by_colour, m.food, m.distance, m.last_collision, m.last_noxious, m.learned_at,
-               self._bin)
+        """Vision then touch for tick self.tick: the sensors [A, len(SENSORS)] (NaN: nothing).
+
+        Reads the world and changes nothing in it; what touching a patch does comes in act()."""
+        _sense(self.grid, self.arena_of, self.pos, self.heading, self.fpar, self.kind, self.sensors)
         return self.sensors
 
     def changes(self) -> np.ndarray:
-        """The patches that changed in this tick's sense(): rows (arena, x index, y index, colour)."""
+        """The patches that changed in this tick's act(): rows (arena, x index, y index, colour)."""
         who = np.flatnonzero(self.eaten[:, 0] >= 0)
         return np.column_stack([self.arena_of[who], self.eaten[who], np.full(len(who), EMPTY)]).astype(np.int64)
 
     def act(self, actions: np.ndarray) -> None:
-        """Apply the actions [A, len(ACTIONS)] (nonzero: that actuator spiked), check the boundary."""
+        """End tick self.tick: the patch touched (collision, push, food, learning time), then the
+        actions [A, len(ACTIONS)] (nonzero: that actuator spiked), then the boundary check."""
+        m = self.metrics
+        _touch(self.grid, self.arena_of, self.pos, self.heading, self.fpar, self.kind, self.training, self.tick,
+               self.last_patch, self.events, self.eaten, m.collisions, m.collisions_by_colour, m.food, m.distance,
+               m.last_collision, m.last_noxious, m.learned_at, self._bin)
         _act(self.grid.shape[1], self.grid.shape[2], self.pos, self.heading, self.fpar,
              np.ascontiguousarray(actions, dtype=np.uint8), self.events, self.metrics.distance,
              self.metrics.resets)
@@ -276,16 +280,12 @@ def _colour_at(grid, g, x, y, fpar):
 
 
 @njit(cache=True)
-def _sense(grid, arena_of, pos, heading, fpar, kind, training, t, sensors, last_patch, events, eaten,
-           collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins):
+def _sense(grid, arena_of, pos, heading, fpar, kind, sensors):
     steps = int(round(fpar[VIEW] / fpar[RAY_STEP]))
     for a in range(pos.shape[0]):
         g = arena_of[a]
         for k in range(sensors.shape[1]):
             sensors[a, k] = np.nan
-        for k in range(events.shape[1]):
-            events[a, k] = 0
-        eaten[a, 0] = eaten[a, 1] = -1
         h = math.radians(heading[a])
         dx, dy = math.sin(h), math.cos(h)
         # vision: the first non-empty patch along the heading, sampled every ray_step. The
@@ -304,9 +304,24 @@ def _sense(grid, arena_of, pos, heading, fpar, kind, training, t, sensors, last_
                     sensors[a, 2] = d
                 break
         # touch: the patch under the insect
+        colour, _ = _colour_at(grid, g, pos[a, 0], pos[a, 1], fpar)
+        if kind[colour] == 1:
+            sensors[a, PAIN] = fpar[PAIN_VALUE]
+        elif kind[colour] == 2:
+            sensors[a, REWARD] = fpar[REWARD_VALUE]
+
+
+@njit(cache=True)
+def _touch(grid, arena_of, pos, heading, fpar, kind, training, t, last_patch, events, eaten,
+           collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins):
+    """What touching the patch under each insect does in tick t: count, push, eat, learn."""
+    for a in range(pos.shape[0]):
+        g = arena_of[a]
+        for k in range(events.shape[1]):
+            events[a, k] = 0
+        eaten[a, 0] = eaten[a, 1] = -1
         colour, patch = _colour_at(grid, g, pos[a, 0], pos[a, 1], fpar)
         if kind[colour] == 1:  # noxious
-            sensors[a, PAIN] = fpar[PAIN_VALUE]
             last_noxious[a] = t
             if patch != last_patch[a]:  # entering it: a collision event
                 collisions[a] += 1
@@ -315,11 +330,11 @@ def _sense(grid, arena_of, pos, heading, fpar, kind, training, t, sensors, last_
                 last_collision[a] = t
                 events[a, EV_COLLISION] = colour
             if training:  # pushed on, so it cannot spin on the spot forever
-                pos[a, 0] += fpar[PUSH] * dx
-                pos[a, 1] += fpar[PUSH] * dy
+                h = math.radians(heading[a])
+                pos[a, 0] += fpar[PUSH] * math.sin(h)
+                pos[a, 1] += fpar[PUSH] * math.cos(h)
                 distance[a] += fpar[PUSH]
-        elif kind[colour] == 2:  # rewarding: eaten
-            sensors[a, REWARD] = fpar[REWARD_VALUE]
+        elif kind[colour] == 2:  # rewarding: eaten (in a shared arena, by the first insect on it)
             ix, iy = patch // grid.shape[2], patch % grid.shape[2]
             grid[g, ix, iy] = EMPTY
             eaten[a, 0], eaten[a, 1] = ix, iy

@@ -79,13 +79,14 @@ def test_vision_sees_the_first_patch_ahead(cells, colour, distance):
 def test_touching_a_noxious_patch_hurts_counts_once_and_pushes_in_training():
     w = corridor("SRR.....", start=(2.0, 1.0))
     s = w.sense()[0]
-    assert s[PAIN] == 1.0 and w.metrics.collisions[0] == 1 and w.metrics.collisions_by_colour[0, RED] == 1
+    assert s[PAIN] == 1.0
+    assert w.metrics.collisions[0] == 0 and w.pos[0, 0] == 2.0  # sensing reads; the touch acts in act()
+    w.act(NOTHING)
+    assert w.metrics.collisions[0] == 1 and w.metrics.collisions_by_colour[0, RED] == 1
     assert w.pos[0, 0] == pytest.approx(2.5)  # pushed 0.5 forward (east)
-    w.act(NOTHING)
-    w.sense()  # x = 2.5 is in patch 3 (nearest centre, ties go up): another red patch
+    w.sense(); w.act(NOTHING)  # x = 2.5 is in patch 3 (nearest centre, ties go up): another red patch
     assert w.metrics.collisions[0] == 2  # entering a second noxious patch is a second event
-    w.act(NOTHING)
-    w.sense()
+    w.sense(); w.act(NOTHING)
     assert w.metrics.collisions[0] == 2  # pushed within patch 3: the same patch, no new event
     assert w.metrics.last_collision[0] == 1
 
@@ -94,15 +95,17 @@ def test_no_push_when_training_is_off():
     w = corridor("SR......", start=(2.0, 1.0))
     w.training = False
     assert w.sense()[0, PAIN] == 1.0
-    assert w.pos[0, 0] == 2.0
+    w.act(NOTHING)
+    assert w.pos[0, 0] == 2.0 and w.metrics.collisions[0] == 1
 
 
 def test_food_is_eaten_and_rewards():
     w = corridor("SG......", start=(2.0, 1.0))
-    s = w.sense()[0]
-    assert s[REWARD] == 1.0 and w.metrics.food[0] == 1
-    assert w.grid[0, 2, 1] == EMPTY
+    assert w.sense()[0, REWARD] == 1.0
+    assert w.sense()[0, REWARD] == 1.0  # sensing again finds it again: sensing eats nothing
     w.act(NOTHING)
+    assert w.metrics.food[0] == 1 and w.grid[0, 2, 1] == EMPTY
+    assert w.changes().tolist() == [[0, 2, 1, EMPTY]]
     assert np.isnan(w.sense()[0, REWARD])
 
 
@@ -165,7 +168,7 @@ def test_agents_have_their_own_arenas_or_share_one():
     g = shared.grid[0]
     fx, fy = np.argwhere(g == GREEN)[0]
     shared.pos[0] = (fx + shared.params.x_min, fy + shared.params.y_min)
-    shared.sense()
+    shared.sense(); shared.act(np.zeros((2, 2), np.uint8))
     assert shared.grid[0, fx, fy] == EMPTY and shared.metrics.food.tolist() == [1, 0]
 
 
