@@ -179,148 +179,169 @@ _SYNAPSE_KEYS = {"from", "to", "weight", "delay", "inhibitory", "plastic"}
 
 
 def build_circuit(doc: dict, source: str = "<built>") -> Circuit:
-    """Validate a parsed circuit document and build the Circuit (all or nothing)."""
+    """Validate a parsed circuit document and build the Circuit (all or nothing), section by
+    section as the model is described: neuron types, neurons, input neurons, synapses, actuators."""
+    read = _Reader(source)
+    read.keys("top level", doc, _TOP_KEYS)
+    types = _neuron_types(read, doc.get("types", {}))
+    neuron_names, neuron_types = _neurons(read, doc.get("neurons"), types)
+    inputs = _inputs(read, doc.get("inputs", {}), neuron_names)
+    synapses = _synapses(read, doc.get("synapses", []), neuron_names, neuron_types, inputs)
+    actuators = _actuators(read, doc.get("actuators", {}), neuron_names)
+    return Circuit(
+        name=str(doc.get("name", Path(source).stem)), source=source, neuron_names=neuron_names,
+        neuron_types=neuron_types, inputs=inputs, synapses=synapses, actuators=actuators,
+    )
 
-    def fail(entry: str, problem: str):
-        raise CircuitError(f"{source}: {entry}: {problem}")
 
-    def number(entry, key, value, *, integer=False):
+class _Reader:
+    """Checks on one circuit document's values; each failure names the file and the entry."""
+
+    def __init__(self, source: str):
+        self.source = source
+
+    def fail(self, entry: str, problem: str):
+        raise CircuitError(f"{self.source}: {entry}: {problem}")
+
+    def number(self, entry, key, value, *, integer=False):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            fail(entry, f"{key} must be a number, got {value!r}")
+            self.fail(entry, f"{key} must be a number, got {value!r}")
         if integer and (not float(value).is_integer()):
-            fail(entry, f"{key} must be a whole number of ticks, got {value!r}")
+            self.fail(entry, f"{key} must be a whole number of ticks, got {value!r}")
         if not math.isfinite(value):
-            fail(entry, f"{key} must be finite, got {value!r}")
+            self.fail(entry, f"{key} must be finite, got {value!r}")
         return int(value) if integer else float(value)
 
-    def unknown_keys(entry, table, allowed):
+    def keys(self, entry, table, allowed=None):
+        """A table, with only the allowed keys (None: any)."""
         if not isinstance(table, dict):
-            fail(entry, f"must be a table, got {table!r}")
-        extra = sorted(set(table) - allowed)
+            self.fail(entry, f"must be a table, got {table!r}")
+        extra = sorted(set(table) - allowed) if allowed is not None else []
         if extra:
-            fail(entry, f"unknown key(s) {', '.join(extra)} (allowed: {', '.join(sorted(allowed))})")
+            self.fail(entry, f"unknown key(s) {', '.join(extra)} (allowed: {', '.join(sorted(allowed))})")
 
-    unknown_keys("top level", doc, _TOP_KEYS)
-    name = doc.get("name", Path(source).stem)
 
-    # neuron types: built-ins, then the file's own (each based on a built-in or earlier type)
+def _neuron_types(read: _Reader, tables: dict) -> dict[str, NeuronType]:
+    """The built-in types, then the file's own, each based on a built-in or an earlier type."""
+    read.keys("types", tables)
     types = dict(BUILTIN_TYPES)
-    for tname, table in doc.get("types", {}).items():
+    for tname, table in tables.items():
         entry = f"types.{tname}"
-        unknown_keys(entry, table, set(_TYPE_FIELDS) | {"base"})
+        read.keys(entry, table, set(_TYPE_FIELDS) | {"base"})
         base_name = table.get("base", "regular")
         if base_name not in types:
-            fail(entry, f"unknown base type {base_name!r} (known: {', '.join(types)})")
-        values = {}
-        for key, value in table.items():
-            if key != "base":
-                values[key] = number(entry, key, value, integer=_TYPE_FIELDS[key] == "int")
+            read.fail(entry, f"unknown base type {base_name!r} (known: {', '.join(types)})")
+        values = {key: read.number(entry, key, value, integer=_TYPE_FIELDS[key] == "int")
+                  for key, value in table.items() if key != "base"}
         t = dataclasses.replace(types[base_name], name=tname, **values)
-        _check_type(t, lambda p, entry=entry: fail(entry, p))
+        _check_type(t, lambda p, entry=entry: read.fail(entry, p))
         types[tname] = t
+    return types
 
-    # neurons: name = "type"
-    neurons = doc.get("neurons")
+
+def _neurons(read: _Reader, neurons, types: dict) -> tuple[tuple[str, ...], tuple[NeuronType, ...]]:
+    """[neurons]: NAME = "type", in file order (the order is the neurons' index)."""
     if not isinstance(neurons, dict) or not neurons:
-        fail("neurons", "a circuit needs a [neurons] table with at least one neuron (NAME = \"type\")")
-    neuron_names, neuron_types = [], []
+        read.fail("neurons", "a circuit needs a [neurons] table with at least one neuron (NAME = \"type\")")
     for nname, tname in neurons.items():
         if not isinstance(tname, str) or tname not in types:
-            fail(f"neurons.{nname}", f"unknown neuron type {tname!r} (known: {', '.join(types)})")
-        neuron_names.append(nname)
-        neuron_types.append(types[tname])
-    index = {n: k for k, n in enumerate(neuron_names)}
+            read.fail(f"neurons.{nname}", f"unknown neuron type {tname!r} (known: {', '.join(types)})")
+    return tuple(neurons), tuple(types[tname] for tname in neurons.values())
 
-    # inputs
+
+def _inputs(read: _Reader, tables: dict, neuron_names: tuple[str, ...]) -> tuple[InputNeuron, ...]:
+    """[inputs.NAME]: spike sources, each with one synapse to its target and at most one sensor."""
+    read.keys("inputs", tables)
     inputs = []
-    for iname, table in doc.get("inputs", {}).items():
+    for iname, table in tables.items():
         entry = f"inputs.{iname}"
-        unknown_keys(entry, table, _INPUT_KEYS)
-        if iname in index:
-            fail(entry, f"duplicate name {iname!r}: already a neuron")
+        read.keys(entry, table, _INPUT_KEYS)
+        if iname in neuron_names:
+            read.fail(entry, f"duplicate name {iname!r}: already a neuron")
         target = table.get("target")
-        if target not in index:
-            fail(entry, f"unknown target neuron {target!r}")
+        if target not in neuron_names:
+            read.fail(entry, f"unknown target neuron {target!r}")
         inp = InputNeuron(
             name=iname, target=target,
-            weight=number(entry, "weight", table.get("weight", 20.0)),
-            delay=number(entry, "delay", table.get("delay", 0), integer=True),
-            pulses=number(entry, "pulses", table.get("pulses", 1), integer=True),
+            weight=read.number(entry, "weight", table.get("weight", 20.0)),
+            delay=read.number(entry, "delay", table.get("delay", 0), integer=True),
+            pulses=read.number(entry, "pulses", table.get("pulses", 1), integer=True),
             sensor=table.get("sensor"),
-            at_start=None if "at_start" not in table else number(entry, "at_start", table["at_start"]),
+            at_start=None if "at_start" not in table else read.number(entry, "at_start", table["at_start"]),
         )
         if inp.weight <= 0:
-            fail(entry, f"weight must be > 0, got {inp.weight}")
+            read.fail(entry, f"weight must be > 0, got {inp.weight}")
         if inp.delay < 0:
-            fail(entry, f"delay must be >= 0 ticks, got {inp.delay}")
+            read.fail(entry, f"delay must be >= 0 ticks, got {inp.delay}")
         if inp.pulses < 1:
-            fail(entry, f"pulses must be >= 1, got {inp.pulses}")
+            read.fail(entry, f"pulses must be >= 1, got {inp.pulses}")
         if inp.at_start is not None and inp.at_start < 0:
-            fail(entry, f"at_start must be >= 0, got {inp.at_start}")
+            read.fail(entry, f"at_start must be >= 0, got {inp.at_start}")
         if inp.sensor is not None and not isinstance(inp.sensor, str):
-            fail(entry, f"sensor must be a name, got {inp.sensor!r}")
+            read.fail(entry, f"sensor must be a name, got {inp.sensor!r}")
         inputs.append(inp)
-        index[iname] = len(index)
     sensors = [i.sensor for i in inputs if i.sensor]
     for s in sensors:
         if sensors.count(s) > 1:
-            fail("inputs", f"sensor {s!r} feeds more than one input neuron")
+            read.fail("inputs", f"sensor {s!r} feeds more than one input neuron")
+    return tuple(inputs)
 
-    # synapses: from/to may be a name or a list of names (all pairs)
-    synapses, seen = [], {}
-    raw = doc.get("synapses", [])
+
+def _synapses(read: _Reader, raw, neuron_names: tuple[str, ...], neuron_types: tuple[NeuronType, ...],
+              inputs: tuple[InputNeuron, ...]) -> tuple[Synapse, ...]:
+    """[[synapses]] between neurons (from/to: a name or a list of names, all pairs), then one
+    synapse per input neuron to its target."""
     if not isinstance(raw, list):
-        fail("synapses", "must be an array of tables ([[synapses]])")
+        read.fail("synapses", "must be an array of tables ([[synapses]])")
+    index = {n: k for k, n in enumerate(neuron_names + tuple(i.name for i in inputs))}
+    synapses, seen = [], {}
     for k, table in enumerate(raw):
         entry = f"synapses[{k}]"
-        unknown_keys(entry, table, _SYNAPSE_KEYS)
+        read.keys(entry, table, _SYNAPSE_KEYS)
         for key in ("from", "to", "weight", "delay"):
             if key not in table:
-                fail(entry, f"missing {key!r}")
+                read.fail(entry, f"missing {key!r}")
         pres = table["from"] if isinstance(table["from"], list) else [table["from"]]
         posts = table["to"] if isinstance(table["to"], list) else [table["to"]]
-        weight = number(entry, "weight", table["weight"])
-        delay = number(entry, "delay", table["delay"], integer=True)
+        weight = read.number(entry, "weight", table["weight"])
+        delay = read.number(entry, "delay", table["delay"], integer=True)
         inhibitory = table.get("inhibitory", False)
         plastic = table.get("plastic", False)
         for key, val in (("inhibitory", inhibitory), ("plastic", plastic)):
             if not isinstance(val, bool):
-                fail(entry, f"{key} must be true or false, got {val!r}")
+                read.fail(entry, f"{key} must be true or false, got {val!r}")
         if delay < 1:
-            fail(entry, f"delay must be >= 1 tick, got {delay}")
+            read.fail(entry, f"delay must be >= 1 tick, got {delay}")
         if weight <= 0:
-            fail(entry, f"weight must be > 0 (use inhibitory = true for inhibition), got {weight}")
+            read.fail(entry, f"weight must be > 0 (use inhibitory = true for inhibition), got {weight}")
         if inhibitory and plastic:
-            fail(entry, "inhibitory synapses are not plastic")
+            read.fail(entry, "inhibitory synapses are not plastic")
         for pre in pres:
             for post in posts:
                 label = f"{entry} ({pre} -> {post})"
-                if pre not in index or pre not in neuron_names:
+                if pre not in neuron_names:
                     what = "an input neuron (inputs have one synapse, to their target)" if pre in index else "unknown neuron"
-                    fail(label, f"from: {what} {pre!r}")
+                    read.fail(label, f"from: {what} {pre!r}")
                 if post not in neuron_names:
-                    fail(label, f"to: unknown neuron {post!r}")
+                    read.fail(label, f"to: unknown neuron {post!r}")
                 if (pre, post) in seen:
-                    fail(label, f"duplicate synapse, already defined in {seen[(pre, post)]}")
+                    read.fail(label, f"duplicate synapse, already defined in {seen[(pre, post)]}")
                 seen[(pre, post)] = entry
                 t = neuron_types[index[post]]
                 if plastic and not (t.w_min <= weight <= t.w_max):
-                    fail(label, f"weight {weight} out of range [{t.w_min}, {t.w_max}] of type {t.name!r}")
+                    read.fail(label, f"weight {weight} out of range [{t.w_min}, {t.w_max}] of type {t.name!r}")
                 synapses.append(Synapse(index[pre], index[post], weight, delay, inhibitory, plastic))
-    for inp in inputs:
-        synapses.append(Synapse(index[inp.name], index[inp.target], inp.weight, inp.delay))
+    synapses += [Synapse(index[inp.name], index[inp.target], inp.weight, inp.delay) for inp in inputs]
+    return tuple(synapses)
 
-    actuators = doc.get("actuators", {})
-    unknown_keys("actuators", actuators, set(actuators))
+
+def _actuators(read: _Reader, actuators, neuron_names: tuple[str, ...]) -> dict[str, str]:
+    """[actuators]: ACTION = "neuron" whose spike triggers that action."""
+    read.keys("actuators", actuators)
     for action, nname in actuators.items():
         if nname not in neuron_names:
-            fail(f"actuators.{action}", f"unknown neuron {nname!r}")
-
-    return Circuit(
-        name=str(name), source=source, neuron_names=tuple(neuron_names),
-        neuron_types=tuple(neuron_types), inputs=tuple(inputs), synapses=tuple(synapses),
-        actuators=dict(actuators),
-    )
+            read.fail(f"actuators.{action}", f"unknown neuron {nname!r}")
+    return dict(actuators)
 
 
 def _check_type(t: NeuronType, fail) -> None:
