@@ -75,7 +75,6 @@ plastic = true
         ("[neurons]", "[neurones]", "top level", "unknown key(s) neurones"),
         ("[neurons]", "types = 3\n[neurons]", "types", "must be a table, got 3"),
         ("[neurons]", "actuators = \"B\"\n[neurons]", "actuators", "must be a table, got 'B'"),
-        ("[inputs.a_in]\ntarget = \"A\"", "inputs = [1]", "inputs", "must be a table, got [1]"),
     ],
 )
 def test_wrong_files_name_file_entry_and_problem(tmp_path, old, new, entry, problem):
