@@ -20,6 +20,12 @@ VERSION = 3  # 2: brain and world states come in batches of consecutive ticks; 3
 # binds them to its circuit by name (circuit files: `sensor = ...`, [actuators]).
 INSECT_SENSORS = ("smell_black", "smell_red", "smell_green", "pain", "reward")
 INSECT_ACTIONS = ("rotate", "move")
+# Patch colours in WorldMap grids and WorldState changes and events.
+EMPTY, BLACK, RED, GREEN = 0, 1, 2, 3
+# WorldState events columns: the colour of a collision entered this tick (0: none), food eaten,
+# put back at the start, learning time reached.
+EVENT_COLUMNS = ("collision", "ate", "reset", "learned")
+EV_COLLISION, EV_ATE, EV_RESET, EV_LEARNED = range(len(EVENT_COLUMNS))
 _MAX_ELEMENTS = 1 << 26
 
 
@@ -132,7 +138,7 @@ class BrainLayout(Message, tag="brain_layout", kw_only=True):
 class WorldState(Message, tag="world_state", kw_only=True):
     """The world over T consecutive ticks from `tick`: what each tick sensed, sensors [T, A, S]
     (NaN: nothing; the names as in Sensors), then after its actions pos [T, A, 2], heading [T, A],
-    events [T, A, 4] (collision colour, ate, reset, learned), collisions [T, A], food [T, A]; and
+    events [T, A, 4] (EVENT_COLUMNS), collisions [T, A], food [T, A]; and
     the patches that changed, changes [K, 5] (tick, arena, x index, y index, new colour).
     `final`: the last batch of the run."""
 
@@ -159,7 +165,7 @@ class WorldState(Message, tag="world_state", kw_only=True):
 
 
 class WorldMap(Message, tag="world_map", kw_only=True):
-    """The arenas: grid [arenas, width, height] of colour codes, patch (0, 0) at (x_min, y_min)."""
+    """The arenas: grid [arenas, width, height] of colours (EMPTY, BLACK, RED, GREEN), patch (0, 0) at (x_min, y_min)."""
 
     grid: Array
     x_min: int

@@ -26,9 +26,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from spikinglab.bus.schemas import BrainLayout, BrainState, WorldMap, WorldState
+from spikinglab.bus.schemas import BLACK, EMPTY, EV_LEARNED, GREEN, RED, BrainLayout, BrainState, WorldMap, WorldState
 
-EMPTY, BLACK, RED, GREEN = 0, 1, 2, 3
 PATCH_COLOURS = [(EMPTY, "floor", (24, 24, 28)), (BLACK, "wall", (215, 215, 215)),
                  (RED, "predator", (220, 50, 47)), (GREEN, "food", (60, 190, 80))]
 SEEN_COLOUR = {BLACK: (215, 215, 215), RED: (255, 80, 80), GREEN: (90, 230, 110)}
@@ -157,7 +156,7 @@ class Recorder:
             if (t + 1) % 1000 == 0:  # the learning curve, per 1,000 ticks like the world's own bins
                 self.b["bins"].append((t, float((collisions[k] - self._collisions_at_bin).mean()), float(food[k].mean())))
                 self._collisions_at_bin = collisions[k].copy()
-            for a in np.flatnonzero(events[k, :, 3]):
+            for a in np.flatnonzero(events[k, :, EV_LEARNED]):
                 self.event(f"agent {a} learned: no collision for the required run of ticks (tick {t})", "INFO", t)
         if m.final:
             self.world_done = True

@@ -20,9 +20,20 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from spikinglab.bus.schemas import INSECT_ACTIONS, INSECT_SENSORS
+from spikinglab.bus.schemas import (
+    BLACK,
+    EMPTY,
+    EV_ATE,
+    EV_COLLISION,
+    EV_LEARNED,
+    EV_RESET,
+    EVENT_COLUMNS,
+    GREEN,
+    INSECT_ACTIONS,
+    INSECT_SENSORS,
+    RED,
+)
 
-EMPTY, BLACK, RED, GREEN = 0, 1, 2, 3
 # Sensor columns the world publishes and action columns it takes (the bus's names; the circuit
 # binds them by name).
 SENSORS, ACTIONS = INSECT_SENSORS, INSECT_ACTIONS
@@ -225,7 +236,7 @@ class World:
             learned_at=np.full(A, -1, np.int64), resets=np.zeros(A, np.int64),
         )
         self._bin = np.zeros(A, np.int64)
-        self.events = np.zeros((A, 4), np.int64)  # this tick: collision colour, ate, reset, learned
+        self.events = np.zeros((A, len(EVENT_COLUMNS)), np.int64)  # this tick's events
         self.eaten = np.full((A, 2), -1, np.int64)  # this tick: grid index of the food eaten, or -1
 
     def sense(self) -> np.ndarray:
@@ -266,8 +277,6 @@ class World:
 # fpar columns
 X_MIN, Y_MIN, VIEW, RAY_STEP, ROT_STEP, MOVE_STEP, PUSH, START_X, START_Y, LEARNED_AFTER, PAIN_VALUE, \
     REWARD_VALUE = range(12)
-# events columns (this tick)
-EV_COLLISION, EV_ATE, EV_RESET, EV_LEARNED = range(4)
 
 
 @njit(cache=True, inline="always")
