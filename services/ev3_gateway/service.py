@@ -10,9 +10,9 @@ become timed commands: MOVE -> both motors forward for 500 ms, ROTATE -> spin fo
 
 Busy motors: a command replaces whatever the motors are doing, with its own full duration (a
 repeated MOVE extends the walk); if ROTATE and MOVE come in the same tick, ROTATE wins.
-Safety: the motors are stopped when the brain's liveliness token goes, and when no motor command
-came within --motor-timeout (250 ms) after the last command ended; commands are followed again
-when the brain is back. A broken robot link is reported and retried every second; the brain
+Safety (MotorRules): motor messages are followed only while a brain's liveliness token is on the
+bus; the motors are stopped when it goes, and when no motor command came within --motor-timeout
+(250 ms) after the last command ended; commands are followed again when the brain is back. A broken robot link is reported and retried every second; the brain
 keeps running meanwhile.
 """
 
@@ -25,6 +25,7 @@ import signal
 import sys
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -90,6 +91,63 @@ def sensor_values(reading: Reading, pain_below_cm: float, contact: float) -> np.
     return values
 
 
+@dataclass(frozen=True)
+class MotorCall:
+    """One backend call the gateway is to make: spin(ms, 1), forward(ms) or stop(); why: for the log."""
+
+    call: str
+    args: tuple = ()
+    why: str = ""
+
+    @property
+    def seconds(self) -> float:
+        return self.args[0] / 1000 if self.args else 0.0
+
+
+class MotorRules:
+    """The motor and safety rules, without the bus or the robot: told the time, whether a brain is
+    on the bus and the actions of a motor message (or none), they say which call to make."""
+
+    def __init__(self, move_ms: int, spin_ms: int, timeout_s: float):
+        self.move_ms, self.spin_ms, self.timeout_s = move_ms, spin_ms, timeout_s
+        self.brain_alive = False
+        self.busy_until = 0.0  # when the running motor command ends
+        self.stopped = True  # no motor command is running (or it was stopped)
+
+    def decide(self, now: float, brain_alive: bool, actions: dict | None) -> MotorCall | None:
+        if brain_alive != self.brain_alive:
+            self.brain_alive = brain_alive
+            log.info("brain %s", "is on the bus" if brain_alive else "lost")
+            if not brain_alive:
+                return MotorCall("stop", why="the brain's liveliness token is gone")
+        if actions is not None:
+            if not brain_alive:  # nobody we know sent it
+                return None
+            if actions.get("rotate"):
+                return MotorCall("spin", (self.spin_ms, 1))
+            if actions.get("move"):
+                return MotorCall("forward", (self.move_ms,))
+            return None
+        if not self.stopped and now > self.busy_until + self.timeout_s:
+            return MotorCall("stop", why=f"no motor command within {self.timeout_s * 1000:.0f} ms after the last ended")
+        return None
+
+    def made(self, call: MotorCall, now: float) -> None:
+        """`call` reached the robot at `now`."""
+        self.stopped = call.call == "stop"
+        self.busy_until = 0.0 if self.stopped else now + call.seconds
+
+
+def motor_actions(message: Motor) -> dict | None:
+    """The one robot's actions by name, or None when the message is not for one agent."""
+    actions = message.actions.numpy("actions", "|u1", 2)
+    if actions.shape != (1, len(message.names)):
+        log.warning("ignored motor for tick %d: actions of shape %s, a robot takes (1, %d)", message.tick,
+                    list(actions.shape), len(message.names))
+        return None
+    return dict(zip(message.names, actions[0].tolist()))
+
+
 class Gateway:
     """The robot side: poll and publish in the calling thread, motor commands and safety in another."""
 
@@ -101,8 +159,7 @@ class Gateway:
         self.lock = threading.Lock()  # one backend call at a time (the link is one socket)
         self.linked = threading.Event()
         self.done = threading.Event()
-        self.busy_until = 0.0  # when the running motor command ends
-        self.stopped = True  # no motor command is running (or it was stopped)
+        self.rules = MotorRules(args.move_ms, args.spin_ms, args.motor_timeout)
         self.started = time.monotonic()
         self.stats = {"polls": 0, "commands": 0, "safety_stops": 0, "link_losses": 0, "rejected": 0,
                       "collisions": []}
@@ -181,38 +238,21 @@ class Gateway:
             self.stats["polls"] = tick
 
     def commands(self) -> None:
-        """Motor events -> timed commands; the safety rules."""
-        args = self.args
-        brain_was_alive = False
+        """Motor events -> timed commands, under the MotorRules."""
         while not self.done.is_set():
             message = self.motor.get(timeout=0.02)
+            actions = motor_actions(message) if message is not None else None
+            if message is not None and actions is None:
+                continue
             now = time.monotonic()
-            alive = self.brain.alive
-            if alive != brain_was_alive:
-                log.info("brain %s", "is on the bus" if alive else "lost")
-                brain_was_alive = alive
-                if not alive:
-                    self.safety_stop("the brain's liveliness token is gone")
-            if message is not None:
-                actions = dict(zip(message.names, message.actions.numpy("actions", "|u1", 2)[0]))
-                if actions.get("rotate"):
-                    sent, ms = self.call("spin", args.spin_ms, 1), args.spin_ms
-                elif actions.get("move"):
-                    sent, ms = self.call("forward", args.move_ms), args.move_ms
+            call = self.rules.decide(now, self.brain.alive, actions)
+            if call is not None and self.call(call.call, *call.args):
+                self.rules.made(call, now)
+                if call.call == "stop":
+                    self.stats["safety_stops"] += 1
+                    log.info("motors stopped: %s", call.why)
                 else:
-                    continue
-                if sent:
-                    self.busy_until, self.stopped = now + ms / 1000, False
                     self.stats["commands"] += 1
-            elif not self.stopped and now > self.busy_until + args.motor_timeout:
-                self.safety_stop(f"no motor command within {args.motor_timeout * 1000:.0f} ms after the last ended")
-
-    def safety_stop(self, why: str) -> None:
-        if self.call("stop"):
-            self.stopped = True
-            self.busy_until = 0.0
-            self.stats["safety_stops"] += 1
-            log.info("motors stopped: %s", why)
 
     def run(self) -> None:
         worker = threading.Thread(target=self.commands, name="motor commands", daemon=True)

@@ -1,0 +1,88 @@
+"""The gateway's motor and safety rules, without the bus or a robot (MotorRules, motor_actions)."""
+
+import numpy as np
+import pytest
+
+from spikinglab.bus.schemas import INSECT_ACTIONS, Array, Motor
+from spikinglab.ev3_gateway.service import MotorCall, MotorRules, motor_actions
+
+ROTATE, MOVE, BOTH = {"rotate": 1, "move": 0}, {"rotate": 0, "move": 1}, {"rotate": 1, "move": 1}
+
+
+def rules_with_brain(now=0.0) -> MotorRules:
+    rules = MotorRules(move_ms=500, spin_ms=100, timeout_s=0.25)
+    assert rules.decide(now, True, None) is None  # the brain arrives: nothing to do yet
+    return rules
+
+
+def made(rules, now, actions):
+    call = rules.decide(now, True, actions)
+    rules.made(call, now)
+    return call
+
+
+def test_no_brain_no_motion():
+    rules = MotorRules(move_ms=500, spin_ms=100, timeout_s=0.25)
+    for now in (0.0, 1.0, 5.0):  # a motor message with no brain's token on the bus is not followed
+        assert rules.decide(now, False, MOVE) is None
+        assert rules.decide(now, False, ROTATE) is None
+    assert rules.stopped
+
+
+def test_spikes_become_timed_commands_and_rotate_wins():
+    rules = rules_with_brain()
+    assert rules.decide(0.0, True, MOVE) == MotorCall("forward", (500,))
+    assert rules.decide(0.0, True, ROTATE) == MotorCall("spin", (100, 1))
+    assert rules.decide(0.0, True, BOTH) == MotorCall("spin", (100, 1))
+    assert rules.decide(0.0, True, {"rotate": 0, "move": 0}) is None
+    assert rules.decide(0.0, True, {"jump": 1}) is None  # an action the robot does not have
+
+
+def test_stop_only_after_the_command_ended_and_the_timeout_passed():
+    rules = rules_with_brain()
+    made(rules, 1.0, MOVE)  # forward until 1.5 s
+    assert rules.decide(1.5, True, None) is None  # still walking, then within the 250 ms grace
+    assert rules.decide(1.74, True, None) is None
+    stop = rules.decide(1.76, True, None)
+    assert stop.call == "stop" and "250 ms" in stop.why
+    rules.made(stop, 1.76)
+    assert rules.decide(5.0, True, None) is None  # stopped once, not again and again
+
+
+def test_a_new_command_extends_the_walk():
+    rules = rules_with_brain()
+    made(rules, 1.0, MOVE)
+    made(rules, 1.4, MOVE)  # replaces the first: ends at 1.9
+    assert rules.decide(2.1, True, None) is None
+    assert rules.decide(2.16, True, None).call == "stop"
+
+
+def test_a_stop_that_did_not_reach_the_robot_is_asked_again():
+    rules = rules_with_brain()
+    made(rules, 1.0, ROTATE)  # spin until 1.1
+    assert rules.decide(1.4, True, None).call == "stop"  # the link was down: not made
+    assert rules.decide(1.5, True, None).call == "stop"
+
+
+def test_losing_the_brain_stops_at_once_and_ignores_commands_until_it_is_back():
+    rules = rules_with_brain()
+    made(rules, 1.0, MOVE)
+    stop = rules.decide(1.1, False, None)  # mid-walk
+    assert stop.call == "stop" and "liveliness" in stop.why
+    rules.made(stop, 1.1)
+    assert rules.decide(1.2, False, MOVE) is None
+    assert rules.decide(1.3, True, MOVE) == MotorCall("forward", (500,))
+
+
+def motor(actions) -> Motor:
+    return Motor(tick=7, names=INSECT_ACTIONS, actions=Array.of(np.array(actions, np.uint8).reshape(-1, 2)))
+
+
+@pytest.mark.parametrize("rows,expected", [
+    ([[1, 0]], {"rotate": 1, "move": 0}),
+    ([[0, 1]], {"rotate": 0, "move": 1}),
+    ([], None),  # a message for zero agents: ignored, not an IndexError in the motor thread
+    ([[1, 0], [0, 1]], None),  # for two robots: which one is this?
+])
+def test_motor_messages_for_one_robot_only(rows, expected):
+    assert motor_actions(motor(rows)) == expected
