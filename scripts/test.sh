@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
 # Set up and run the whole test suite on a fresh machine: the system packages the viewer tests need
-# (Mesa's software Vulkan driver for headless screenshots, Chromium for the web viewer), a virtual
+# (Mesa's software Vulkan driver for headless screenshots, Chromium for the web viewer, Xvfb as a
+# display for the native viewer), a virtual
 # environment, then pytest.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if command -v apt-get >/dev/null && command -v dpkg >/dev/null; then
     missing=()
-    for package in libvulkan1 mesa-vulkan-drivers chromium; do
+    for package in libvulkan1 mesa-vulkan-drivers chromium xvfb; do
         dpkg -s "$package" >/dev/null 2>&1 || missing+=("$package")
     done
     if [ ${#missing[@]} -gt 0 ]; then

@@ -234,11 +234,12 @@ def plot(folder: Path, summary: dict) -> None:
     x = (np.arange(bins.shape[1]) + 1) * 1000
     for row in bins[:20]:
         ax.plot(x, row, color="tab:gray", alpha=0.4, lw=0.8)
-    mean = bins.mean(axis=0)
-    window = min(5, len(mean))  # a rolling mean over 5,000 ticks shows the trend through the noise
-    smooth = np.convolve(mean, np.ones(window) / window, mode="valid")
-    who = f"mean of {bins.shape[0]} agents" if len(bins) > 1 else "one insect"
-    ax.plot(x[window - 1:], smooth, color="tab:red", lw=2.5, label=f"{who}, rolling mean over {window},000 ticks")
+    if bins.shape[1]:  # none when a run was stopped within its first 1,000 ticks: an empty plot
+        mean = bins.mean(axis=0)
+        window = min(5, len(mean))  # a rolling mean over 5,000 ticks shows the trend through the noise
+        smooth = np.convolve(mean, np.ones(window) / window, mode="valid")
+        who = f"mean of {bins.shape[0]} agents" if len(bins) > 1 else "one insect"
+        ax.plot(x[window - 1:], smooth, color="tab:red", lw=2.5, label=f"{who}, rolling mean over {window},000 ticks")
     p = summary["parameters"]
     learned = [t for t in summary["learning_time"][:20] if t is not None]
     for k, t in enumerate(learned):  # the criterion: the last collision before p["learned_after"] free ticks

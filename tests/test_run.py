@@ -116,3 +116,11 @@ def test_a_dead_service_ends_the_run_and_is_named(tmp_path):
     assert "the brain stopped (exit -9) before the world ended" in err and "Traceback" not in err
     assert (tmp_path / "r" / "FAILED.txt").exists() and not (tmp_path / "r" / "summary.json").exists()
     assert not running_with(str(tmp_path))
+
+
+def test_a_run_stopped_in_its_first_thousand_ticks_still_plots(tmp_path):
+    from spikinglab.run import plot
+    summary = {"collisions_per_1000_ticks": [[]], "learning_time": [None],
+               "parameters": {"a_plus": 0.02, "seed": 0, "learned_after": 5000}}
+    plot(tmp_path, summary)  # no finished bin yet: an empty plot, not a traceback after Ctrl-C
+    assert (tmp_path / "collisions.png").stat().st_size > 0
