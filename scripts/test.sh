@@ -1,8 +1,7 @@
 #!/usr/bin/env bash
 # Set up and run the whole test suite on a fresh machine: the system packages the viewer tests need
 # (Mesa's software Vulkan driver for headless screenshots, Chromium for the web viewer, Xvfb as a
-# display for the native viewer), a virtual
-# environment, then pytest.
+# display for the native viewer), a virtual environment, then pytest.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if command -v apt-get >/dev/null && command -v dpkg >/dev/null; then
