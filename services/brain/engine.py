@@ -48,8 +48,10 @@ NETLOGO_RULES = {
     "dt0": DT0_AGAIN,  # arrivals at dt = 0 potentiate again at every later arrival (else: once)
 }
 
-# npar columns: per-neuron parameters (from its type), then W(dt) for dt = -STDP_OFFSET.. (stdp.py)
-REST, THRESHOLD, DECAY, REFR_V, REFR_PERIOD, FLOOR, W_MIN, W_MAX, STDP_OFFSET, STDP = range(10)
+# npar columns: per neuron, these fields of its type (circuit.NeuronType), then the offset of dt = 0
+# in W(dt), then the table W(dt) (stdp.py)
+NEURON_COLUMNS = ("rest", "threshold", "decay", "refractory_potential", "refractory_period", "floor", "w_min", "w_max")
+REST, THRESHOLD, DECAY, REFR_V, REFR_PERIOD, FLOOR, W_MIN, W_MAX, STDP_OFFSET, STDP = range(len(NEURON_COLUMNS) + 2)
 # syn columns; flags bits
 PRE, POST, DELAY, FLAGS = 0, 1, 2, 3
 INHIBITORY, PLASTIC = 1, 2
@@ -377,8 +379,8 @@ class Engine:
         ).reshape(self.n_synapses, 4)
         table, offset = stdp_table(c.neuron_types)
         self.npar = np.hstack([
-            np.array([[t.rest, t.threshold, t.decay, t.refractory_potential, t.refractory_period, t.floor,
-                       t.w_min, t.w_max, offset] for t in c.neuron_types], dtype=np.float64),
+            np.array([[getattr(t, name) for name in NEURON_COLUMNS] + [offset] for t in c.neuron_types],
+                     dtype=np.float64),
             table,
         ])
         self.inpar = np.array(

@@ -78,6 +78,14 @@ class WorldParams:
     learned_after: int = 5000  # W: collision-free ticks that count as "learned"
 
     @property
+    def start_x(self) -> float:
+        return self.start[0]
+
+    @property
+    def start_y(self) -> float:
+        return self.start[1]
+
+    @property
     def width(self) -> int:
         return self.x_max - self.x_min + 1
 
@@ -85,6 +93,12 @@ class WorldParams:
     def height(self) -> int:
         return self.y_max - self.y_min + 1
 
+
+# fpar columns: the WorldParams the kernels read, in this order
+WORLD_COLUMNS = ("x_min", "y_min", "view_distance", "ray_step", "rotation_step", "move_step", "push", "start_x",
+                 "start_y", "learned_after", "pain_value", "reward_value")
+X_MIN, Y_MIN, VIEW, RAY_STEP, ROT_STEP, MOVE_STEP, PUSH, START_X, START_Y, LEARNED_AFTER, PAIN_VALUE, \
+    REWARD_VALUE = range(len(WORLD_COLUMNS))
 
 # The paper's steps are the default: with the NetLogo demo's smaller steps the insect creeps up to
 # walls and does not learn avoidance in 40,000 ticks (docs/world.md).
@@ -209,9 +223,7 @@ class World:
         self.sensors = np.full((agents, len(SENSORS)), np.nan)
         self.last_patch = np.zeros(agents, dtype=np.int64)
         self.arena_of = np.zeros(agents, dtype=np.int64) if shared else np.arange(agents)
-        self.fpar = np.array([p.x_min, p.y_min, p.view_distance, p.ray_step, p.rotation_step,
-                              p.move_step, p.push, p.start[0], p.start[1], p.learned_after, p.pain_value,
-                              p.reward_value], dtype=np.float64)
+        self.fpar = np.array([getattr(p, name) for name in WORLD_COLUMNS], dtype=np.float64)
         self.kind = np.zeros(4, dtype=np.uint8)  # per colour: 1 noxious, 2 rewarding
         for c in p.noxious:
             self.kind[c] = 1
@@ -274,9 +286,6 @@ class World:
         return EMPTY
 
 
-# fpar columns
-X_MIN, Y_MIN, VIEW, RAY_STEP, ROT_STEP, MOVE_STEP, PUSH, START_X, START_Y, LEARNED_AFTER, PAIN_VALUE, \
-    REWARD_VALUE = range(12)
 
 
 @njit(cache=True, inline="always")
