@@ -27,7 +27,7 @@ from spikinglab.bus.schemas import Array, BrainLayout, BrainState, Control, Moto
 from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 from spikinglab.options import Parser
 
-from .brain import Brain
+from .brain import Brain, check_sensors
 from .checkpoint import load_weights, save_weights
 from .circuit import CircuitError, load_circuit
 from .engine import DEFAULT_SEMANTICS, ORDERS, SEMANTICS
@@ -105,10 +105,16 @@ class BrainNode:
                  ", ".join(f"{k} {v}" for k, v in options.items()))
 
     def answer(self, message: Sensors) -> Motor | None:
-        """The Motor answer to `message`, or None when it is to be ignored (stale or wrong shape)."""
+        """The Motor answer to `message`, or None when it is to be ignored (stale, wrong shape, or
+        sensors the circuit cannot use)."""
         self.stepped = False
         values = message.values.numpy("values", "<f8", 2)
         if self.brain is None or (message.tick == 0 and self.last_tick >= 0):
+            try:
+                check_sensors(self.circuit, message.names)
+            except ValueError as e:
+                log.warning("ignored sensors for tick %d: %s", message.tick, e)
+                return None
             if self.brain is not None:
                 log.info("tick 0 again: a new run, the brain starts afresh")
             self.start(message)

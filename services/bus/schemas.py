@@ -11,6 +11,7 @@ bumps VERSION.
 from __future__ import annotations
 
 import math
+from typing import Annotated
 
 import msgspec
 import numpy as np
@@ -57,8 +58,13 @@ class Array(msgspec.Struct, frozen=True):
         return np.frombuffer(self.data, dtype=dtype).reshape(self.shape)
 
 
+Tick = Annotated[int, msgspec.Meta(ge=0, lt=2**62)]  # a run's ticks; rerun and numpy take them as int64
+Coordinate = Annotated[int, msgspec.Meta(ge=-(2**31), lt=2**31)]
+SENSED_MAX = 2.0**31  # a sensor value is a number of ticks for the input neuron to wait (int32 counters)
+
+
 class Message(msgspec.Struct, tag_field="kind", frozen=True, kw_only=True):
-    tick: int
+    tick: Tick
     version: int = VERSION
 
     def check(self) -> None:
@@ -70,12 +76,15 @@ class Sensors(Message, tag="sensors", kw_only=True):
 
     names: tuple[str, ...]
     values: Array
-    seed: int = 0  # the world's seed: the brain's netlogo order uses seed + a for agent a, as the arenas
+    seed: Annotated[int, msgspec.Meta(ge=0, lt=2**62)] = 0  # the world's: the brain's netlogo order uses seed + a
 
     def check(self):
         values = self.values.numpy("values", "<f8", 2)
         if values.shape[1] != len(self.names):
             raise BusError(f"values has {values.shape[1]} columns for {len(self.names)} sensor names")
+        sensed = values[~np.isnan(values)]
+        if not ((sensed >= 0) & (sensed < SENSED_MAX)).all():
+            raise BusError("values: a sensor value outside [0, 2**31) (NaN: nothing sensed)")
 
 
 class Motor(Message, tag="motor", kw_only=True):
@@ -162,17 +171,24 @@ class WorldState(Message, tag="world_state", kw_only=True):
                                        ("collisions", self.collisions, "<i8", 2), ("food", self.food, "<i8", 2)):
             if arr.numpy(name, dtype, ndim).shape[:2] != shape:
                 raise BusError(f"{name} covers {arr.shape[:2]} ticks x agents, pos {shape}")
+        if self.pos.shape[2] != 2 or self.changes.shape[1] != 5 or self.events.shape[2] != len(EVENT_COLUMNS):
+            raise BusError("pos needs 2 columns, changes 5, events one per EVENT_COLUMNS")
+        if not (np.isfinite(self.pos.numpy("pos", "<f8", 3)).all() and
+                np.isfinite(self.heading.numpy("heading", "<f8", 2)).all()):
+            raise BusError("pos and heading must be finite")
 
 
 class WorldMap(Message, tag="world_map", kw_only=True):
-    """The arenas: grid [arenas, width, height] of colours (EMPTY, BLACK, RED, GREEN), patch (0, 0) at (x_min, y_min)."""
+    """The arenas: grid [arenas, width, height] of colours (EMPTY, BLACK, RED, GREEN), patch (0, 0)
+    at (x_min, y_min)."""
 
     grid: Array
-    x_min: int
-    y_min: int
+    x_min: Coordinate
+    y_min: Coordinate
 
     def check(self):
-        self.grid.numpy("grid", "|u1", 3)
+        if 0 in self.grid.numpy("grid", "|u1", 3).shape:
+            raise BusError(f"grid of shape {list(self.grid.shape)}: no arena")
 
 
 class TickBatch:
@@ -216,10 +232,17 @@ def decode(payload: bytes, expected: type[Message] | tuple[type[Message], ...] =
         raise BusError(f"invalid message: {e}") from None
     except msgspec.DecodeError as e:
         raise BusError(f"not a message: {e}") from None
+    except Exception as e:  # msgspec lets others through, e.g. UnicodeDecodeError for a bad string
+        raise BusError(f"not a message: {type(e).__name__}: {e}") from None
     if message.version != VERSION:
         raise BusError(f"schema version {message.version}, this program speaks {VERSION}")
     if not isinstance(message, expected):
         names = expected.__name__ if isinstance(expected, type) else "/".join(t.__name__ for t in expected)
         raise BusError(f"a {type(message).__name__} message where {names} was expected")
-    message.check()
+    try:
+        message.check()
+    except BusError:
+        raise
+    except Exception as e:  # a check that trips over a value it did not foresee still rejects
+        raise BusError(f"invalid {type(message).__name__}: {type(e).__name__}: {e}") from None
     return message

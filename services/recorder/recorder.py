@@ -26,7 +26,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from spikinglab.bus.schemas import BLACK, EMPTY, EV_LEARNED, GREEN, RED, BrainLayout, BrainState, WorldMap, WorldState
+from spikinglab.bus.schemas import (BLACK, EMPTY, EV_LEARNED, GREEN, RED, BrainLayout, BrainState, BusError, WorldMap,
+                                    WorldState)
 
 PATCH_COLOURS = [(EMPTY, "floor", (24, 24, 28)), (BLACK, "wall", (215, 215, 215)),
                  (RED, "predator", (220, 50, 47)), (GREEN, "food", (60, 190, 80))]
@@ -105,7 +106,38 @@ class Recorder:
         return self.grid.shape[2] if self.grid is not None else 60
 
     # --- messages ---------------------------------------------------------------------------------
+    def fits(self, message) -> None:
+        """BusError unless `message` fits what this recording holds: the same agents and brain
+        layout as the messages before it, map changes inside the map. A message that does not fit
+        is refused whole, before anything of it is logged."""
+        def refuse(why):
+            raise BusError(f"does not fit the recording: {why}")
+        if isinstance(message, WorldState):
+            agents, changes = message.pos.shape[1], message.changes.numpy("changes", "<i8", 2)
+            if self.agents and agents != self.agents:
+                refuse(f"{agents} agents, the world had {self.agents}")
+            if len(changes) and self.grid is not None:
+                limits = np.array([2**62, self.grid.shape[0], self.grid.shape[1], self.grid.shape[2], GREEN + 1])
+                if ((changes < 0) | (changes >= limits)).any():
+                    refuse("a map change outside the map")
+        elif isinstance(message, BrainState):
+            nodes, neurons, synapses = message.spiked.shape[2], message.potentials.shape[2], message.weights.shape[1]
+            if self.spike_counts is not None and message.spiked.shape[1:] != self.spike_counts.shape:
+                refuse(f"spikes of {list(message.spiked.shape[1:])} agents x nodes, "
+                       f"before {list(self.spike_counts.shape)}")
+            if self.layout is not None and (nodes, neurons, synapses) != (
+                    len(self.layout.nodes), self.layout.neurons, len(self.layout.synapses)):
+                refuse(f"{nodes} nodes, {neurons} neurons, {synapses} synapses; the brain's layout says "
+                       f"{len(self.layout.nodes)}, {self.layout.neurons}, {len(self.layout.synapses)}")
+        elif isinstance(message, BrainLayout) and self.spike_counts is not None:
+            if len(message.nodes) != self.spike_counts.shape[1]:
+                refuse(f"a layout of {len(message.nodes)} nodes for spikes of {self.spike_counts.shape[1]}")
+        elif isinstance(message, WorldMap) and self.agents and self.grid is not None:
+            if message.grid.shape[1:] != self.grid.shape[1:]:
+                refuse(f"a map of {list(message.grid.shape[1:])} patches during a run on {list(self.grid.shape[1:])}")
+
     def on(self, message) -> None:
+        self.fits(message)
         handler = {WorldMap: self.on_world_map, WorldState: self.on_world_state, BrainState: self.on_brain_state,
                    BrainLayout: self.on_brain_layout}[type(message)]
         if message.tick >= 0 and not isinstance(message, (BrainLayout, WorldMap)):
