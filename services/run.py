@@ -92,7 +92,7 @@ def main(argv=None) -> int:
     world.options.update(listen=world_ep, out=folder, progress=not args.quiet, publish_state=not args.no_record)
     brain = Process("brain", "brain", options_for("brain", args), log=folder / "brain.log")
     brain.options.update(listen=brain_ep, connect=world_ep, once=True, save=folder / "weights.npz",
-                         publish_state=not args.no_record)  # they wait for the recorder to listen
+                         stats=folder / "brain-stats.json", publish_state=not args.no_record)  # they wait for the recorder to listen
     recorder = Process("recorder", "record", {"connect": [world_ep, brain_ep], "out": folder / "recording.rrd",
                                               "detail": ",".join(map(str, args.detail))}, log=folder / "recorder.log")
     native = args.view and bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) \
@@ -178,6 +178,7 @@ def learning_rate(circuit, which: str = "a_plus") -> float | list[float]:
 
 def summarise(folder: Path, args, circuit, run_id: str, wall_s: float) -> dict:
     metrics = json.loads((folder / "metrics.json").read_text())
+    brain_stats = json.loads((folder / "brain-stats.json").read_text()) if (folder / "brain-stats.json").exists() else {}
     weights = load_weights(folder / "weights.npz", circuit)
     plastic = circuit.plastic_synapses
     bins = np.array(metrics["collisions_per_1000_ticks"], dtype=float).reshape(args.agents, -1)
@@ -213,6 +214,7 @@ def summarise(folder: Path, args, circuit, run_id: str, wall_s: float) -> dict:
         "food": metrics["food"],
         "all_final_weights": {circuit.synapse_label(k): weights[:, k].tolist() for k in range(weights.shape[1])},
         "world": metrics["world"],
+        "rejected_messages": {"world": metrics.get("rejected_messages", {}), "brain": brain_stats.get("rejected_messages", {})},
     }
     (folder / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary

@@ -12,10 +12,12 @@ import numpy as np
 from spikinglab.brain.checkpoint import load_weights
 from spikinglab.brain.circuit import load_circuit
 from spikinglab.bus import keys
-from spikinglab.bus.schemas import VERSION, Array, Control, Sensors, encode
+from spikinglab.bus.schemas import VERSION, Array, BusError, Control, Motor, Sensors, decode, encode
+from spikinglab.recorder.screenshot import last_tick
 from spikinglab.loop import brain_for, closed_loop
 from spikinglab.world.world import World
 
+from .bus.test_schemas import GOOD
 from .processes import Watcher, endpoint, finish, free_port, start, ticks_in, wait_for
 
 
@@ -50,19 +52,37 @@ def test_brain_killed_mid_run_world_waits_then_continues(tmp_path):
 
 
 def garbage(tick: int) -> list[bytes]:
-    """Malformed payloads: truncated, not msgpack, another version, wrong kind, wrong shapes."""
+    """Malformed payloads: truncated, not msgpack, another version, wrong kind, wrong shapes, a
+    string that is not UTF-8 (the 9-byte message that once killed three services), and seeded byte
+    mutants of real messages of every kind, each checked to be one the decoder rejects."""
     good = encode(Sensors(tick=tick, names=("a",), values=Array.of(np.zeros((1, 1)))))
     raw = msgspec.msgpack.Encoder().encode
-    return [
+    payloads = [
         good[: len(good) // 2],
         b"\xc1\xc1 not a message",
-        raw({"kind": "sensors", "tick": tick, "version": VERSION + 1, "names": [],
+        raw({"kind": "sensors", "tick": tick, "version": VERSION + 7, "names": ["a"],
              "values": {"dtype": "<f8", "shape": [1, 0], "data": b""}}),
         raw({"kind": "motor", "tick": tick, "version": VERSION, "names": ["move"],
              "actions": {"dtype": "|u1", "shape": [1, 1], "data": b""}}),
         encode(Control(tick=tick, command="self-destruct")),
         raw({"kind": "sensors", "tick": "now"}),
+        b"\x81\xa4kind\xa2\xff\xfe",
     ]
+    rng = np.random.default_rng(tick)
+    for message in GOOD:
+        payload = bytearray(encode(message))
+        for where in rng.integers(0, len(payload), 3):
+            payload[where] = rng.integers(0, 256)
+        payloads.append(bytes(payload))
+    return [p for p in payloads if rejected(p)]
+
+
+def rejected(payload: bytes) -> bool:
+    try:
+        decode(payload)
+    except BusError:
+        return True
+    return False
 
 
 def test_malformed_messages_on_every_topic_are_rejected_and_the_run_goes_on(tmp_path):
@@ -73,20 +93,28 @@ def test_malformed_messages_on_every_topic_are_rejected_and_the_run_goes_on(tmp_
 
     world_port, brain_port = free_port(), free_port()
     p_world = start("world", "--listen", endpoint(world_port), "--ticks", ticks, "--seed", seed, "--out", tmp_path,
-                    log=tmp_path / "world.log")
+                    "--publish-state", log=tmp_path / "world.log")
     p_brain = start("brain", "--listen", endpoint(brain_port), "--connect", endpoint(world_port), "--once",
-                    "--save", tmp_path / "weights.npz", log=tmp_path / "brain.log")
+                    "--save", tmp_path / "weights.npz", "--stats", tmp_path / "brain.json", "--publish-state",
+                    log=tmp_path / "brain.log")
+    p_recorder = start("record", "--connect", endpoint(world_port), "--connect", endpoint(brain_port),
+                       "--out", tmp_path / "run.rrd", log=tmp_path / "recorder.log")
     injector = Watcher([endpoint(world_port), endpoint(brain_port)], [])
     stop = threading.Event()
     topics = [keys.sensors("insect"), keys.motor("insect"), keys.control("insect"),
-              keys.world_state("insect"), keys.brain_state("insect")]
+              keys.world_state("insect"), keys.brain_state("insect"), keys.world_map("insect")]
     publishers = {k: injector.session.declare_publisher(k) for k in topics}
+    # well formed, but not for this run: motor for no agents and for two
+    misfits = [encode(Motor(tick=t, names=("rotate", "move"), actions=Array.of(np.ones((a, 2), np.uint8))))
+               for t in range(0, ticks, 97) for a in (0, 2)]
 
     def inject():
         k = 0
         while not stop.is_set():
+            payloads = garbage(k)
             for key, pub in publishers.items():
-                pub.put(garbage(k)[k % 6], attachment=b"injector")
+                pub.put(payloads[k % len(payloads)], attachment=b"injector")
+            publishers[keys.motor("insect")].put(misfits[k % len(misfits)], attachment=b"injector")
             k += 1
             time.sleep(0.002)
     thread = threading.Thread(target=inject)
@@ -94,22 +122,27 @@ def test_malformed_messages_on_every_topic_are_rejected_and_the_run_goes_on(tmp_
     try:
         assert finish(p_world, 120, tmp_path / "world.log") == 0
         assert finish(p_brain, 30, tmp_path / "brain.log") == 0
+        assert finish(p_recorder, 60, tmp_path / "recorder.log") == 0
     finally:
         stop.set()
         thread.join()
         injector.close()
-        p_world.kill()
-        p_brain.kill()
+        for process in (p_world, p_brain, p_recorder):
+            process.kill()
     metrics = json.loads((tmp_path / "metrics.json").read_text())
-    assert metrics["rejected_messages"] > 10  # the world's motor inbox rejected what came on motor
-    brain_log = (tmp_path / "brain.log").read_text()
-    counts = re.search(r"rejected messages: (\d+) on sensors, (\d+) on control", brain_log)
-    assert int(counts.group(1)) > 10 and int(counts.group(2)) > 10
-    assert "from injector" in brain_log and "from injector" in (tmp_path / "world.log").read_text()
-    # nothing of them was applied: the run is exactly the undisturbed one
+    world_rejected = metrics["rejected_messages"][keys.motor("insect")]
+    assert world_rejected["not a message"] > 10 and world_rejected["does not fit the run"] > 10, world_rejected
+    brain_rejected = json.loads((tmp_path / "brain.json").read_text())["rejected_messages"]
+    assert sum(brain_rejected[keys.sensors("insect")].values()) > 10
+    assert sum(brain_rejected[keys.control("insect")].values()) > 10
+    assert "from injector" in (tmp_path / "brain.log").read_text()
+    recorder_log = (tmp_path / "recorder.log").read_text()
+    assert "from injector" in recorder_log and keys.world_map("insect") in recorder_log
+    # nothing of them was applied: the run is exactly the undisturbed one, and the recording whole
     assert metrics["collisions"] == world.metrics.collisions.tolist()
     assert metrics["food"] == world.metrics.food.tolist()
     np.testing.assert_array_equal(load_weights(tmp_path / "weights.npz", brain.circuit), brain.engine.get_weights())
+    assert last_tick(tmp_path / "run.rrd") == ticks  # poses through tick 3999, then "run ended at tick 4000"
 
 
 def test_brain_and_world_meet_only_through_a_router(tmp_path):

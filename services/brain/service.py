@@ -48,6 +48,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--load", type=Path, help="start from the weights in this checkpoint (.npz)")
     p.add_argument("--save", type=Path, help="write the final weights here (.npz) when the run ends")
     p.add_argument("--once", action="store_true", help="exit after one run ends (default: serve the next run)")
+    p.add_argument("--stats", type=Path,
+                   help="write the rejected messages (and, free-running, the tick rate and lateness) here (JSON) "
+                        "when a run ends")
     p.add_argument("--publish-state", action="store_true",
                    help=f"publish spikes and potentials of every tick, and the weights, in batches of {STATE_BATCH} "
                         "ticks (recorder); the first tick waits until someone subscribes")
@@ -57,7 +60,6 @@ def parser() -> argparse.ArgumentParser:
                            "(robot mode, e.g. 1000); default 0: lock-step with a world")
     free.add_argument("--stale-after", type=float, default=0.5,
                       help="seconds after which a reading no longer counts as sensed (default 0.5)")
-    free.add_argument("--stats", type=Path, help="write the achieved tick rate and lateness here (JSON) at the end")
     free.add_argument("--no-realtime", action="store_true",
                       help="do not ask for real-time scheduling of the clock thread (asked by default; needs "
                            "root or CAP_SYS_NICE on Linux, else the normal scheduler is used)")
@@ -202,8 +204,10 @@ def run(args: argparse.Namespace, session) -> int:
             if order.command == "end":
                 if state is not None and node.brain is not None:  # the rest, and the final weights
                     state.put(node.state_message(final=True))
-                log.info("run ended at tick %d; rejected messages: %d on sensors, %d on control", order.tick,
-                         sensors.rejected_total, control.rejected_total)
+                log.info("run ended at tick %d; rejected messages: %s", order.tick, bus.rejections() or "none")
+                if args.stats:
+                    args.stats.write_text(json.dumps({"ticks": node.last_tick + 1,
+                                                      "rejected_messages": bus.rejections()}))
                 if args.save and node.brain is not None:
                     save_weights(args.save, node.brain.engine, circuit, tick=order.tick)
                     log.info("weights saved to %s", args.save)
@@ -289,7 +293,7 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
     late_ms = np.array(lateness) * 1000 if lateness else np.zeros(1)
     stats = {"ticks": tick, "hz": round(tick / elapsed, 1), "late_ms_median": round(float(np.median(late_ms)), 4),
              "late_ms_p99": round(float(np.percentile(late_ms, 99)), 4), "late_ms_max": round(float(late_ms.max()), 3),
-             "rejected": sensors.rejected_total}
+             "rejected_messages": bus.rejections()}
     log.info("free-running brain stopped after %d ticks: %.1f Hz, lateness median %.3f ms, p99 %.3f ms",
              tick, stats["hz"], stats["late_ms_median"], stats["late_ms_p99"])
     if args.stats:

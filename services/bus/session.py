@@ -7,6 +7,7 @@ file turns it on: sessions find each other through the endpoints given.
 
 from __future__ import annotations
 
+import _thread
 import argparse
 import json
 import logging
@@ -176,14 +177,27 @@ class Inbox:
 
     def _reject(self, sample, error: BusError) -> None:
         sender = sample.attachment.to_bytes().decode(errors="replace") if sample.attachment else "unknown sender"
-        self.rejected[str(error).split(":")[0]] += 1
+        self.refuse(str(sample.key_expr), error, f"from {sender}")
+
+    def refuse(self, key: str, error: Exception, where: str = "") -> None:
+        """Count a message on `key` rejected for `error` (by the decoder, or by the service because
+        it does not fit its run), by key and reason; logged, but a flood does not drown the log."""
+        self.rejected[(key, str(error).split(":")[0])] += 1
         total = self.rejected_total
-        if total <= 20 or total % 1000 == 0:  # a flood must not drown the log
-            log.warning("rejected message on %s from %s: %s (%d rejected so far)", sample.key_expr, sender, error, total)
+        if total <= 20 or total % 1000 == 0:
+            log.warning("rejected message on %s%s: %s (%d rejected so far)", key, f" {where}" if where else "",
+                        error, total)
 
     @property
     def rejected_total(self) -> int:
         return sum(self.rejected.values())
+
+    def rejections(self) -> dict[str, dict[str, int]]:
+        """Rejected messages so far: {key: {reason: count}}."""
+        out: dict[str, dict[str, int]] = {}
+        for (key, reason), count in sorted(self.rejected.items()):
+            out.setdefault(key, {})[reason] = count
+        return out
 
     def close(self) -> None:
         # join the ticker: a daemon thread still inside a zenoh call when Python finalises is
@@ -265,6 +279,16 @@ class Bus:
         self._owned.append(box)
         return box
 
+    def rejections(self) -> dict[str, dict[str, int]]:
+        """Every inbox's rejected messages: {key: {reason: count}} (stats files, summary.json)."""
+        out: dict[str, dict[str, int]] = {}
+        for box in self._owned:
+            if isinstance(box, Inbox):
+                for key, reasons in box.rejections().items():
+                    for reason, count in reasons.items():
+                        out.setdefault(key, {})[reason] = out.get(key, {}).get(reason, 0) + count
+        return out
+
     def presence(self, service: str) -> Presence:
         watch = Presence(self.session, self.group, service)
         self._owned.append(watch)
@@ -280,20 +304,45 @@ class Bus:
         self.session.close()
 
 
+_thread_died = threading.Event()
+
+
+def guard_threads() -> None:
+    """A thread of this process that dies of an exception takes the process down with it, the
+    clean way: logged with its traceback, then the main thread is interrupted as by Ctrl-C (so the
+    service stops its robot, saves and says goodbye) and the process exits 1. Never a process that
+    stays on the bus looking alive while a part of it is dead."""
+    def died(hook) -> None:
+        if hook.exc_type is SystemExit:
+            return
+        log.critical("thread %r died, so this process stops: %s: %s", hook.thread.name if hook.thread else "?",
+                     hook.exc_type.__name__, hook.exc_value, exc_info=(hook.exc_type, hook.exc_value, hook.exc_traceback))
+        _thread_died.set()
+        _thread.interrupt_main(signal.SIGINT)
+    threading.excepthook = died
+
+
+def thread_died() -> bool:
+    return _thread_died.is_set()
+
+
 def service_main(name: str, parser: argparse.ArgumentParser, run, argv=None, interrupted: int = 130,
                  prepare=None) -> int:
     """The common start of a service: logging, its options, SIGTERM handled like Ctrl-C (the
-    service saves, flushes or reports on its way out), the session, then run(args, session)."""
+    service saves, flushes or reports on its way out), a dead thread ends it, the session, then
+    run(args, session)."""
     logging.basicConfig(level=logging.INFO, format=f"%(asctime)s {name} %(levelname)s %(message)s", stream=sys.stderr)
     args = parser.parse_args(argv)
     signal.signal(signal.SIGTERM, signal.default_int_handler)
+    guard_threads()
     if prepare is not None:
         prepare(args)
     session = open_session(args)
     try:
-        return run(args, session)
+        code = run(args, session)
     except KeyboardInterrupt:
-        return interrupted
+        code = interrupted
+    return 1 if thread_died() else code
 
 
 def wait_for_subscriber(outbox: Outbox, what: str, presence: Presence | None = None, every: float = 5.0) -> None:

@@ -32,7 +32,7 @@ import numpy as np
 
 from spikinglab.bus import keys
 from spikinglab.bus.schemas import INSECT_SENSORS, Array, Control, Motor, Sensors
-from spikinglab.bus.session import Bus, add_bus_args, open_session
+from spikinglab.bus.session import Bus, add_bus_args, guard_threads, open_session, thread_died
 from spikinglab.options import Parser
 
 from .backends import BLACK, GREEN, RED, EV3Backend, Reading, RobotLinkError, SimBackend, Wiring
@@ -161,7 +161,7 @@ class Gateway:
         self.done = threading.Event()
         self.rules = MotorRules(args.move_ms, args.spin_ms, args.motor_timeout)
         self.started = time.monotonic()
-        self.stats = {"polls": 0, "commands": 0, "safety_stops": 0, "link_losses": 0, "rejected": 0,
+        self.stats = {"polls": 0, "commands": 0, "safety_stops": 0, "link_losses": 0, "rejected_messages": {},
                       "collisions": []}
 
     def call(self, what: str, *args) -> bool:
@@ -263,7 +263,7 @@ class Gateway:
             self.done.set()
             worker.join(timeout=2)
             self.call("stop")
-            self.stats["rejected"] = self.motor.rejected_total
+            self.stats["rejected_messages"] = self.bus.rejections()
             self.stats["seconds"] = round(time.monotonic() - self.started, 3)
             if self.stats["collisions"] and self.stats["collisions"][-1][1] is None:
                 self.stats["collisions"][-1][1] = self.stats["seconds"]
@@ -281,6 +281,7 @@ def backend_from(args: argparse.Namespace):
 def main(argv=None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s gateway %(levelname)s %(message)s", stream=sys.stderr)
     args = parser().parse_args(argv)
+    guard_threads()  # a dead motor thread stops the gateway (and its motors), exit 1
     try:
         backend = backend_from(args)
     except (RobotLinkError, ValueError, OSError) as e:
@@ -305,7 +306,7 @@ def main(argv=None) -> int:
         log.info("gateway done: %s", {k: len(v) if k == "collisions" else v for k, v in gateway.stats.items()})
         if args.stats:
             args.stats.write_text(json.dumps(gateway.stats))
-    return 0
+    return 1 if thread_died() else 0
 
 
 if __name__ == "__main__":

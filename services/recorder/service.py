@@ -25,7 +25,7 @@ from pathlib import Path
 import rerun as rr
 
 from spikinglab.bus import keys
-from spikinglab.bus.schemas import BrainLayout, BrainState, WorldMap, WorldState
+from spikinglab.bus.schemas import BrainLayout, BrainState, BusError, WorldMap, WorldState
 from spikinglab.bus.session import Bus, add_bus_args, service_main
 from spikinglab.options import Parser, agent_list, port
 
@@ -135,15 +135,18 @@ def run(args: argparse.Namespace, session) -> int:
                     recorder.event(f"{name} {'is on the bus' if change == 'up' else 'left the bus'} "
                                    f"(seen while recording tick {max(recorder.last_tick, 0)})",
                                    "INFO" if change == "up" else "WARN")
-            if inbox.rejected_total != rejected:
-                reasons = ", ".join(f"{n} x {r}" for r, n in inbox.rejected.items())
-                recorder.event(f"rejected messages so far: {inbox.rejected_total} ({reasons})", "WARN")
-                rejected = inbox.rejected_total
             if message is not None:
                 if received == 0:
                     first_at = time.monotonic()
                 received += 1
-                recorder.on(message)
+                try:
+                    recorder.on(message)
+                except BusError as e:  # it does not fit the recording: refused whole, counted
+                    inbox.refuse(keys.state(args.group), e, f"({type(message).__name__} of tick {message.tick})")
+            if inbox.rejected_total != rejected:
+                reasons = ", ".join(f"{n} x {r} on {k}" for (k, r), n in inbox.rejected.items())
+                recorder.event(f"rejected messages so far: {inbox.rejected_total} ({reasons})", "WARN")
+                rejected = inbox.rejected_total
                 if getattr(message, "final", False) and not args.forever and ending is None:
                     ending = time.monotonic() + END_GRACE
             # the run is over when every stream that came has sent its final batch (the world's and
@@ -160,8 +163,9 @@ def run(args: argparse.Namespace, session) -> int:
         rec.disconnect()
         bus.close()
         took = max(time.monotonic() - first_at, 1e-9)
-        log.info("recording written to %s (ticks %s..%s): %d messages in %.1f s, %.0f messages/s",
-                 out, recorder.first_tick, recorder.last_tick, received, took, received / took)
+        log.info("recording written to %s (ticks %s..%s): %d messages in %.1f s, %.0f messages/s; rejected: %s",
+                 out, recorder.first_tick, recorder.last_tick, received, took, received / took,
+                 bus.rejections() or "none")
     return 0
 
 

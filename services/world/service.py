@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from spikinglab.bus import keys
-from spikinglab.bus.schemas import Array, Control, Motor, Sensors, TickBatch, WorldMap, WorldState
+from spikinglab.bus.schemas import Array, BusError, Control, Motor, Sensors, TickBatch, WorldMap, WorldState
 from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 from spikinglab.options import Parser, at_least
 
@@ -193,7 +193,7 @@ def run(args: argparse.Namespace, session) -> int:
         progress.close(done)
         control.put(Control(tick=done, command="end"))
         result = metrics_of(world, done, elapsed)
-        result["rejected_messages"] = motor.rejected_total
+        result["rejected_messages"] = bus.rejections()
         result["partial"] = done < args.ticks
         log.info("%d ticks in %.1f s (%.0f ticks/s); collisions %s; learning time %s", done, elapsed,
                  done / max(elapsed, 1e-9), result["collisions"][:8], result["learning_time"][:8])
@@ -224,11 +224,11 @@ def tick_loop(args, world, sensors, motor, brain, state, request, progress, traj
                     wait_for_subscriber(sensors, "a brain", brain)
                     log.info("brain back: continuing at tick %d", t)
                 sensors.put(request)
+            elif answer.actions.shape[0] != world.agents:
+                motor.refuse(motor.key, BusError(f"does not fit the run: {answer.actions.shape[0]} agents, the "
+                                                 f"world has {world.agents}"), f"(tick {answer.tick})")
             elif answer.tick == t:
                 actions = actions_from(answer, world.agents)
-                if actions is None:
-                    log.warning("ignored motor for tick %d: %d agents, the world has %d",
-                                t, answer.actions.shape[0], world.agents)
         world.act(actions)
         trajectory.keep(t)
         if state is not None:  # this tick's poses, events and changes, before the next sense()
