@@ -13,8 +13,8 @@ from spikinglab.brain.checkpoint import load_weights
 from spikinglab.brain.circuit import load_circuit
 from spikinglab.bus import keys
 from spikinglab.bus.schemas import VERSION, Array, BusError, Control, Motor, Sensors, decode, encode
-from spikinglab.recorder.screenshot import last_tick
 from spikinglab.loop import brain_for, closed_loop
+from spikinglab.recorder.screenshot import last_tick
 from spikinglab.world.world import World
 
 from .bus.test_schemas import GOOD
@@ -104,7 +104,7 @@ def test_malformed_messages_on_every_topic_are_rejected_and_the_run_goes_on(tmp_
     topics = [keys.sensors("insect"), keys.motor("insect"), keys.control("insect"),
               keys.world_state("insect"), keys.brain_state("insect"), keys.world_map("insect")]
     publishers = {k: injector.session.declare_publisher(k) for k in topics}
-    # well formed, but not for this run: motor for no agents and for two
+    # well formed, but not for this run (they do not name it): motor for no agents and for two
     misfits = [encode(Motor(tick=t, names=("rotate", "move"), actions=Array.of(np.ones((a, 2), np.uint8))))
                for t in range(0, ticks, 97) for a in (0, 2)]
 
@@ -131,7 +131,7 @@ def test_malformed_messages_on_every_topic_are_rejected_and_the_run_goes_on(tmp_
             process.kill()
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     world_rejected = metrics["rejected_messages"][keys.motor("insect")]
-    assert world_rejected["not a message"] > 10 and world_rejected["does not fit the run"] > 10, world_rejected
+    assert world_rejected["not a message"] > 10 and world_rejected["another run"] > 10, world_rejected
     brain_rejected = json.loads((tmp_path / "brain.json").read_text())["rejected_messages"]
     assert sum(brain_rejected[keys.sensors("insect")].values()) > 10
     assert sum(brain_rejected[keys.control("insect")].values()) > 10

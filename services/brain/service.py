@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from spikinglab.bus import keys
-from spikinglab.bus.schemas import Array, BrainLayout, BrainState, Control, Motor, Sensors, TickBatch
+from spikinglab.bus.schemas import Array, BrainLayout, BrainState, BusError, Control, Motor, Sensors, TickBatch
 from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 from spikinglab.options import Parser
 
@@ -88,6 +88,7 @@ class BrainNode:
         self.batch = TickBatch(STATE_BATCH)  # spikes and potentials not yet published
         self.stepped = False  # whether the last answer() stepped the brain (not a repeat)
         self.last_tick = -1
+        self.run: str | None = None  # the run served, as its sensor messages name it
         self.last_answer: Motor | None = None
 
     def start(self, message: Sensors) -> None:
@@ -107,24 +108,25 @@ class BrainNode:
                  ", ".join(f"{k} {v}" for k, v in options.items()))
 
     def answer(self, message: Sensors) -> Motor | None:
-        """The Motor answer to `message`, or None when it is to be ignored (stale, wrong shape, or
-        sensors the circuit cannot use)."""
+        """The Motor answer to `message`, or None for an older tick (the world moved on). A message
+        that does not fit (another run mid-run, other agents or sensors) raises BusError."""
         self.stepped = False
         values = message.values.numpy("values", "<f8", 2)
-        if self.brain is None or (message.tick == 0 and self.last_tick >= 0):
+        if self.brain is None or (message.run != self.run and message.tick == 0):
             try:
                 check_sensors(self.circuit, message.names)
             except ValueError as e:
-                log.warning("ignored sensors for tick %d: %s", message.tick, e)
-                return None
+                raise BusError(f"does not fit the circuit: {e}") from None
             if self.brain is not None:
-                log.info("tick 0 again: a new run, the brain starts afresh")
+                log.info("run %s starts: the brain starts afresh", message.run)
             self.start(message)
-            self.last_tick = -1
+            self.run, self.last_tick = message.run, -1
+        if message.run != self.run:
+            raise BusError(f"another run: sensors of run {message.run!r} at tick {message.tick}, the brain serves "
+                           f"run {self.run!r}")
         if message.names != self.brain.sensor_names or values.shape[0] != self.brain.agents:
-            log.warning("ignored sensors for tick %d: %d agents with sensors %s, this brain serves %d with %s",
-                        message.tick, values.shape[0], message.names, self.brain.agents, self.brain.sensor_names)
-            return None
+            raise BusError(f"does not fit the run: {values.shape[0]} agents with sensors {list(message.names)}, this "
+                           f"brain serves {self.brain.agents} with {list(self.brain.sensor_names)}")
         if message.tick == self.last_tick:
             return self.last_answer  # the world asks again: same answer, no second step
         if message.tick < self.last_tick:
@@ -133,8 +135,16 @@ class BrainNode:
             log.info("joined at tick %d (last seen %d)", message.tick, self.last_tick)
         actions = self.brain.step(values)
         self.last_tick, self.stepped = message.tick, True
-        self.last_answer = Motor(tick=message.tick, names=self.brain.action_names, actions=Array.of(actions))
+        self.last_answer = Motor(tick=message.tick, names=self.brain.action_names, actions=Array.of(actions),
+                                 run=self.run)
         return self.last_answer
+
+    def ends(self, order: Control) -> bool:
+        """Whether `order` ends this node's run: an "end" for the run it serves, not before its last tick."""
+        if self.brain is None or order.run != self.run or order.tick < self.last_tick:
+            raise BusError(f"does not fit the run: end of run {order.run!r} at tick {order.tick}, the brain serves "
+                           f"run {self.run!r} at tick {self.last_tick}")
+        return True
 
     def keep_state(self) -> None:
         """Note this tick's spikes and potentials for the next BrainState batch."""
@@ -190,7 +200,11 @@ def run(args: argparse.Namespace, session) -> int:
                 if state is not None and node.last_tick < 0:
                     wait_for_subscriber(state, "a recorder")
                     state.put(layout(circuit, message.tick))
-                answer = node.answer(message)
+                try:
+                    answer = node.answer(message)
+                except BusError as e:
+                    sensors.refuse(sensors.key, e, f"(tick {message.tick})")
+                    continue
                 if answer is not None:
                     motor.put(answer)  # first: the world waits for it; the recorder does not
                     if state is not None and node.stepped:
@@ -200,6 +214,11 @@ def run(args: argparse.Namespace, session) -> int:
                 continue
             order = control.get(timeout=0)
             if order is None:
+                continue
+            try:
+                node.ends(order)
+            except BusError as e:
+                control.refuse(control.key, e)
                 continue
             if order.command == "end":
                 if state is not None and node.brain is not None:  # the rest, and the final weights
@@ -242,10 +261,17 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
     latest, latest_at = None, 0.0
     log.info("brain ready on group %s (%s), free-running at %g Hz; waiting for sensors", args.group, bus.sender,
              args.clock)
-    while latest is None:  # the first reading tells the sensors and the number of agents
+    while latest is None:  # the first reading that fits the circuit tells the sensors and the agents
         latest = sensors.get(timeout=0.25)
+        if latest is not None:
+            try:
+                check_sensors(node.circuit, latest.names)
+            except ValueError as e:
+                sensors.refuse(sensors.key, BusError(f"does not fit the circuit: {e}"))
+                latest = None
     latest_at = time.monotonic()
     node.start(latest)
+    node.run = latest.run
     engine, brain = node.brain.engine, node.brain
     nothing = np.full(latest.values.shape, np.nan)
     if state is not None:
@@ -260,23 +286,34 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
     try:
         while True:
             message = sensors.latest()  # only the newest reading counts
-            if message is not None:
-                latest, latest_at = message, time.monotonic()
             now = time.monotonic()
             fresh = now - latest_at < args.stale_after
+            if message is not None:
+                if message.names != latest.names or message.values.shape != latest.values.shape:
+                    sensors.refuse(sensors.key, BusError(f"does not fit the run: {list(message.values.shape)} "
+                                                         f"sensors of {list(message.names)}"))
+                elif message.run != latest.run and fresh:  # a new run once the robot's has gone quiet
+                    sensors.refuse(sensors.key, BusError(f"another run: {message.run!r}, the robot's is {latest.run!r}"))
+                else:
+                    if message.run != latest.run:
+                        log.info("the robot's run is now %s (%s went quiet)", message.run, latest.run)
+                    latest, latest_at, fresh = message, now, True
             values = latest.values.numpy("values", "<f8", 2) if fresh else nothing
             actions = brain.step(values)
             node.last_tick = tick
             if actions.any():
-                motor.put(Motor(tick=tick, names=brain.action_names, actions=Array.of(actions)))
+                motor.put(Motor(tick=tick, names=brain.action_names, actions=Array.of(actions), run=latest.run))
             if state is not None:
                 node.keep_state()
                 if node.batch.full:
                     state.put(node.state_message())
             if tick % 100 == 0:
                 order = control.get(timeout=0)
-                if order is not None and order.command == "end":
+                if order is not None and order.run == latest.run:
                     break
+                if order is not None:
+                    control.refuse(control.key, BusError(f"another run: end of run {order.run!r}, the robot's run is "
+                                                         f"{latest.run!r}"))
             tick += 1
             next_at += period
             gap = next_at - time.monotonic()

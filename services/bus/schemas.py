@@ -16,7 +16,8 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
-VERSION = 3  # 2: brain and world states come in batches of consecutive ticks; 3: no training switch on the bus
+VERSION = 4  # 2: brain and world states come in batches of consecutive ticks; 3: no training switch on the bus;
+# 4: sensors, motor and control name the run they belong to
 # The insect's senses and actions: what a world or a robot gateway publishes and takes. The brain
 # binds them to its circuit by name (circuit files: `sensor = ...`, [actuators]).
 INSECT_SENSORS = ("smell_black", "smell_red", "smell_green", "pain", "reward")
@@ -58,6 +59,7 @@ class Array(msgspec.Struct, frozen=True):
         return np.frombuffer(self.data, dtype=dtype).reshape(self.shape)
 
 
+RunId = Annotated[str, msgspec.Meta(max_length=64)]  # chosen by the world (or gateway) when its run starts
 Tick = Annotated[int, msgspec.Meta(ge=0, lt=2**62)]  # a run's ticks; rerun and numpy take them as int64
 Coordinate = Annotated[int, msgspec.Meta(ge=-(2**31), lt=2**31)]
 SENSED_MAX = 2.0**31  # a sensor value is a number of ticks for the input neuron to wait (int32 counters)
@@ -76,22 +78,26 @@ class Sensors(Message, tag="sensors", kw_only=True):
 
     names: tuple[str, ...]
     values: Array
+    run: RunId = ""
     seed: Annotated[int, msgspec.Meta(ge=0, lt=2**62)] = 0  # the world's: the brain's netlogo order uses seed + a
 
     def check(self):
         values = self.values.numpy("values", "<f8", 2)
         if values.shape[1] != len(self.names):
             raise BusError(f"values has {values.shape[1]} columns for {len(self.names)} sensor names")
+        if values.shape[0] == 0:
+            raise BusError("values for no agent")
         sensed = values[~np.isnan(values)]
         if not ((sensed >= 0) & (sensed < SENSED_MAX)).all():
             raise BusError("values: a sensor value outside [0, 2**31) (NaN: nothing sensed)")
 
 
 class Motor(Message, tag="motor", kw_only=True):
-    """Which actions fired in tick `tick`: actions[a, k] != 0 for action names[k]."""
+    """Which actions fired in tick `tick` of run `run`: actions[a, k] != 0 for action names[k]."""
 
     names: tuple[str, ...]
     actions: Array
+    run: RunId = ""
 
     def check(self):
         actions = self.actions.numpy("actions", "|u1", 2)
@@ -100,9 +106,10 @@ class Motor(Message, tag="motor", kw_only=True):
 
 
 class Control(Message, tag="control", kw_only=True):
-    """Run control. command: "end" (the run is over: save and stop)."""
+    """Run control. command: "end" (run `run` is over at `tick`: save and stop)."""
 
     command: str
+    run: RunId = ""
 
     def check(self):
         if self.command != "end":

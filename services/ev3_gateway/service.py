@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import secrets
 import signal
 import sys
 import threading
@@ -31,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from spikinglab.bus import keys
-from spikinglab.bus.schemas import INSECT_SENSORS, Array, Control, Motor, Sensors
+from spikinglab.bus.schemas import INSECT_SENSORS, Array, BusError, Control, Motor, Sensors
 from spikinglab.bus.session import Bus, add_bus_args, guard_threads, open_session, thread_died
 from spikinglab.options import Parser
 
@@ -138,13 +139,14 @@ class MotorRules:
         self.busy_until = 0.0 if self.stopped else now + call.seconds
 
 
-def motor_actions(message: Motor) -> dict | None:
-    """The one robot's actions by name, or None when the message is not for one agent."""
+def motor_actions(message: Motor, run: str) -> dict:
+    """The robot's actions by name; BusError when the message is not for this run's one robot."""
     actions = message.actions.numpy("actions", "|u1", 2)
+    if message.run != run:
+        raise BusError(f"another run: motor for run {message.run!r}, the robot's run is {run!r}")
     if actions.shape != (1, len(message.names)):
-        log.warning("ignored motor for tick %d: actions of shape %s, a robot takes (1, %d)", message.tick,
-                    list(actions.shape), len(message.names))
-        return None
+        raise BusError(f"does not fit the run: actions of shape {list(actions.shape)}, a robot takes "
+                       f"(1, {len(message.names)})")
     return dict(zip(message.names, actions[0].tolist()))
 
 
@@ -160,6 +162,7 @@ class Gateway:
         self.linked = threading.Event()
         self.done = threading.Event()
         self.rules = MotorRules(args.move_ms, args.spin_ms, args.motor_timeout)
+        self.run_id = secrets.token_hex(8)  # the brain's motor messages answer readings of this run
         self.started = time.monotonic()
         self.stats = {"polls": 0, "commands": 0, "safety_stops": 0, "link_losses": 0, "rejected_messages": {},
                       "collisions": []}
@@ -232,7 +235,7 @@ class Gateway:
                 self.link_lost(e)
                 continue
             touching = self.count_collision(reading, touching)
-            self.sensors.put(Sensors(tick=tick, names=names, values=Array.of(
+            self.sensors.put(Sensors(tick=tick, names=names, run=self.run_id, values=Array.of(
                 sensor_values(reading, args.pain_below_cm, args.contact_value))))
             tick += 1
             self.stats["polls"] = tick
@@ -241,9 +244,13 @@ class Gateway:
         """Motor events -> timed commands, under the MotorRules."""
         while not self.done.is_set():
             message = self.motor.get(timeout=0.02)
-            actions = motor_actions(message) if message is not None else None
-            if message is not None and actions is None:
-                continue
+            actions = None
+            if message is not None:
+                try:
+                    actions = motor_actions(message, self.run_id)
+                except BusError as e:
+                    self.motor.refuse(self.motor.key, e, f"(tick {message.tick})")
+                    continue
             now = time.monotonic()
             call = self.rules.decide(now, self.brain.alive, actions)
             if call is not None and self.call(call.call, *call.args):
@@ -300,7 +307,7 @@ def main(argv=None) -> int:
     try:
         gateway.run()
     finally:
-        control.put(Control(tick=gateway.stats["polls"], command="end"))  # the brain saves, the recorder ends
+        control.put(Control(tick=gateway.stats["polls"], command="end", run=gateway.run_id))  # the brain saves, the recorder ends
         backend.close()
         bus.close()
         log.info("gateway done: %s", {k: len(v) if k == "collisions" else v for k, v in gateway.stats.items()})

@@ -26,8 +26,18 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from spikinglab.bus.schemas import (BLACK, EMPTY, EV_LEARNED, GREEN, RED, BrainLayout, BrainState, BusError, WorldMap,
-                                    WorldState)
+from spikinglab.bus.schemas import (
+    BLACK,
+    EMPTY,
+    EV_LEARNED,
+    GREEN,
+    RED,
+    BrainLayout,
+    BrainState,
+    BusError,
+    WorldMap,
+    WorldState,
+)
 
 PATCH_COLOURS = [(EMPTY, "floor", (24, 24, 28)), (BLACK, "wall", (215, 215, 215)),
                  (RED, "predator", (220, 50, 47)), (GREEN, "food", (60, 190, 80))]

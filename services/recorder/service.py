@@ -141,14 +141,14 @@ def run(args: argparse.Namespace, session) -> int:
                 received += 1
                 try:
                     recorder.on(message)
+                    if getattr(message, "final", False) and not args.forever and ending is None:
+                        ending = time.monotonic() + END_GRACE
                 except BusError as e:  # it does not fit the recording: refused whole, counted
                     inbox.refuse(keys.state(args.group), e, f"({type(message).__name__} of tick {message.tick})")
             if inbox.rejected_total != rejected:
                 reasons = ", ".join(f"{n} x {r} on {k}" for (k, r), n in inbox.rejected.items())
                 recorder.event(f"rejected messages so far: {inbox.rejected_total} ({reasons})", "WARN")
                 rejected = inbox.rejected_total
-                if getattr(message, "final", False) and not args.forever and ending is None:
-                    ending = time.monotonic() + END_GRACE
             # the run is over when every stream that came has sent its final batch (the world's and
             # the brain's come on different links, in either order)
             if ending and ((recorder.world_done or recorder.agents == 0) and

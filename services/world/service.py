@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import secrets
 import sys
 import time
 from pathlib import Path
@@ -176,13 +177,15 @@ def run(args: argparse.Namespace, session) -> int:
             wait_for_subscriber(state, "a recorder")
             bus.outbox(keys.world_map(args.group)).put(
                 WorldMap(tick=0, grid=Array.of(world.grid), x_min=world.params.x_min, y_min=world.params.y_min))
-        progress = Progress(world, args.ticks, args.progress)
         trajectory = Trajectory(world, args.ticks)
         batch, changes = TickBatch(STATE_BATCH), []
+        run_id = secrets.token_hex(8)  # the brain answers for this run only; an end names it
+        log.info("run %s: %d ticks, seed %d, %d agent(s)", run_id, args.ticks, world.seed, world.agents)
         started = time.perf_counter()
-        request = sensing(world, 0)
-        sensors.put(request)
+        progress = Progress(world, args.ticks, args.progress)  # from here on, Ctrl-C ends the run with a result
         try:
+            request = sensing(world, 0, run_id)
+            sensors.put(request)
             tick_loop(args, world, sensors, motor, brain, state, request, progress, trajectory, batch, changes)
         except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the ticks done are a result too, marked partial
             log.warning("interrupted at tick %d of %d: ending the run there", world.tick, args.ticks)
@@ -191,7 +194,7 @@ def run(args: argparse.Namespace, session) -> int:
         done = world.tick
         elapsed = time.perf_counter() - started
         progress.close(done)
-        control.put(Control(tick=done, command="end"))
+        control.put(Control(tick=done, command="end", run=run_id))
         result = metrics_of(world, done, elapsed)
         result["rejected_messages"] = bus.rejections()
         result["partial"] = done < args.ticks
@@ -207,9 +210,9 @@ def run(args: argparse.Namespace, session) -> int:
         bus.close()
 
 
-def sensing(world: World, tick: int) -> Sensors:
+def sensing(world: World, tick: int, run_id: str) -> Sensors:
     """What the world's insects sense for `tick` (the seed: the brain's netlogo order follows it)."""
-    return Sensors(tick=tick, names=SENSORS, values=Array.of(world.sense()), seed=world.seed)
+    return Sensors(tick=tick, names=SENSORS, values=Array.of(world.sense()), run=run_id, seed=world.seed)
 
 
 def tick_loop(args, world, sensors, motor, brain, state, request, progress, trajectory, batch, changes) -> None:
@@ -224,6 +227,9 @@ def tick_loop(args, world, sensors, motor, brain, state, request, progress, traj
                     wait_for_subscriber(sensors, "a brain", brain)
                     log.info("brain back: continuing at tick %d", t)
                 sensors.put(request)
+            elif answer.run != request.run:
+                motor.refuse(motor.key, BusError(f"another run: motor for run {answer.run!r}, this is "
+                                                 f"{request.run!r}"), f"(tick {answer.tick})")
             elif answer.actions.shape[0] != world.agents:
                 motor.refuse(motor.key, BusError(f"does not fit the run: {answer.actions.shape[0]} agents, the "
                                                  f"world has {world.agents}"), f"(tick {answer.tick})")
@@ -234,7 +240,7 @@ def tick_loop(args, world, sensors, motor, brain, state, request, progress, traj
         if state is not None:  # this tick's poses, events and changes, before the next sense()
             keep_state(batch, changes, world, t)
         if t + 1 < args.ticks:  # the brain's next tick first: the recorder can wait
-            request = sensing(world, t + 1)
+            request = sensing(world, t + 1, request.run)
             sensors.put(request)
         if state is not None and (batch.full or t + 1 == args.ticks):
             state.put(state_message(batch, changes, final=t + 1 == args.ticks))

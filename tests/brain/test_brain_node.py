@@ -1,20 +1,21 @@
 """The brain service's lock-step answers, without the bus (BrainNode.answer)."""
 
 import numpy as np
+import pytest
 
 from spikinglab.brain.brain import Brain
 from spikinglab.brain.circuit import load_circuit
 from spikinglab.brain.service import BrainNode
-from spikinglab.bus.schemas import INSECT_ACTIONS, INSECT_SENSORS, Array, Sensors
+from spikinglab.bus.schemas import INSECT_ACTIONS, INSECT_SENSORS, Array, BusError, Control, Sensors
 
 AGENTS = 3
 CIRCUIT = load_circuit("insect")
 
 
-def sensors(tick, agents=AGENTS, names=INSECT_SENSORS, seed=5) -> Sensors:
+def sensors(tick, agents=AGENTS, names=INSECT_SENSORS, seed=5, run="r1") -> Sensors:
     values = np.full((agents, len(names)), np.nan)
     values[:, 0] = 1.0 + (tick % 4)  # a wall ahead, at a distance that changes
-    return Sensors(tick=tick, names=names, values=Array.of(values), seed=seed)
+    return Sensors(tick=tick, names=names, values=Array.of(values), seed=seed, run=run)
 
 
 def actions(answer) -> np.ndarray:
@@ -45,22 +46,43 @@ def test_a_repeated_tick_is_answered_again_without_a_second_step():
     np.testing.assert_array_equal(node.brain.engine.v, v)
 
 
-def test_older_ticks_and_wrong_shapes_are_ignored():
+def test_older_ticks_are_ignored_and_what_does_not_fit_is_refused():
     node = BrainNode(CIRCUIT)
     for t in range(10):
         node.answer(sensors(t))
-    assert node.answer(sensors(5)) is None  # older than the last answered
-    assert node.answer(sensors(10, agents=2)) is None  # not this brain's agents
-    assert node.answer(sensors(10, names=INSECT_SENSORS[::-1])) is None  # other sensor columns
+    assert node.answer(sensors(5)) is None  # older than the last answered: the world moved on
+    for other, reason in ((sensors(10, agents=2), "does not fit the run: 2 agents"),
+                          (sensors(10, names=INSECT_SENSORS[::-1]), "does not fit the run"),
+                          (sensors(10, run="r2"), "another run: sensors of run 'r2' at tick 10")):
+        with pytest.raises(BusError, match=reason):
+            node.answer(other)
     assert node.last_tick == 9
     assert node.answer(sensors(10)).tick == 10
 
 
-def test_tick_zero_after_others_is_a_new_run():
+def test_a_first_message_the_circuit_cannot_use_is_refused():
+    node = BrainNode(CIRCUIT)
+    with pytest.raises(BusError, match="does not fit the circuit"):
+        node.answer(sensors(0, names=("smell_black", "pain")))
+    assert node.brain is None and node.answer(sensors(0)).tick == 0
+
+
+def test_only_an_end_of_the_run_served_ends_it():
+    node = BrainNode(CIRCUIT)
+    for t in range(10):
+        node.answer(sensors(t))
+    for order in (Control(tick=10, command="end", run="r2"), Control(tick=3, command="end", run="r1")):
+        with pytest.raises(BusError, match="does not fit the run"):
+            node.ends(order)  # another run's, or one from before the brain's last tick
+    assert node.ends(Control(tick=10, command="end", run="r1"))
+
+
+def test_tick_zero_of_another_run_is_a_new_run():
     node = BrainNode(CIRCUIT)
     fresh = [actions(node.answer(sensors(t))) for t in range(200)]
     learned = node.brain.engine.get_weights().copy()
-    again = [actions(node.answer(sensors(t))) for t in range(200)]
+    assert node.answer(sensors(0)) is None  # tick 0 of the same run again: older, not a new run
+    again = [actions(node.answer(sensors(t, run="r2"))) for t in range(200)]
     assert not np.array_equal(learned, initial_weights())  # the first run changed the weights
     np.testing.assert_array_equal(node.brain.engine.get_weights(), learned)  # and the second, from scratch, the same
     for a, b in zip(fresh, again):

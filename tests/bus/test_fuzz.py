@@ -19,6 +19,7 @@ from spikinglab.bus.schemas import (
     BrainLayout,
     BrainState,
     BusError,
+    Control,
     Motor,
     Sensors,
     WorldMap,
@@ -68,10 +69,21 @@ SERVING, RECORDER = consumers()
 def consume(message) -> None:
     if isinstance(message, Sensors):
         for node in (BrainNode(CIRCUIT), SERVING):
-            node.answer(message)
+            try:
+                node.answer(message)
+            except BusError:  # refused: it does not fit the run
+                pass
     elif isinstance(message, Motor):
         actions_from(message, 3)
-        motor_actions(message)
+        try:
+            motor_actions(message, "")
+        except BusError:
+            pass
+    elif isinstance(message, Control):
+        try:
+            SERVING.ends(message)
+        except BusError:
+            pass
     elif isinstance(message, (BrainLayout, BrainState, WorldMap, WorldState)):
         try:
             RECORDER.on(message)  # refuses, with a BusError, what does not fit the recording

@@ -1,9 +1,11 @@
 """The gateway's motor and safety rules, without the bus or a robot (MotorRules, motor_actions)."""
 
+import re
+
 import numpy as np
 import pytest
 
-from spikinglab.bus.schemas import INSECT_ACTIONS, Array, Motor
+from spikinglab.bus.schemas import INSECT_ACTIONS, Array, BusError, Motor
 from spikinglab.ev3_gateway.service import MotorCall, MotorRules, motor_actions
 
 ROTATE, MOVE, BOTH = {"rotate": 1, "move": 0}, {"rotate": 0, "move": 1}, {"rotate": 1, "move": 1}
@@ -74,15 +76,20 @@ def test_losing_the_brain_stops_at_once_and_ignores_commands_until_it_is_back():
     assert rules.decide(1.3, True, MOVE) == MotorCall("forward", (500,))
 
 
-def motor(actions) -> Motor:
-    return Motor(tick=7, names=INSECT_ACTIONS, actions=Array.of(np.array(actions, np.uint8).reshape(-1, 2)))
+def motor(actions, run="r1") -> Motor:
+    return Motor(tick=7, names=INSECT_ACTIONS, actions=Array.of(np.array(actions, np.uint8).reshape(-1, 2)), run=run)
 
 
-@pytest.mark.parametrize("rows,expected", [
-    ([[1, 0]], {"rotate": 1, "move": 0}),
-    ([[0, 1]], {"rotate": 0, "move": 1}),
-    ([], None),  # a message for zero agents: ignored, not an IndexError in the motor thread
-    ([[1, 0], [0, 1]], None),  # for two robots: which one is this?
+@pytest.mark.parametrize("rows,expected", [([[1, 0]], {"rotate": 1, "move": 0}), ([[0, 1]], {"rotate": 0, "move": 1})])
+def test_motor_messages_for_this_runs_robot(rows, expected):
+    assert motor_actions(motor(rows), "r1") == expected
+
+
+@pytest.mark.parametrize("message,reason", [
+    (motor([]), "does not fit the run: actions of shape [0, 2]"),  # for no robot: once an IndexError in the thread
+    (motor([[1, 0], [0, 1]]), "does not fit the run: actions of shape [2, 2]"),  # two robots: which one is this?
+    (motor([[0, 1]], run="r0"), "another run: motor for run 'r0'"),  # an old run's, or a forger's guess
 ])
-def test_motor_messages_for_one_robot_only(rows, expected):
-    assert motor_actions(motor(rows)) == expected
+def test_other_motor_messages_are_refused(message, reason):
+    with pytest.raises(BusError, match=re.escape(reason)):
+        motor_actions(message, "r1")
