@@ -66,7 +66,7 @@ def alone(ticks: int) -> float:
         world.act(world_actions(answer.names, answer.actions.numpy("actions", "|u1", 2)))
         keep_state(batch, changes, world, t)
         if batch.full or t + 1 == ticks:
-            messages.append(encode(state_message(batch, changes, final=t + 1 == ticks)))
+            messages.append(encode(state_message(batch, changes, t + 1 == ticks, world)))
             messages.append(encode(node.state_message(final=t + 1 == ticks)))
         values = world.sense()
     with tempfile.TemporaryDirectory() as tmp:

@@ -16,7 +16,7 @@ COMMANDS = {
     "router": ("spikinglab.router", "a Zenoh router, for brain and world on different machines"),
     "sweep": ("spikinglab.sweep", "the paper's Table 1: learning time for A+ = A- over seeds"),
     "conditioning": ("spikinglab.brain.conditioning", "classical conditioning demo on fig. 2 and fig. 4"),
-    "bench": (None, "benchmarks and experiments: bench engine | loop | recorder | gateway | table1 | robot"),
+    "bench": (None, "benchmarks and experiments: bench engine | loop | recorder | gateway | table1 | robot | fuzz"),
 }
 BENCHMARKS = {
     "engine": "spikinglab.bench.engine",
@@ -25,6 +25,7 @@ BENCHMARKS = {
     "gateway": "spikinglab.bench.gateway",
     "table1": "spikinglab.bench.table1",
     "robot": "spikinglab.bench.robot",
+    "fuzz": "spikinglab.bench.fuzz",
 }
 
 

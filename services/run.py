@@ -136,6 +136,9 @@ def main(argv=None) -> int:
     if not (folder / "metrics.json").exists() or not (folder / "weights.npz").exists():
         failed(folder, "interrupted before the first tick" if interrupted else "the world or the brain wrote no result")
         return 130 if interrupted else 1
+    if json.loads((folder / "metrics.json").read_text())["ticks"] == 0:  # stopped while the kernels compiled
+        failed(folder, "interrupted before the first tick")
+        return 130
     summary = summarise(folder, args, circuit, run_id, time.time() - started)
     plot(folder, summary)
     plot_trajectory(folder, summary)

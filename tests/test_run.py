@@ -75,6 +75,11 @@ def test_benchmarks_run_and_end_with_json():
                             "netlogo_batch1000_agent_ticks_per_s", "netlogo_over_phased_batch1000_median"}
     assert all(v > 0 for v in figures.values())
     assert spikinglab("bench", "nothing").returncode != 0
+    fuzz = spikinglab("bench", "fuzz", "--examples", 10)
+    assert fuzz.returncode == 0, fuzz.stderr
+    figures = json.loads(fuzz.stdout.strip().splitlines()[-1])
+    assert figures["escapes"] == 0 and len(figures["keys"]) == 7
+    assert all(counts["tried"] >= 10 for counts in figures["keys"].values())
 
 
 def start_run(tmp_path, *args):

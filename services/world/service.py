@@ -23,7 +23,17 @@ from pathlib import Path
 import numpy as np
 
 from spikinglab.bus import keys
-from spikinglab.bus.schemas import Array, BusError, Control, Motor, Sensors, TickBatch, WorldMap, WorldState
+from spikinglab.bus.schemas import (
+    EVENT_COLUMNS,
+    Array,
+    BusError,
+    Control,
+    Motor,
+    Sensors,
+    TickBatch,
+    WorldMap,
+    WorldState,
+)
 from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 from spikinglab.options import Parser, at_least
 
@@ -110,8 +120,14 @@ def keep_state(batch: TickBatch, changes: list, world: World, t: int) -> None:
         changes.append((t, *row))
 
 
-def state_message(batch: TickBatch, changes: list, final: bool) -> WorldState:
+def state_message(batch: TickBatch, changes: list, final: bool, world: World) -> WorldState:
+    """The ticks kept since the last message (none, when a run ends before its first tick)."""
     first, a = batch.take()
+    if first is None:
+        A = world.agents
+        first, a = world.tick, {"sensors": np.zeros((0, A, len(SENSORS))), "pos": np.zeros((0, A, 2)),
+                                "heading": np.zeros((0, A)), "events": np.zeros((0, A, len(EVENT_COLUMNS)), np.int64),
+                                "collisions": np.zeros((0, A), np.int64), "food": np.zeros((0, A), np.int64)}
     rows = np.array(changes, np.int64).reshape(-1, 5)
     changes.clear()
     return WorldState(tick=first, sensor_names=SENSORS, sensors=Array.of(a["sensors"]), pos=Array.of(a["pos"]),
@@ -190,7 +206,7 @@ def run(args: argparse.Namespace, session) -> int:
         except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the ticks done are a result too, marked partial
             log.warning("interrupted at tick %d of %d: ending the run there", world.tick, args.ticks)
             if state is not None:
-                state.put(state_message(batch, changes, final=True))
+                state.put(state_message(batch, changes, True, world))
         done = world.tick
         elapsed = time.perf_counter() - started
         progress.close(done)
@@ -243,7 +259,7 @@ def tick_loop(args, world, sensors, motor, brain, state, request, progress, traj
             request = sensing(world, t + 1, request.run)
             sensors.put(request)
         if state is not None and (batch.full or t + 1 == args.ticks):
-            state.put(state_message(batch, changes, final=t + 1 == args.ticks))
+            state.put(state_message(batch, changes, t + 1 == args.ticks, world))
         progress.update(t + 1)
 
 
