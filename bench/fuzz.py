@@ -72,6 +72,20 @@ EXAMPLES = [
 ]
 
 
+def serving_brain() -> BrainNode:
+    """A brain that has answered the Sensors example: it serves run r1, for 3 agents."""
+    node = BrainNode(CIRCUIT)
+    node.answer(EXAMPLES[0])
+    return node
+
+
+EXAMPLES.append(serving_brain().state_message())
+
+
+def example(kind):
+    return next(m for m in EXAMPLES if isinstance(m, kind))
+
+
 # any msgpack value: what a peer could put in a field
 values = st.recursive(
     st.none() | st.booleans() | st.integers(min_value=-(2**63), max_value=2**64 - 1) | st.floats()
@@ -81,21 +95,15 @@ values = st.recursive(
 )
 
 
-
-
 class Services:
     """The service code that takes decoded messages, set up as during a run of 3 agents: a brain
     serving run r1 (and a fresh one), the world's and the gateway's motor handling, a recorder."""
 
     def __init__(self):
-        self.serving = BrainNode(CIRCUIT)
-        self.serving.answer(EXAMPLES[0])
+        self.serving = serving_brain()
         self.recorder = Recorder(rr.RecordingStream("spikinglab-fuzz"), detail=(0, 2), flush_every=1)
-        self.recorder.on(layout(CIRCUIT, 0))
-        self.recorder.on(self.serving.state_message())
-        for message in EXAMPLES[3:5]:
-            self.recorder.on(message)
-        EXAMPLES.append(self.serving.state_message())
+        for kind in (BrainLayout, BrainState, WorldMap, WorldState):
+            self.recorder.on(example(kind))
 
     def take(self, message) -> str:
         """'taken' when some service that reads its key takes it, 'refused' when each refuses it (a
@@ -241,13 +249,13 @@ def messages(draw, kind=None):
 
 def payloads(source: str, kind) -> st.SearchStrategy:
     """Payloads (lists of bytes) of one source for one kind."""
-    example = next(m for m in EXAMPLES if isinstance(m, kind))
+    real = example(kind)
     if source == "bytes":
         return st.binary(max_size=256).map(lambda b: [b])
     if source == "byte":
-        return st.composite(lambda draw: [byte_mutant(Drawer(draw), example)])()
+        return st.composite(lambda draw: [byte_mutant(Drawer(draw), real)])()
     if source == "structure":
-        return st.composite(lambda draw: structure_mutants(Drawer(draw), example))()
+        return st.composite(lambda draw: structure_mutants(Drawer(draw), real))()
     return messages(kind).map(lambda m: [encode(m)])
 
 

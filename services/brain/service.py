@@ -203,7 +203,7 @@ def run(args: argparse.Namespace, session) -> int:
                 try:
                     answer = node.answer(message)
                 except BusError as e:
-                    sensors.refuse(sensors.key, e, f"(tick {message.tick})")
+                    sensors.refuse(e, f"(tick {message.tick})")
                     continue
                 if answer is not None:
                     motor.put(answer)  # first: the world waits for it; the recorder does not
@@ -218,7 +218,7 @@ def run(args: argparse.Namespace, session) -> int:
             try:
                 node.ends(order)
             except BusError as e:
-                control.refuse(control.key, e)
+                control.refuse(e)
                 continue
             if order.command == "end":
                 if state is not None and node.brain is not None:  # the rest, and the final weights
@@ -267,7 +267,7 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
             try:
                 check_sensors(node.circuit, latest.names)
             except ValueError as e:
-                sensors.refuse(sensors.key, BusError(f"does not fit the circuit: {e}"))
+                sensors.refuse(BusError(f"does not fit the circuit: {e}"))
                 latest = None
     latest_at = time.monotonic()
     node.start(latest)
@@ -290,10 +290,10 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
             fresh = now - latest_at < args.stale_after
             if message is not None:
                 if message.names != latest.names or message.values.shape != latest.values.shape:
-                    sensors.refuse(sensors.key, BusError(f"does not fit the run: {list(message.values.shape)} "
-                                                         f"sensors of {list(message.names)}"))
+                    sensors.refuse(BusError(f"does not fit the run: {list(message.values.shape)} "
+                                            f"sensors of {list(message.names)}"))
                 elif message.run != latest.run and fresh:  # a new run once the robot's has gone quiet
-                    sensors.refuse(sensors.key, BusError(f"another run: {message.run!r}, the robot's is {latest.run!r}"))
+                    sensors.refuse(BusError(f"another run: {message.run!r}, the robot's is {latest.run!r}"))
                 else:
                     if message.run != latest.run:
                         log.info("the robot's run is now %s (%s went quiet)", message.run, latest.run)
@@ -312,8 +312,8 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
                 if order is not None and order.run == latest.run:
                     break
                 if order is not None:
-                    control.refuse(control.key, BusError(f"another run: end of run {order.run!r}, the robot's run is "
-                                                         f"{latest.run!r}"))
+                    control.refuse(BusError(f"another run: end of run {order.run!r}, the robot's run is "
+                                            f"{latest.run!r}"))
             tick += 1
             next_at += period
             gap = next_at - time.monotonic()

@@ -109,6 +109,14 @@ def report_if_alone(session: zenoh.Session, connect: list[str]) -> None:
                 "still trying", ", ".join(connect), NOTHING_ANSWERS_AFTER)
 
 
+def by_key(rejected: Counter) -> dict[str, dict[str, int]]:
+    """Rejection counts {(key, reason): n} as {key: {reason: n}}."""
+    out: dict[str, dict[str, int]] = {}
+    for (key, reason), count in sorted(rejected.items()):
+        out.setdefault(key, {})[reason] = count
+    return out
+
+
 class Inbox:
     """A subscriber whose messages are decoded strictly: good ones are returned by `get()`, bad
     ones are counted and logged (key, sender, reason) and dropped whole.
@@ -177,11 +185,13 @@ class Inbox:
 
     def _reject(self, sample, error: BusError) -> None:
         sender = sample.attachment.to_bytes().decode(errors="replace") if sample.attachment else "unknown sender"
-        self.refuse(str(sample.key_expr), error, f"from {sender}")
+        self.refuse(error, f"from {sender}", key=str(sample.key_expr))
 
-    def refuse(self, key: str, error: Exception, where: str = "") -> None:
-        """Count a message on `key` rejected for `error` (by the decoder, or by the service because
-        it does not fit its run), by key and reason; logged, but a flood does not drown the log."""
+    def refuse(self, error: Exception, where: str = "", key: str | None = None) -> None:
+        """Count a message rejected for `error` (by the decoder, or by the service because it does
+        not fit its run), by key (this inbox's unless named) and reason; logged, but a flood does
+        not drown the log."""
+        key = key or self.key
         self.rejected[(key, str(error).split(":")[0])] += 1
         total = self.rejected_total
         if total <= 20 or total % 1000 == 0:
@@ -194,10 +204,7 @@ class Inbox:
 
     def rejections(self) -> dict[str, dict[str, int]]:
         """Rejected messages so far: {key: {reason: count}}."""
-        out: dict[str, dict[str, int]] = {}
-        for (key, reason), count in sorted(self.rejected.items()):
-            out.setdefault(key, {})[reason] = count
-        return out
+        return by_key(self.rejected)
 
     def close(self) -> None:
         # join the ticker: a daemon thread still inside a zenoh call when Python finalises is
@@ -281,13 +288,7 @@ class Bus:
 
     def rejections(self) -> dict[str, dict[str, int]]:
         """Every inbox's rejected messages: {key: {reason: count}} (stats files, summary.json)."""
-        out: dict[str, dict[str, int]] = {}
-        for box in self._owned:
-            if isinstance(box, Inbox):
-                for key, reasons in box.rejections().items():
-                    for reason, count in reasons.items():
-                        out.setdefault(key, {})[reason] = out.get(key, {}).get(reason, 0) + count
-        return out
+        return by_key(sum((box.rejected for box in self._owned if isinstance(box, Inbox)), Counter()))
 
     def presence(self, service: str) -> Presence:
         watch = Presence(self.session, self.group, service)

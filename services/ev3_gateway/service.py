@@ -249,7 +249,7 @@ class Gateway:
                 try:
                     actions = motor_actions(message, self.run_id)
                 except BusError as e:
-                    self.motor.refuse(self.motor.key, e, f"(tick {message.tick})")
+                    self.motor.refuse(e, f"(tick {message.tick})")
                     continue
             now = time.monotonic()
             call = self.rules.decide(now, self.brain.alive, actions)

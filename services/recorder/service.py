@@ -144,7 +144,7 @@ def run(args: argparse.Namespace, session) -> int:
                     if getattr(message, "final", False) and not args.forever and ending is None:
                         ending = time.monotonic() + END_GRACE
                 except BusError as e:  # it does not fit the recording: refused whole, counted
-                    inbox.refuse(keys.state(args.group), e, f"({type(message).__name__} of tick {message.tick})")
+                    inbox.refuse(e, f"({type(message).__name__} of tick {message.tick})")
             if inbox.rejected_total != rejected:
                 reasons = ", ".join(f"{n} x {r} on {k}" for (k, r), n in inbox.rejected.items())
                 recorder.event(f"rejected messages so far: {inbox.rejected_total} ({reasons})", "WARN")

@@ -244,11 +244,11 @@ def tick_loop(args, world, sensors, motor, brain, state, request, progress, traj
                     log.info("brain back: continuing at tick %d", t)
                 sensors.put(request)
             elif answer.run != request.run:
-                motor.refuse(motor.key, BusError(f"another run: motor for run {answer.run!r}, this is "
-                                                 f"{request.run!r}"), f"(tick {answer.tick})")
+                motor.refuse(BusError(f"another run: motor for run {answer.run!r}, this is "
+                                      f"{request.run!r}"), f"(tick {answer.tick})")
             elif answer.actions.shape[0] != world.agents:
-                motor.refuse(motor.key, BusError(f"does not fit the run: {answer.actions.shape[0]} agents, the "
-                                                 f"world has {world.agents}"), f"(tick {answer.tick})")
+                motor.refuse(BusError(f"does not fit the run: {answer.actions.shape[0]} agents, the "
+                                      f"world has {world.agents}"), f"(tick {answer.tick})")
             elif answer.tick == t:
                 actions = actions_from(answer, world.agents)
         world.act(actions)
