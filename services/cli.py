@@ -14,6 +14,7 @@ COMMANDS = {
     "record": ("spikinglab.recorder.service", "record a run to a Rerun file (.rrd)"),
     "screenshot": ("spikinglab.recorder.screenshot", "a PNG of a recording's replay, rendered headless"),
     "router": ("spikinglab.router", "a Zenoh router, for brain and world on different machines"),
+    "certs": ("spikinglab.certs", "certificates and configs for a bus with mutual TLS and access control"),
     "sweep": ("spikinglab.sweep", "the paper's Table 1: learning time for A+ = A- over seeds"),
     "conditioning": ("spikinglab.brain.conditioning", "classical conditioning demo on fig. 2 and fig. 4"),
     "bench": (None, "benchmarks and experiments: bench engine | loop | recorder | gateway | table1 | robot | fuzz"),

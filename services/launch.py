@@ -244,8 +244,13 @@ class Launcher:
     def stop(self, name: str, timeout: float = STOP_S) -> None:
         stop(self.children[name].popen, timeout)
 
+    def ending_order(self) -> list[str]:
+        """Start order (the world first writes what it has), but a router or a fake brick last:
+        the others still need them to say goodbye."""
+        return sorted(self.children, key=lambda name: self.children[name].process.service in ENDLESS)
+
     def stop_all(self, timeout: float = 5.0) -> None:
-        for name in self.children:
+        for name in self.ending_order():
             self.stop(name, timeout)
         for child in self.children.values():
             if child.reader is not None:
@@ -337,8 +342,9 @@ def main(argv=None) -> int:
             if failure is None:
                 launcher.finish()
         except KeyboardInterrupt:
-            log.warning("interrupted: ending %s in order", ", ".join(launcher.children))
-            for name in launcher.children:  # in start order: the world first writes what it has
+            order = launcher.ending_order()
+            log.warning("interrupted: ending %s in order", ", ".join(order))
+            for name in order:
                 launcher.stop(name)
             return 130
     except KeyboardInterrupt:

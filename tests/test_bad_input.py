@@ -30,6 +30,10 @@ def files(tmp_path_factory):
     (folder / "badvalue.toml").write_text('[world]\nticks = 0\n')
     (folder / "noservice.toml").write_text('[mind]\nonce = true\n')
     (folder / "broken.toml").write_text('[world\nticks = 2000\n')
+    (folder / "broken.json5").write_text('{mode: "client",, }\n')
+    (folder / "badmode.json5").write_text('{mode: "boss"}\n')
+    (folder / "list.json5").write_text('["tls/127.0.0.1:7447"]\n')
+    (folder / "occupied").write_text("a file, not a folder\n")
     (folder / "bad.toml").write_text('[neurons]\nA = "regular"\n[[synapses]]\nfrom = "A"\nto = "B"\nweight = 5\n'
                                      'delay = 1\n')
     return folder
@@ -70,6 +74,13 @@ CASES = [  # id, arguments ({f}: the input files, {busy}: a port in use), exit c
     ("malformed endpoint", "brain --connect localhost:7447", 2, "argument --connect: 'localhost:7447' is not an endpoint"),
     ("endpoint without port", "world --listen tcp/127.0.0.1", 2, "a tcp endpoint needs host:port"),
     ("port in use", "brain --listen tcp/127.0.0.1:{busy}", 1, "Address already in use"),
+    ("zenoh config missing", "world --zenoh-config certs/world.json5", 2,
+     "argument --zenoh-config: cannot read certs/world.json5: No such file or directory (`spikinglab certs DIR`"),
+    ("zenoh config not JSON5", "brain --zenoh-config {f}/broken.json5", 2,
+     "broken.json5 is not a JSON5 config"),
+    ("zenoh config not an object", "brain --zenoh-config {f}/list.json5", 2, "should hold one JSON5 object"),
+    ("zenoh config Zenoh refuses", "brain --zenoh-config {f}/badmode.json5", 1, "badmode.json5: "),
+    ("certs where a file is", "certs {f}/occupied", 2, "occupied is a file, not a folder for the certificates"),
     ("unknown command", "fly", 2, "unknown command 'fly'"),
     ("launch file missing", "launch {f}/none.toml", 2, "no launch file"),
     ("launch file not TOML", "launch {f}/broken.toml", 2, "broken.toml is not valid TOML"),

@@ -67,6 +67,26 @@ def test_remote_brain_joins_the_world_through_the_router(tmp_path):
     assert not running_with(str(tmp_path))
 
 
+def test_secure_launch_files_run_over_mutual_tls_once_certs_are_made(tmp_path):
+    files = [launch_file("secure-simulation", tmp_path, **{"ticks = 20000": "ticks = 2000"}),
+             launch_file("secure-robot", tmp_path, **{"duration = 60": "duration = 4"})]
+    refused = launch(tmp_path, files[0])  # before `spikinglab certs`: refused, and told what to do
+    out, err = refused.communicate(timeout=60)
+    assert refused.returncode == 2 and "cannot read certs/router.json5" in err and "spikinglab certs" in err, err
+    made = subprocess.run([sys.executable, "-m", "spikinglab.cli", "certs", "certs"], cwd=tmp_path, capture_output=True,
+                          text=True)
+    assert made.returncode == 0, made.stderr
+    for file in files:
+        run = launch(tmp_path, file)
+        out, err = run.communicate(timeout=180)
+        assert run.returncode == 0, out + err
+        assert "rejected: none" in out
+    assert json.loads((tmp_path / "runs" / "launch-secure" / "metrics.json").read_text())["ticks"] == 2000
+    stats = json.loads((tmp_path / "runs" / "launch-secure-robot" / "gateway.json").read_text())
+    assert stats["commands"] > 0  # the brain's MOVEs passed the router's rules to the gateway
+    assert not running_with(str(tmp_path))
+
+
 def test_a_service_that_dies_ends_the_launch_and_is_named(tmp_path):
     file = tmp_path / "broken.toml"
     file.write_text(f'[launch]\nuntil = "world"\n[world]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n'

@@ -18,7 +18,9 @@ import sys
 import threading
 import time
 from collections import Counter
+from pathlib import Path
 
+import json5
 import zenoh
 
 from . import keys
@@ -52,31 +54,49 @@ def add_bus_args(parser: argparse.ArgumentParser) -> None:
                      help="endpoint to connect to, e.g. tcp/192.168.1.10:7447 (repeatable)")
     bus.add_argument("--listen", action="append", default=[], metavar="ENDPOINT", type=endpoint,
                      help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
-    bus.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 config file (TLS, access control, ...)")
+    bus.add_argument("--zenoh-config", metavar="FILE", type=zenoh_config_file,
+                     help="a Zenoh JSON5 config file (TLS, access control: spikinglab certs writes them)")
     bus.add_argument("--group", default=keys.DEFAULT_GROUP,
                      help=f"the insect or population this service belongs to (default {keys.DEFAULT_GROUP})")
     bus.add_argument("--cpu", type=int, metavar="N",
                      help="run this process on CPU N only (a lock-step pair on separate cores is ~30 %% faster)")
 
 
-def make_config(connect=(), listen=(), config_file=None, mode: str = "peer") -> zenoh.Config:
-    if config_file:
-        try:
-            conf = zenoh.Config.from_file(str(config_file))
-        except Exception as e:  # zenoh raises its own error type for a bad file
-            raise SystemExit(f"--zenoh-config {config_file}: {e}") from None
-    else:
-        conf = zenoh.Config()
-        conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("mode", json.dumps(mode))
+def zenoh_config_file(text: str) -> dict:
+    """A --zenoh-config file, read as JSON5 before anything starts (argparse names the option)."""
+    try:
+        settings = json5.loads(Path(text).read_text())
+    except OSError as e:
+        raise argparse.ArgumentTypeError(f"cannot read {text}: {e.strerror} (`spikinglab certs DIR` writes one for "
+                                         "each service)") from None
+    except ValueError as e:  # json5's parse errors, and a file that is not UTF-8
+        raise argparse.ArgumentTypeError(f"{text} is not a JSON5 config: {e}") from None
+    if not isinstance(settings, dict):
+        raise argparse.ArgumentTypeError(f"{text} should hold one JSON5 object {{...}}, not {type(settings).__name__}")
+    return {"file": text, "settings": settings}
+
+
+def make_config(connect=(), listen=(), config_file: dict | None = None, mode: str | None = None) -> zenoh.Config:
+    """A session's config: the --zenoh-config file's settings if given, then these. The mode is
+    `mode` if given (a router), else the file's, else peer; multicast scouting stays off unless
+    the file turns it on (sessions find each other through the endpoints given)."""
+    settings = dict(config_file["settings"]) if config_file else {}
+    if mode is not None or "mode" not in settings:
+        settings["mode"] = mode or "peer"
+    scouting = settings.setdefault("scouting", {})
+    scouting.setdefault("multicast", {}).setdefault("enabled", False)
     if connect:
-        conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+        settings.setdefault("connect", {})["endpoints"] = list(connect)
     if listen:
-        conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
-    return conf
+        settings.setdefault("listen", {})["endpoints"] = list(listen)
+    try:
+        return zenoh.Config.from_json5(json.dumps(settings))
+    except Exception as e:  # zenoh's own error type: a key or value it does not take
+        where = f"--zenoh-config {config_file['file']}" if config_file else "the bus config"
+        raise SystemExit(f"{where}: {str(e).split(' at /')[0]}") from None
 
 
-def open_session(args: argparse.Namespace, mode: str = "peer") -> zenoh.Session:
+def open_session(args: argparse.Namespace, mode: str | None = None) -> zenoh.Session:
     if getattr(args, "cpu", None) is not None:  # before zenoh starts its threads, so they stay there too
         try:
             os.sched_setaffinity(0, {args.cpu})
@@ -86,7 +106,7 @@ def open_session(args: argparse.Namespace, mode: str = "peer") -> zenoh.Session:
         session = zenoh.open(make_config(args.connect, args.listen, args.zenoh_config, mode))
     except zenoh.ZError as e:
         reason = str(e).split(" at /")[0]  # without the Rust source location
-        raise SystemExit(f"cannot open the bus session ({mode}; connect {args.connect}, listen {args.listen}): "
+        raise SystemExit(f"cannot open the bus session (connect {args.connect}, listen {args.listen}): "
                          f"{reason}") from None
     if args.connect:
         threading.Thread(target=report_if_alone, args=(session, args.connect), daemon=True,

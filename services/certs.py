@@ -1,0 +1,195 @@
+"""`spikinglab certs DIR`: a certificate authority, a certificate per service, and the Zenoh configs
+of a bus where only the right process may publish each key (docs/security.md).
+
+In DIR: ca.pem (and ca.key, kept to make more certificates later), <role>.pem and <role>.key for
+each role, <role>.json5 a Zenoh config for that role's process (--zenoh-config), router.json5 the
+router's, with mutual TLS and the access-control rules below. Every process connects to the router
+as a client over tls/ (never to another directly), and the router lets a process put only its own
+keys: the world and the gateway sensors and control, the brain motor, each its own state and its
+own liveliness token; a viewer (or a recorder) may subscribe to everything and put nothing.
+"""
+
+from __future__ import annotations
+
+import datetime
+import ipaddress
+import json
+import logging
+import os
+import sys
+from pathlib import Path
+
+from cryptography import x509
+from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.hazmat.primitives.asymmetric import ec
+from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+from spikinglab.bus import keys
+from spikinglab.options import Parser, at_least
+
+log = logging.getLogger("spikinglab.certs")
+
+# role -> the keys (below spikinglab/<group>/) its process may put
+PUTS = {
+    "router": (),
+    "world": ("sensors", "control", "state/world", "state/map"),
+    "gateway": ("sensors", "control"),
+    "brain": ("motor", "state/brain"),
+    "recorder": (),
+    "viewer": (),
+}
+EVERY_GROUP = f"{keys.PREFIX}/*"
+READ = {  # what every role may do: subscribe to any key of any group and be sent what is put there
+    "ingress": ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"],
+    "egress": ["put", "delete", "liveliness_token", "reply", "declare_subscriber"],
+}
+
+
+def _name(common_name: str) -> x509.Name:
+    return x509.Name([x509.NameAttribute(NameOID.ORGANIZATION_NAME, "spikinglab"),
+                      x509.NameAttribute(NameOID.COMMON_NAME, common_name)])
+
+
+def _write_key(path: Path, key) -> None:
+    path.write_bytes(key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                                       serialization.NoEncryption()))
+    path.chmod(0o600)
+
+
+def _alternative_names(hosts: list[str]) -> x509.SubjectAlternativeName:
+    names = []
+    for host in hosts:
+        try:
+            names.append(x509.IPAddress(ipaddress.ip_address(host)))
+        except ValueError:
+            names.append(x509.DNSName(host))
+    return x509.SubjectAlternativeName(names)
+
+
+def make_ca(folder: Path, days: int):
+    key = ec.generate_private_key(ec.SECP256R1())
+    now = datetime.datetime.now(datetime.timezone.utc)
+    cert = (x509.CertificateBuilder().subject_name(_name("spikinglab CA")).issuer_name(_name("spikinglab CA"))
+            .public_key(key.public_key()).serial_number(x509.random_serial_number())
+            .not_valid_before(now - datetime.timedelta(minutes=5)).not_valid_after(now + datetime.timedelta(days=days))
+            .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+            .add_extension(x509.KeyUsage(digital_signature=True, key_cert_sign=True, crl_sign=True,
+                                         content_commitment=False, key_encipherment=False, data_encipherment=False,
+                                         key_agreement=False, encipher_only=False, decipher_only=False), critical=True)
+            .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
+            .sign(key, hashes.SHA256()))
+    _write_key(folder / "ca.key", key)
+    (folder / "ca.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    return key, cert
+
+
+def load_ca(folder: Path):
+    key = serialization.load_pem_private_key((folder / "ca.key").read_bytes(), password=None)
+    return key, x509.load_pem_x509_certificate((folder / "ca.pem").read_bytes())
+
+
+def make_certificate(folder: Path, role: str, hosts: list[str], ca_key, ca_cert, days: int) -> None:
+    """<role>.pem and <role>.key: common name = the role (what the router's rules match), valid as a
+    server and as a client for `hosts` (the router's must name the address the others dial)."""
+    key = ec.generate_private_key(ec.SECP256R1())
+    now = datetime.datetime.now(datetime.timezone.utc)
+    cert = (x509.CertificateBuilder().subject_name(_name(role)).issuer_name(ca_cert.subject)
+            .public_key(key.public_key()).serial_number(x509.random_serial_number())
+            .not_valid_before(now - datetime.timedelta(minutes=5)).not_valid_after(now + datetime.timedelta(days=days))
+            .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+            .add_extension(_alternative_names(hosts), critical=False)
+            .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
+                           critical=False)
+            .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
+            .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()), critical=False)
+            .sign(ca_key, hashes.SHA256()))
+    _write_key(folder / f"{role}.key", key)
+    (folder / f"{role}.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+
+
+def access_control() -> dict:
+    """The router's rules: deny by default; everyone reads; each role puts its own keys only."""
+    rules = [{"id": f"read {flow}", "permission": "allow", "flows": [flow], "messages": messages,
+              "key_exprs": [f"{EVERY_GROUP}/**"]} for flow, messages in READ.items()]
+    subjects, policies = [], []
+    for role, puts in PUTS.items():
+        subjects.append({"id": role, "cert_common_names": [role]})
+        own = [f"{EVERY_GROUP}/{key}" for key in puts]
+        role_rules = ["read ingress", "read egress"]
+        rules.append({"id": f"{role} alive", "permission": "allow", "flows": ["ingress"],
+                      "messages": ["liveliness_token"], "key_exprs": [f"{EVERY_GROUP}/alive/{role}"]})
+        role_rules.append(f"{role} alive")
+        if own:
+            rules.append({"id": f"{role} puts", "permission": "allow", "flows": ["ingress"], "messages": ["put"],
+                          "key_exprs": own})
+            role_rules.append(f"{role} puts")
+        policies.append({"id": role, "rules": role_rules, "subjects": [role]})
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
+            "policies": policies}
+
+
+def router_config(folder: Path) -> dict:
+    return {"mode": "router", "scouting": {"multicast": {"enabled": False}},
+            "transport": {"link": {"tls": {"root_ca_certificate": str(folder / "ca.pem"),
+                                           "listen_certificate": str(folder / "router.pem"),
+                                           "listen_private_key": str(folder / "router.key"),
+                                           "enable_mtls": True}}},
+            "access_control": access_control()}
+
+
+def client_config(folder: Path, role: str) -> dict:
+    return {"mode": "client", "scouting": {"multicast": {"enabled": False}},
+            "transport": {"link": {"tls": {"root_ca_certificate": str(folder / "ca.pem"),
+                                           "connect_certificate": str(folder / f"{role}.pem"),
+                                           "connect_private_key": str(folder / f"{role}.key"),
+                                           "enable_mtls": True}}}}
+
+
+def write_configs(folder: Path) -> None:
+    header = "// written by `spikinglab certs`; docs/security.md says what it allows\n"
+    for role in PUTS:
+        config = router_config(folder) if role == "router" else client_config(folder, role)
+        (folder / f"{role}.json5").write_text(header + json.dumps(config, indent=2) + "\n")
+
+
+def parser() -> Parser:
+    p = Parser(prog="spikinglab certs", description=__doc__.splitlines()[0])
+    p.add_argument("folder", type=Path, metavar="DIR", help="where to write them (made if missing)")
+    p.add_argument("--host", action="append", default=[], metavar="NAME",
+                   help="a name or address the router is reached at, besides localhost and 127.0.0.1 "
+                        "(repeatable; e.g. --host 192.168.1.10 --host lab-pc.local)")
+    p.add_argument("--days", type=at_least(1), default=365, help="how long the certificates are valid (default 365)")
+    p.add_argument("--new-ca", action="store_true", help="make a new CA even if DIR has one (every machine then "
+                                                           "needs the new files)")
+    return p
+
+
+def main(argv=None) -> int:
+    logging.basicConfig(level=logging.INFO, format="certs: %(message)s", stream=sys.stderr)
+    args = parser().parse_args(argv)
+    folder = args.folder.resolve()
+    if folder.exists() and not folder.is_dir():
+        print(f"spikinglab certs: {folder} is a file, not a folder for the certificates", file=sys.stderr)
+        return 2
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        os.chmod(folder, 0o700)
+        if (folder / "ca.key").exists() and not args.new_ca:
+            ca_key, ca_cert = load_ca(folder)
+            log.info("using the CA in %s (--new-ca makes a new one)", folder)
+        else:
+            ca_key, ca_cert = make_ca(folder, args.days)
+        hosts = ["localhost", "127.0.0.1", *args.host]
+        for role in PUTS:
+            make_certificate(folder, role, hosts, ca_key, ca_cert, args.days)
+        write_configs(folder)
+    except (OSError, ValueError) as e:
+        print(f"spikinglab certs: cannot write the certificates in {folder}: {e}", file=sys.stderr)
+        return 1
+    print(f"wrote a CA, certificates and Zenoh configs for {', '.join(PUTS)} in {folder}")
+    print("copy ca.pem and a role's .pem, .key and .json5 to the machine that runs it; keep ca.key safe")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

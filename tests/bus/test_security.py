@@ -1,0 +1,160 @@
+"""The secured bus of `spikinglab certs`: mutual TLS and the router's access control, with real
+processes on loopback. A peer without a certificate cannot connect; a peer with a valid certificate
+of another role reads the run but cannot steer it, end it or move the robot."""
+
+import json
+import stat
+import time
+
+import json5
+import numpy as np
+import pytest
+import zenoh
+from cryptography import x509
+
+from spikinglab import certs
+from spikinglab.brain.checkpoint import load_weights
+from spikinglab.brain.circuit import load_circuit
+from spikinglab.bus import keys
+from spikinglab.bus.schemas import Array, Control, Motor, Sensors, decode, encode
+from spikinglab.bus.session import make_config, zenoh_config_file
+from spikinglab.ev3_gateway.fake_brick import FakeBrick
+from spikinglab.loop import brain_for, closed_loop
+from spikinglab.world.world import World
+
+from ..processes import finish, free_port, start, wait_for
+
+
+@pytest.fixture
+def secure_bus(tmp_path):
+    """A CA and certificates in tmp_path/certs, and a router with their rules: (its endpoint, the folder)."""
+    folder = tmp_path / "certs"
+    assert certs.main([str(folder)]) == 0
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    router = start("router", "--listen", endpoint, "--zenoh-config", folder / "router.json5",
+                   log=tmp_path / "router.log")
+    try:
+        wait_for(lambda: "listening on" in (tmp_path / "router.log").read_text(), 30, "the router")
+        yield endpoint, folder
+    finally:
+        router.kill()
+        router.wait()
+
+
+def session_as(role: str, folder, endpoint: str) -> zenoh.Session:
+    return zenoh.open(make_config(connect=[endpoint], config_file=zenoh_config_file(str(folder / f"{role}.json5"))))
+
+
+def test_certs_makes_a_ca_and_a_certificate_and_config_per_role(tmp_path):
+    folder = tmp_path / "certs"
+    assert certs.main([str(folder), "--host", "192.168.1.10", "--host", "lab-pc.local"]) == 0
+    ca = x509.load_pem_x509_certificate((folder / "ca.pem").read_bytes())
+    for role in certs.PUTS:
+        cert = x509.load_pem_x509_certificate((folder / f"{role}.pem").read_bytes())
+        cert.verify_directly_issued_by(ca)
+        assert cert.subject.get_attributes_for_oid(x509.NameOID.COMMON_NAME)[0].value == role
+        names = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+        assert set(map(str, names.get_values_for_type(x509.IPAddress))) == {"127.0.0.1", "192.168.1.10"}
+        assert set(names.get_values_for_type(x509.DNSName)) == {"localhost", "lab-pc.local"}
+        assert stat.S_IMODE((folder / f"{role}.key").stat().st_mode) == 0o600
+        config = json5.loads((folder / f"{role}.json5").read_text())
+        assert config["mode"] == ("router" if role == "router" else "client")
+        assert config["scouting"]["multicast"]["enabled"] is False
+    # made again: the same CA (certificates already handed out stay valid), new certificates
+    assert certs.main([str(folder)]) == 0
+    assert x509.load_pem_x509_certificate((folder / "ca.pem").read_bytes()) == ca
+
+
+def test_a_peer_without_a_valid_certificate_cannot_connect(secure_bus, tmp_path):
+    endpoint, folder = secure_bus
+    with session_as("viewer", folder, endpoint) as viewer:  # the control: a certificate of the CA connects
+        assert list(viewer.info.routers_zid())
+    no_certificate = {"mode": "client", "transport": {"link": {"tls": {"root_ca_certificate": str(folder / "ca.pem")}}}}
+    assert certs.main([str(tmp_path / "other"), "--new-ca"]) == 0  # the right roles, from another CA
+    with pytest.raises(zenoh.ZError):
+        zenoh.open(make_config(connect=[endpoint], config_file={"file": "-", "settings": no_certificate}))
+    with pytest.raises(zenoh.ZError):
+        session_as("brain", tmp_path / "other", endpoint)
+    with pytest.raises(zenoh.ZError):  # nor in the clear
+        zenoh.open(make_config(connect=[endpoint.replace("tls/", "tcp/")], mode="client"))
+
+
+class Forger:
+    """A session of `role` that reads the sensors (learning the run id and tick) and answers each
+    with what only the brain, the world or the gateway may send: motor ROTATE for that run, an end
+    of that run at that tick, and the brain's liveliness token."""
+
+    def __init__(self, role: str, folder, endpoint: str):
+        self.session = session_as(role, folder, endpoint)
+        self.seen = 0
+        self.token = self.session.liveliness().declare_token(keys.alive(keys.DEFAULT_GROUP, "brain"))
+        self.motor = self.session.declare_publisher(keys.motor(keys.DEFAULT_GROUP))
+        self.control = self.session.declare_publisher(keys.control(keys.DEFAULT_GROUP))
+        self.sub = self.session.declare_subscriber(keys.sensors(keys.DEFAULT_GROUP), self.answer)
+
+    def answer(self, sample) -> None:
+        reading = decode(sample.payload.to_bytes(), Sensors)
+        self.seen += 1
+        agents = reading.values.numpy("values", "<f8", 2).shape[0]
+        self.motor.put(encode(Motor(tick=reading.tick, run=reading.run, names=("rotate", "move"),
+                                    actions=Array.of(np.ones((agents, 2), np.uint8)))), attachment=b"brain@1")
+        if reading.tick % 50 == 0:
+            self.control.put(encode(Control(tick=reading.tick, run=reading.run, command="end")), attachment=b"world@1")
+
+    def close(self) -> None:
+        self.sub.undeclare()
+        self.token.undeclare()
+        self.session.close()
+
+
+@pytest.mark.parametrize("role", ["viewer", "recorder"])
+def test_another_role_reads_the_run_but_cannot_steer_or_end_it(secure_bus, tmp_path, role):
+    endpoint, folder = secure_bus
+    ticks, seed = 3000, 4
+    world = World(seed=seed)
+    brain = brain_for(world, load_circuit("insect"))
+    closed_loop(world, brain, ticks)  # the run as it must come out, undisturbed
+
+    forger = Forger(role, folder, endpoint)
+    p_world = start("world", "--connect", endpoint, "--zenoh-config", folder / "world.json5", "--ticks", ticks,
+                    "--seed", seed, "--out", tmp_path, log=tmp_path / "world.log")
+    p_brain = start("brain", "--connect", endpoint, "--zenoh-config", folder / "brain.json5", "--once",
+                    "--save", tmp_path / "weights.npz", log=tmp_path / "brain.log")
+    try:
+        assert finish(p_world, 120, tmp_path / "world.log") == 0
+        assert finish(p_brain, 30, tmp_path / "brain.log") == 0
+    finally:
+        forger.close()
+        p_world.kill()
+        p_brain.kill()
+    assert forger.seen > ticks // 2  # it was on the bus and read the run (and forged an answer to each reading)
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["ticks"] == ticks and metrics["rejected_messages"] == {}  # nothing forged even arrived
+    assert metrics["collisions"] == world.metrics.collisions.tolist()
+    np.testing.assert_array_equal(load_weights(tmp_path / "weights.npz", brain.circuit), brain.engine.get_weights())
+
+
+def test_only_the_brain_role_moves_the_robot(secure_bus, tmp_path):
+    endpoint, folder = secure_bus
+    with FakeBrick() as brick:
+        gateway = start("gateway", "--backend", "ev3", "--connect", endpoint, "--zenoh-config",
+                        folder / "gateway.json5", log=tmp_path / "gateway.log")
+        try:
+            wait_for(lambda: brick.reads > 200, 60, "the gateway to poll the brick")
+            viewer = Forger("viewer", folder, endpoint)
+            try:
+                wait_for(lambda: viewer.seen > 300, 30, "the viewer to read the robot's sensors")
+            finally:
+                viewer.close()
+            assert not brick.commands  # hundreds of forged ROTATEs for the robot's run: not one reached it
+
+            brain = Forger("brain", folder, endpoint)  # the control: the same forgery with the brain's certificate
+            try:
+                wait_for(lambda: any(c.turn for c in brick.commands), 30, "the brain's certificate to move the robot")
+            finally:
+                brain.close()
+            time.sleep(0.5)
+            assert gateway.poll() is None  # the forged ends of run did not end it either
+        finally:
+            gateway.terminate()
+            finish(gateway, 30, tmp_path / "gateway.log")
