@@ -203,19 +203,25 @@ class Launcher:
         self.children[process.name] = Child(process, popen, next(self._colours), self.logs)
         return popen
 
-    def watch(self, until: str | None = None, poll_s: float = 0.1) -> str | None:
+    def watch(self, until: str | None = None, poll_s: float = 0.1, optional: tuple = ()) -> str | None:
         """Until `until` has ended (None: every process): a process that fails, or ends while
         `until` goes on (for longer than ENDING_S: `until` may be ending too), is noticed within
-        `poll_s`; then a line saying which, and its last lines, are logged and returned."""
+        `poll_s`; then a line saying which, and its last lines, are logged and returned. An
+        `optional` process (a recorder) that fails is logged and the others go on."""
         ended_at: dict[str, float] = {}
         while True:
             for name, child in self.children.items():
                 code = child.popen.poll()
-                if code is None:
+                if code is None or name in ended_at and name in optional:
                     continue
                 if name not in ended_at:
                     ended_at[name] = time.monotonic()
                     log.info("the %s ended (exit %s)", name, code)
+                if name in optional:
+                    if code != 0:
+                        log.error("the %s stopped (exit %s); the others go on without it. Its last lines:\n%s",
+                                  name, code, child.tail())
+                    continue
                 early = until is not None and name != until and self.running(until)
                 if code != 0 or early and time.monotonic() - ended_at[name] > ENDING_S:
                     why = f"the {name} stopped (exit {code})" + (f" before the {until} ended" if early else "")

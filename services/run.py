@@ -28,10 +28,10 @@ from spikinglab.brain.circuit import CircuitError, load_circuit
 from spikinglab.brain.engine import PARALLEL_FROM
 from spikinglab.brain.service import add_engine_args
 from spikinglab.cli import version
-from spikinglab.launch import Launcher, Process, local_endpoints, options_for
+from spikinglab.launch import STOP_S, Launcher, Process, local_endpoints, options_for
 from spikinglab.learning import PAPER
 from spikinglab.options import Parser, agent_list, positive
-from spikinglab.recorder.screenshot import viewer_command
+from spikinglab.recorder.screenshot import last_tick, repair, viewer_command
 from spikinglab.recorder.service import free_port, viewer_answers, web_viewer_url
 from spikinglab.world.service import add_world_args, world_from_args
 from spikinglab.world.world import BIN, SENSORS, MapError
@@ -117,12 +117,13 @@ def main(argv=None) -> int:
                 launcher.start(process)
             if args.view:
                 show_live(launcher, recorder.options, native)
-            dead = launcher.watch(until="world")
+            dead = launcher.watch(until="world", optional=("recorder",))  # a run goes on without a recording
         except KeyboardInterrupt:
             interrupted, dead = True, None
             log.warning("\ninterrupted: ending the run at the ticks done (Ctrl-C again to stop at once)")
             launcher.stop("world")  # as Ctrl-C: the world writes what it has and tells the brain to save
         if dead is not None:
+            launcher.stop_all(timeout=STOP_S)  # the world writes its ticks done, the brain its learning
             failed(folder, dead)
             return 1
         launcher.finish()  # the brain saves, the recorder writes the rest
@@ -140,6 +141,9 @@ def main(argv=None) -> int:
         failed(folder, "interrupted before the first tick")
         return 130
     summary = summarise(folder, args, circuit, run_id, time.time() - started)
+    if not args.no_record:
+        summary["recording"] = recording_status(launcher.children["recorder"].popen.returncode, folder)
+        (folder / "summary.json").write_text(json.dumps(summary, indent=1))
     plot(folder, summary)
     plot_trajectory(folder, summary)
     report(folder, summary)
@@ -167,8 +171,27 @@ def show_live(launcher: Launcher, options: dict, native: bool) -> None:
         log.info("live view (no display here): open %s in a browser; it ends with the run, the recording stays", page)
 
 
+def recording_status(code: int | None, folder: Path) -> dict:
+    """Whether recording.rrd holds the whole run; if its recorder died, the file is given its footer
+    back (so that it opens) and the tick it reaches is said."""
+    path = folder / "recording.rrd"
+    if code == 0:
+        return {"complete": True}
+    status = {"complete": False, "why": f"the recorder stopped (exit {code})"}
+    if path.exists():
+        status["repaired"] = repair(path)
+        status["last_tick"] = last_tick(path)
+    return status
+
+
 def failed(folder: Path, why: str) -> None:
     """A run folder without a result says so (its logs stay for reading)."""
+    metrics = folder / "metrics.json"
+    if metrics.exists():
+        why += f"; the world stopped at tick {json.loads(metrics.read_text())['ticks']:,} (metrics.json)"
+    kept = sorted(path.name for path in folder.glob("weights-*-tick*.npz"))  # the brain's learning when it stopped
+    if kept:
+        why += f"; the brain's weights when it stopped: {', '.join(kept)}"
     (folder / "FAILED.txt").write_text(f"this run has no result: {why}; the logs beside this file say more\n")
     log.error("no result in %s (%s); its logs are there", folder, why)
 
@@ -312,6 +335,9 @@ def report(folder: Path, summary: dict) -> None:
     if (folder / "recording.rrd").exists():
         files += ", recording.rrd"
     print(f"\nwritten to {folder}/: {files}")
+    recording = summary.get("recording", {})
+    if not recording.get("complete", True):
+        print(f"recording: PARTIAL, {recording['why']}; it holds ticks 0 to {recording.get('last_tick', 0):,}")
     if (folder / "recording.rrd").exists():
         print(f"replay it: .venv/bin/rerun {folder / 'recording.rrd'}")
 

@@ -34,6 +34,8 @@ from .engine import DEFAULT_SEMANTICS, ORDERS, SEMANTICS
 
 log = logging.getLogger("spikinglab.brain")
 STATE_BATCH = 50  # ticks per BrainState message (one put per 50 ticks keeps recording off the loop's back)
+HEARTBEAT_S = 0.05  # free-running: a motor message (an empty one if nothing fired) at least this often
+CATCH_UP_S = 0.05  # free-running: a clock this far behind skips ahead instead of running the missed ticks
 
 
 def parser() -> argparse.ArgumentParser:
@@ -183,6 +185,7 @@ def run(args: argparse.Namespace, session) -> int:
                          semantics=args.semantics, order=args.order)
     node = new_node()
     bus = Bus(session, args.group, "brain")
+    bus.watch_others(lambda: f" at tick {node.last_tick + 1} of run {node.run}" if node.run else "")
     if args.clock:
         try:
             return run_free(args, bus, node)
@@ -193,10 +196,16 @@ def run(args: argparse.Namespace, session) -> int:
         control = bus.inbox(keys.control(args.group), Control)
         motor = bus.outbox(keys.motor(args.group))
         state = bus.outbox(keys.brain_state(args.group)) if args.publish_state else None
+        world = bus.presence("world")
         log.info("brain ready on group %s (%s)", args.group, bus.sender)
+        kept = None  # (run, tick) whose learning was saved when the run stopped without its end
         while True:
             message = sensors.get(timeout=0.25)
+            stopped = node.brain is not None and kept != (node.run, node.last_tick)
             if message is not None:
+                if stopped and message.run != node.run and message.tick == 0:
+                    kept = (node.run, node.last_tick)
+                    keep_learning(args, node, circuit, f"run {message.run} starts before it ended")
                 if state is not None and node.last_tick < 0:
                     wait_for_subscriber(state, "a recorder")
                     state.put(layout(circuit, message.tick))
@@ -214,6 +223,9 @@ def run(args: argparse.Namespace, session) -> int:
                 continue
             order = control.get(timeout=0)
             if order is None:
+                if stopped and not world.alive:  # gone without an end (its end would be here by now)
+                    kept = (node.run, node.last_tick)
+                    keep_learning(args, node, circuit, "its world left the bus")
                 continue
             try:
                 node.ends(order)
@@ -233,8 +245,25 @@ def run(args: argparse.Namespace, session) -> int:
                 if args.once:
                     return 0
                 node = new_node()
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM mid-run: the learning so far is kept
+        if node.brain is not None and kept != (node.run, node.last_tick):
+            keep_learning(args, node, circuit, "the brain was interrupted")
+        raise
     finally:
         bus.close()
+
+
+def keep_learning(args, node: BrainNode, circuit, why: str) -> None:
+    """A run stopped without its end (`why`): its weights so far are saved beside --save, never
+    lost to the next run."""
+    if not args.save:
+        log.warning("run %s stopped at tick %d without its end (%s); its weights are not saved (no --save)",
+                    node.run, node.last_tick, why)
+        return
+    path = args.save.with_name(f"{args.save.stem}-{node.run}-tick{node.last_tick + 1}.npz")
+    save_weights(path, node.brain.engine, circuit, tick=node.last_tick + 1)
+    log.warning("run %s stopped at tick %d without its end (%s): its weights so far saved to %s", node.run,
+                node.last_tick + 1, why, path)
 
 
 def realtime_clock() -> None:
@@ -281,7 +310,7 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
         realtime_clock()
     period = 1.0 / args.clock
     lateness = []
-    started = next_at = time.monotonic()
+    started = next_at = spoke_at = time.monotonic()
     tick = 0
     try:
         while True:
@@ -301,8 +330,10 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
             values = latest.values.numpy("values", "<f8", 2) if fresh else nothing
             actions = brain.step(values)
             node.last_tick = tick
-            if actions.any():
-                motor.put(Motor(tick=tick, names=brain.action_names, actions=Array.of(actions), run=latest.run))
+            if actions.any() or now - spoke_at > HEARTBEAT_S:  # silence would mean a stalled brain
+                motor.put(Motor(tick=tick, names=brain.action_names, actions=Array.of(actions), run=latest.run,
+                                reading=latest.tick))
+                spoke_at = now
             if state is not None:
                 node.keep_state()
                 if node.batch.full:
@@ -316,6 +347,10 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
                                             f"{latest.run!r}"))
             tick += 1
             next_at += period
+            behind = time.monotonic() - next_at
+            if behind > CATCH_UP_S:  # stalled (stopped, starved): go on from now, no burst of old ticks
+                log.warning("the clock stalled for %.2f s: %d ticks skipped", behind, int(behind / period))
+                next_at = time.monotonic()
             gap = next_at - time.monotonic()
             if gap > 0.0003:
                 time.sleep(gap - 0.0003)

@@ -50,5 +50,5 @@ def state(group: str) -> str:
 
 
 def alive(group: str, service: str) -> str:
-    """Liveliness token of a service (brain, world, gateway, recorder) of a group."""
-    return f"{PREFIX}/{_check(group)}/alive/{_check(service)}"
+    """Liveliness token of a service (brain, world, gateway, recorder) of a group; "*": any."""
+    return f"{PREFIX}/{_check(group)}/alive/{service if service == '*' else _check(service)}"

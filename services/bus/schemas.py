@@ -16,8 +16,8 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
-VERSION = 4  # 2: brain and world states come in batches of consecutive ticks; 3: no training switch on the bus;
-# 4: sensors, motor and control name the run they belong to
+VERSION = 5  # 2: brain and world states come in batches of consecutive ticks; 3: no training switch on the bus;
+# 4: sensors, motor and control name the run they belong to; 5: motor names the reading it answers
 # The insect's senses and actions: what a world or a robot gateway publishes and takes. The brain
 # binds them to its circuit by name (circuit files: `sensor = ...`, [actuators]).
 INSECT_SENSORS = ("smell_black", "smell_red", "smell_green", "pain", "reward")
@@ -98,6 +98,7 @@ class Motor(Message, tag="motor", kw_only=True):
     names: tuple[str, ...]
     actions: Array
     run: RunId = ""
+    reading: Annotated[int, msgspec.Meta(ge=-1, lt=2**62)] = -1  # the tick of the reading answered; -1: not said
 
     def check(self):
         actions = self.actions.numpy("actions", "|u1", 2)

@@ -310,6 +310,25 @@ class Bus:
         """Every inbox's rejected messages: {key: {reason: count}} (stats files, summary.json)."""
         return by_key(sum((box.rejected for box in self._owned if isinstance(box, Inbox)), Counter()))
 
+    def watch_others(self, where=lambda: "") -> None:
+        """Log each other service of the group that joins or leaves the bus, with `where()` (the
+        tick this one has reached): a killed process is seen within milliseconds, a frozen one
+        when its lease ends (about 10 s), one behind a dead router with the router."""
+        def on_change(sample) -> None:
+            service = str(sample.key_expr).rsplit("/", 1)[-1]
+            if service == self.service:
+                return
+            try:
+                context = where()
+            except Exception:  # a context is a courtesy: never a reason to miss the news
+                context = ""
+            if sample.kind == zenoh.SampleKind.DELETE:
+                log.warning("the %s left the bus%s", service, context)
+            else:
+                log.info("the %s is on the bus%s", service, context)
+        watcher = self.session.liveliness().declare_subscriber(keys.alive(self.group, "*"), on_change)
+        self._owned.append(watcher)
+
     def presence(self, service: str) -> Presence:
         watch = Presence(self.session, self.group, service)
         self._owned.append(watch)
@@ -318,7 +337,7 @@ class Bus:
     def close(self) -> None:
         for item in reversed(self._owned):
             try:
-                item.close()
+                (item.close if hasattr(item, "close") else item.undeclare)()
             except Exception:  # already gone with the session: nothing left to release
                 pass
         self._token.undeclare()

@@ -11,9 +11,12 @@ become timed commands: MOVE -> both motors forward for 500 ms, ROTATE -> spin fo
 Busy motors: a command replaces whatever the motors are doing, with its own full duration (a
 repeated MOVE extends the walk); if ROTATE and MOVE come in the same tick, ROTATE wins.
 Safety (MotorRules): motor messages are followed only while a brain's liveliness token is on the
-bus; the motors are stopped when it goes, and when no motor command came within --motor-timeout
-(250 ms) after the last command ended; commands are followed again when the brain is back. A broken robot link is reported and retried every second; the brain
-keeps running meanwhile.
+bus and only for this run; the free-running brain speaks at least every 50 ms, so the motors stop
+when its token goes, when it was not heard for --motor-timeout (200 ms: stalled, or the link to it
+broken), and when no motor command came within --motor-timeout after the last one ended. A
+command answering a reading older than --max-command-age (a brain catching up after a stall) is
+dropped and counted. A dying thread stops the gateway and its motors. A broken robot link is
+reported and retried every second; the brain keeps running meanwhile.
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ from spikinglab.options import Parser
 from .backends import BLACK, GREEN, RED, EV3Backend, Reading, RobotLinkError, SimBackend, Wiring
 
 log = logging.getLogger("spikinglab.gateway")
+READINGS_KEPT = 1 << 16  # publication times of the last readings (seconds' worth at any poll rate)
 SMELL_OF_COLOUR = {BLACK: "smell_black", RED: "smell_red", GREEN: "smell_green"}
 
 
@@ -68,8 +72,12 @@ def parser() -> argparse.ArgumentParser:
     m.add_argument("--pain-below-cm", type=float, default=5.0, help="ultrasonic distance that hurts (default 5)")
     m.add_argument("--contact-value", type=float, default=0.0,
                    help="value fed for pain and reward (default 0: a spike in the tick it is read)")
-    m.add_argument("--motor-timeout", type=float, default=0.25,
-                   help="stop when no command came this long after the last one ended (default 0.25 s)")
+    m.add_argument("--motor-timeout", type=float, default=0.2,
+                   help="stop when the brain was not heard, or no command came after the last one ended, for this "
+                        "long (default 0.2 s: with the brain heard every 50 ms, a stall stops the motors within 250 ms)")
+    m.add_argument("--max-command-age", type=float, default=0.2,
+                   help="drop a motor command that answers a reading older than this (default 0.2 s): a brain "
+                        "that stalled sends no backlog")
     p.add_argument("--max-polls", type=float, default=0, metavar="PER_S",
                    help="poll at most this often (default 0: as fast as the link allows)")
     p.add_argument("--duration", type=float, default=0, help="stop after this many seconds (default: run until Ctrl-C)")
@@ -107,12 +115,17 @@ class MotorCall:
 
 class MotorRules:
     """The motor and safety rules, without the bus or the robot: told the time, whether a brain is
-    on the bus and the actions of a motor message (or none), they say which call to make."""
+    on the bus and the actions of a motor message (or none), they say which call to make.
+
+    The free-running brain speaks at least every HEARTBEAT_S (an empty motor message when nothing
+    fired), so silence means a stalled brain, a broken link to it or a dead motor thread: the
+    motors stop `timeout_s` after the brain was last heard, mid-command or not."""
 
     def __init__(self, move_ms: int, spin_ms: int, timeout_s: float):
         self.move_ms, self.spin_ms, self.timeout_s = move_ms, spin_ms, timeout_s
         self.brain_alive = False
         self.busy_until = 0.0  # when the running motor command ends
+        self.heard_at = 0.0  # when the brain's last motor message (an empty one too) came
         self.stopped = True  # no motor command is running (or it was stopped)
 
     def decide(self, now: float, brain_alive: bool, actions: dict | None) -> MotorCall | None:
@@ -124,12 +137,17 @@ class MotorRules:
         if actions is not None:
             if not brain_alive:  # nobody we know sent it
                 return None
+            self.heard_at = now
             if actions.get("rotate"):
                 return MotorCall("spin", (self.spin_ms, 1))
             if actions.get("move"):
                 return MotorCall("forward", (self.move_ms,))
             return None
-        if not self.stopped and now > self.busy_until + self.timeout_s:
+        if self.stopped:
+            return None
+        if now > self.heard_at + self.timeout_s:
+            return MotorCall("stop", why=f"no word from the brain for {self.timeout_s * 1000:.0f} ms")
+        if now > self.busy_until + self.timeout_s:
             return MotorCall("stop", why=f"no motor command within {self.timeout_s * 1000:.0f} ms after the last ended")
         return None
 
@@ -164,8 +182,9 @@ class Gateway:
         self.rules = MotorRules(args.move_ms, args.spin_ms, args.motor_timeout)
         self.run_id = secrets.token_hex(8)  # the brain's motor messages answer readings of this run
         self.started = time.monotonic()
-        self.stats = {"polls": 0, "commands": 0, "safety_stops": 0, "link_losses": 0, "rejected_messages": {},
-                      "collisions": []}
+        self.published = np.zeros(READINGS_KEPT)  # when reading k was published, at k % READINGS_KEPT
+        self.stats = {"polls": 0, "commands": 0, "safety_stops": 0, "stale_commands": 0, "link_losses": 0,
+                      "rejected_messages": {}, "collisions": []}
 
     def call(self, what: str, *args) -> bool:
         """A backend call under the lock; a link failure is noted for the poll loop to repair."""
@@ -235,10 +254,11 @@ class Gateway:
                 self.link_lost(e)
                 continue
             touching = self.count_collision(reading, touching)
+            self.published[tick % READINGS_KEPT] = time.monotonic()
+            self.stats["polls"] = tick + 1  # before the brain can answer it
             self.sensors.put(Sensors(tick=tick, names=names, run=self.run_id, values=Array.of(
                 sensor_values(reading, args.pain_below_cm, args.contact_value))))
             tick += 1
-            self.stats["polls"] = tick
 
     def commands(self) -> None:
         """Motor events -> timed commands, under the MotorRules."""
@@ -248,6 +268,8 @@ class Gateway:
             if message is not None:
                 try:
                     actions = motor_actions(message, self.run_id)
+                    if self.too_old(message):
+                        continue
                 except BusError as e:
                     self.motor.refuse(e, f"(tick {message.tick})")
                     continue
@@ -260,6 +282,25 @@ class Gateway:
                     log.info("motors stopped: %s", call.why)
                 else:
                     self.stats["commands"] += 1
+
+    def too_old(self, message: Motor) -> bool:
+        """Whether `message` answers a reading older than --max-command-age (a brain that stalled
+        and now catches up): dropped, counted, logged. BusError for a reading not yet published."""
+        polls = self.stats["polls"]
+        if message.reading < 0:
+            return False
+        if message.reading >= polls:
+            raise BusError(f"does not fit the run: answers reading {message.reading}, the robot has published "
+                           f"{polls}")
+        published = self.published[message.reading % READINGS_KEPT] if polls - message.reading < READINGS_KEPT else 0
+        age = time.monotonic() - published
+        if age <= self.args.max_command_age:
+            return False
+        self.stats["stale_commands"] += 1
+        if self.stats["stale_commands"] <= 5 or self.stats["stale_commands"] % 1000 == 0:
+            log.warning("dropped a motor command answering a reading %.0f ms old (%d dropped so far)",
+                        age * 1000, self.stats["stale_commands"])
+        return True
 
     def run(self) -> None:
         worker = threading.Thread(target=self.commands, name="motor commands", daemon=True)
@@ -297,6 +338,7 @@ def main(argv=None) -> int:
     session = open_session(args)
     bus = Bus(session, args.group, "gateway")
     gateway = Gateway(backend, bus, args)
+    bus.watch_others(lambda: f" ({gateway.stats['polls']} polls, {time.monotonic() - gateway.started:.1f} s in)")
     control = bus.outbox(keys.control(args.group))
     # Ctrl-C and SIGTERM end the loops between two robot calls: an exception raised inside ev3-dc
     # would leave its lock taken, and the final stop command would wait for it forever

@@ -38,6 +38,21 @@ def last_tick(path: Path) -> int:
     return last
 
 
+def repair(recording: Path) -> bool:
+    """Give a recording whose writer was killed (no footer: Rerun can stream it but not open it as
+    a store) its footer back, in place; True if it was repaired."""
+    command = viewer_command()
+    if command is None:
+        return False
+    fixed = recording.with_name(recording.name + ".repaired.rrd")
+    done = subprocess.run([*command, "rrd", "optimize", str(recording), "-o", str(fixed)], capture_output=True)
+    if done.returncode != 0 or not fixed.exists():
+        fixed.unlink(missing_ok=True)
+        return False
+    fixed.replace(recording)
+    return True
+
+
 def screenshot(recording: Path, out: Path, tick: int | None = None, size: str = "1600x900", settle: float = 2.0) -> Path:
     """Render `recording` at `tick` into `out` (PNG) with a headless viewer."""
     tick = last_tick(recording) if tick is None else tick

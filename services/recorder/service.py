@@ -33,6 +33,7 @@ from .recorder import Recorder, blueprint
 
 log = logging.getLogger("spikinglab.recorder")
 END_GRACE = 5.0  # seconds to wait after the run's end for the brain's last messages
+FLUSH_S = 0.5  # written to the file at least this often: a killed recorder loses about this much of the run
 
 
 def parser() -> argparse.ArgumentParser:
@@ -118,6 +119,7 @@ def run(args: argparse.Namespace, session) -> int:
         log.info("web viewer: %s", web_viewer_url(args.web_port, args.grpc_port))
     bus = Bus(session, args.group, "recorder")
     recorder = Recorder(rec, detail=detail, flush_every=args.flush_every)
+    bus.watch_others(lambda: f" (recorded up to tick {recorder.last_tick})")
     # only the state streams: the lock-step messages (sensors, motor) never come to the recorder
     inbox = bus.inbox(keys.state(args.group), (WorldMap, WorldState, BrainState, BrainLayout))
     watched = {name: bus.presence(name) for name in ("world", "brain")}
@@ -154,7 +156,7 @@ def run(args: argparse.Namespace, session) -> int:
             if ending and ((recorder.world_done or recorder.agents == 0) and
                            (recorder.brain_done or recorder.spike_counts is None) or time.monotonic() > ending):
                 break
-            if time.monotonic() - last_flush > 2.0:  # a killed recorder loses at most this much
+            if time.monotonic() - last_flush > FLUSH_S:
                 recorder.flush()
                 last_flush = time.monotonic()
     finally:

@@ -182,6 +182,7 @@ def run(args: argparse.Namespace, session) -> int:
         log.error("%s", e)
         return 2
     bus = Bus(session, args.group, "world")
+    bus.watch_others(lambda: f" at tick {world.tick}")
     try:
         sensors = bus.outbox(keys.sensors(args.group))
         motor = bus.inbox(keys.motor(args.group), Motor)

@@ -4,9 +4,13 @@ import json
 import signal
 import time
 
+import numpy as np
+
+from spikinglab.bus import keys
+from spikinglab.bus.schemas import INSECT_ACTIONS, Array, Motor, encode
 from spikinglab.ev3_gateway.fake_brick import FakeBrick
 
-from ..processes import endpoint, finish, free_port, start, wait_for
+from ..processes import Watcher, endpoint, finish, free_port, start, wait_for
 from ..recorder.test_recorder import read
 
 
@@ -61,6 +65,78 @@ def test_robot_chain_senses_moves_survives_a_lost_link_and_stops_without_a_brain
     spikes = {name: len(data.get(f"/brain/agent0/spikes/{k:02d}_{name}", {}).get("tick", []))
               for k, name in enumerate(("BLACK", "RED", "GREEN"))}
     assert spikes["RED"] > 50 and spikes["BLACK"] == spikes["GREEN"] == 0  # red reached the RED afferent
+
+
+def test_a_stalled_brain_stops_the_robot_and_sends_no_backlog_when_it_resumes(tmp_path):
+    gateway_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
+    with FakeBrick() as brick:
+        gateway = start("gateway", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json",
+                        log=tmp_path / "gateway.log")
+        brain = start("brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", 1000,
+                      log=tmp_path / "brain.log")
+        try:
+            wait_for(lambda: sum(c.kind == "time_sync" for c in brick.commands) > 10, 60, "the insect walking")
+            time.sleep(1.0)
+            before = len(brick.commands)
+            time.sleep(1.0)
+            per_second = len(brick.commands) - before  # forwards of an insect walking freely
+            wait_for(lambda: brick.commands[-1].kind == "time_sync" and time.monotonic() - brick.commands[-1].at < 0.1,
+                     10, "a command under way")
+            brain.send_signal(signal.SIGSTOP)  # frozen: its token stays on the bus, it says nothing
+            stalled_at = time.monotonic()
+            wait_for(lambda: any(c.kind == "stop" and c.at > stalled_at for c in brick.commands), 5, "a stop")
+            stop = next(c for c in brick.commands if c.kind == "stop" and c.at > stalled_at)
+            print(f"stall -> motors stopped: {(stop.at - stalled_at) * 1000:.0f} ms")
+            assert stop.at - stalled_at < 0.25
+            time.sleep(1.5)
+            resumed = len(brick.commands)
+            brain.send_signal(signal.SIGCONT)
+            time.sleep(1.0)
+            after = len(brick.commands) - resumed
+            assert after < 2 * per_second + 5, (after, per_second)  # once, 312 old commands came in 1.3 s
+            assert "the clock stalled for" in (tmp_path / "brain.log").read_text()
+            gateway.send_signal(signal.SIGTERM)
+            assert finish(gateway, 30, tmp_path / "gateway.log") == 0
+        finally:
+            brain.send_signal(signal.SIGCONT)
+            brain.kill()
+            gateway.kill()
+    assert "no word from the brain for 200 ms" in (tmp_path / "gateway.log").read_text()
+
+
+def test_commands_answering_old_or_unpublished_readings_are_dropped(tmp_path):
+    gateway_ep = endpoint(free_port())
+    with FakeBrick() as brick:
+        gateway = start("gateway", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json",
+                        log=tmp_path / "gateway.log")
+        brain = Watcher([gateway_ep], [keys.sensors(keys.DEFAULT_GROUP)])  # a brain: its token, its motor key
+        token = brain.session.liveliness().declare_token(keys.alive(keys.DEFAULT_GROUP, "brain"))
+        motor = brain.session.declare_publisher(keys.motor(keys.DEFAULT_GROUP))
+        readings = brain.messages[keys.sensors(keys.DEFAULT_GROUP)]
+        try:
+            wait_for(lambda: len(readings) > 2000, 60, "readings")
+            time.sleep(0.3)  # reading 0 is now 300 ms old
+            latest = readings[-1]
+
+            def rotate(reading: int) -> bytes:
+                return encode(Motor(tick=1, names=INSECT_ACTIONS, actions=Array.of(np.array([[1, 0]], np.uint8)),
+                                    run=latest.run, reading=reading))
+            motor.put(rotate(0))
+            motor.put(rotate(latest.tick + 10**9))  # a reading not published yet
+            time.sleep(0.3)
+            assert not brick.commands
+            motor.put(rotate(readings[-1].tick))  # the control: a fresh one is followed
+            wait_for(lambda: any(c.turn for c in brick.commands), 5, "the spin")
+            gateway.send_signal(signal.SIGTERM)
+            assert finish(gateway, 30, tmp_path / "gateway.log") == 0
+        finally:
+            token.undeclare()
+            brain.close()
+            gateway.kill()
+    stats = json.loads((tmp_path / "gateway.json").read_text())
+    assert stats["stale_commands"] == 1
+    assert stats["rejected_messages"][keys.motor(keys.DEFAULT_GROUP)] == {"does not fit the run": 1}
+    assert "dropped a motor command answering a reading" in (tmp_path / "gateway.log").read_text()
 
 
 def test_the_brain_drives_a_simulated_ev3(tmp_path):

@@ -40,28 +40,44 @@ def test_spikes_become_timed_commands_and_rotate_wins():
     assert rules.decide(0.0, True, {"jump": 1}) is None  # an action the robot does not have
 
 
-def test_stop_only_after_the_command_ended_and_the_timeout_passed():
+NOTHING = {"rotate": 0, "move": 0}  # the brain's heartbeat: an empty motor message
+
+
+def test_a_silent_brain_stops_the_walk_within_the_timeout():
+    rules = rules_with_brain()
+    made(rules, 1.0, MOVE)  # forward until 1.5 s, but the brain is not heard after 1.0 s (stalled, link broken)
+    assert rules.decide(1.24, True, None) is None
+    stop = rules.decide(1.26, True, None)
+    assert stop.call == "stop" and "no word from the brain for 250 ms" in stop.why
+    rules.made(stop, 1.26)
+    assert rules.decide(5.0, True, None) is None  # stopped once, not again and again
+
+
+def test_a_heard_brain_walks_until_the_command_ended_and_the_timeout_passed():
     rules = rules_with_brain()
     made(rules, 1.0, MOVE)  # forward until 1.5 s
-    assert rules.decide(1.5, True, None) is None  # still walking, then within the 250 ms grace
-    assert rules.decide(1.74, True, None) is None
-    stop = rules.decide(1.76, True, None)
-    assert stop.call == "stop" and "250 ms" in stop.why
-    rules.made(stop, 1.76)
-    assert rules.decide(5.0, True, None) is None  # stopped once, not again and again
+    for now in np.arange(1.05, 1.72, 0.05):  # heartbeats every 50 ms
+        assert rules.decide(now, True, NOTHING) is None
+        assert rules.decide(now + 0.01, True, None) is None  # still walking, then within the 250 ms grace
+    assert rules.decide(1.76, True, NOTHING) is None
+    stop = rules.decide(1.77, True, None)
+    assert stop.call == "stop" and "no motor command within 250 ms after the last ended" in stop.why
 
 
 def test_a_new_command_extends_the_walk():
     rules = rules_with_brain()
     made(rules, 1.0, MOVE)
-    made(rules, 1.4, MOVE)  # replaces the first: ends at 1.9
-    assert rules.decide(2.1, True, None) is None
-    assert rules.decide(2.16, True, None).call == "stop"
+    made(rules, 1.2, MOVE)  # replaces the first: ends at 1.7
+    assert rules.decide(1.4, True, NOTHING) is None
+    assert rules.decide(1.6, True, NOTHING) is None
+    assert rules.decide(1.9, True, NOTHING) is None
+    assert rules.decide(1.96, True, None).call == "stop"
 
 
 def test_a_stop_that_did_not_reach_the_robot_is_asked_again():
     rules = rules_with_brain()
     made(rules, 1.0, ROTATE)  # spin until 1.1
+    assert rules.decide(1.3, True, NOTHING) is None
     assert rules.decide(1.4, True, None).call == "stop"  # the link was down: not made
     assert rules.decide(1.5, True, None).call == "stop"
 

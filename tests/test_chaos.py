@@ -1,0 +1,152 @@
+"""kill -9 of each service mid-run, as real processes: the others say within 2 s who left, and the
+run either resumes where it stopped or ends saying where it stopped; never a silent wait."""
+
+import datetime
+import json
+import re
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from spikinglab.brain.circuit import load_circuit
+from spikinglab.ev3_gateway.fake_brick import FakeBrick
+from spikinglab.loop import brain_for, closed_loop
+from spikinglab.recorder.screenshot import last_tick, viewer_command
+from spikinglab.world.world import World
+
+from .processes import endpoint, finish, free_port, running_with, start, wait_for
+
+
+def left_at(log_text: str, service: str) -> tuple[str, int]:
+    """When (log time) and at which tick a log says `service` left the bus."""
+    found = re.search(rf"(\d\d:\d\d:\d\d,\d+) \w+ WARNING the {service} left the bus at tick (\d+)", log_text)
+    assert found, f"no word of the {service} leaving in:\n{log_text[-2000:]}"
+    return found.group(1), int(found.group(2))
+
+
+def epoch(stamp: str) -> float:
+    """A log line's time of day (today) as seconds since the epoch."""
+    day = datetime.date.today()
+    return datetime.datetime.combine(day, datetime.datetime.strptime(stamp, "%H:%M:%S,%f").time()).timestamp()
+
+
+def pid_of(marker: str, module: str) -> int:
+    return next(pid for pid, cmdline in running_with(marker).items() if module in cmdline)
+
+
+def training_run(tmp_path, ticks: int = 20000) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "spikinglab.cli", "run", "--ticks", str(ticks), "--quiet", "--runs",
+                             str(tmp_path / "runs"), "--id", "chaos"], cwd=tmp_path, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def kill_mid_run(tmp_path, module: str) -> float:
+    """Wait until the run's world is ticking, then kill -9 the process of `module`; when."""
+    world_log = tmp_path / "runs" / "chaos" / "world.log"
+    wait_for(lambda: world_log.exists() and " run " in world_log.read_text(), 120, "the run to start")
+    time.sleep(2.0)
+    killed_at = time.time()
+    pid = pid_of(str(tmp_path), module)
+    subprocess.run(["kill", "-9", str(pid)], check=True)
+    return killed_at
+
+
+def test_kill_9_of_the_recorder_the_run_goes_on_and_its_file_opens(tmp_path):
+    run = training_run(tmp_path)
+    kill_mid_run(tmp_path, "spikinglab.recorder.service")
+    out, err = run.communicate(timeout=240)
+    assert run.returncode == 0, out + err
+    folder = tmp_path / "runs" / "chaos"
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["headline"]["ticks_done"] == 20000 and not summary["headline"]["partial"]
+    recording = summary["recording"]
+    assert recording["complete"] is False and recording["repaired"] is True and "exit -9" in recording["why"]
+    assert "recording: PARTIAL, the recorder stopped (exit -9)" in out
+    verified = subprocess.run([*viewer_command(), "rrd", "verify", str(folder / "recording.rrd")], capture_output=True)
+    assert verified.returncode == 0, verified.stderr  # it opens as a store (its footer was given back)
+    world_saw, at_tick = left_at((folder / "world.log").read_text(), "recorder")
+    left_at((folder / "brain.log").read_text(), "recorder")
+    lost = at_tick - last_tick(folder / "recording.rrd")
+    lost_s = lost / summary["ticks_per_s"]
+    print(f"recorder killed at tick {at_tick:,}: the file ends {lost:,} ticks ({lost_s:.2f} s of run) before")
+    assert 0 <= lost_s <= 1.0
+    assert not running_with(str(tmp_path))
+
+
+@pytest.mark.parametrize("victim, other", [("world", "brain"), ("brain", "world")])
+def test_kill_9_of_the_world_or_brain_ends_the_run_saying_where_it_stopped(tmp_path, victim, other):
+    run = training_run(tmp_path)
+    killed_at = kill_mid_run(tmp_path, f"spikinglab.{victim}.service")
+    out, err = run.communicate(timeout=240)
+    assert run.returncode == 1, out + err
+    folder = tmp_path / "runs" / "chaos"
+    said_at, tick = left_at((folder / f"{other}.log").read_text(), victim)
+    assert epoch(said_at) - killed_at < 2.0
+    failure = (folder / "FAILED.txt").read_text()
+    assert f"the {victim} stopped (exit -9)" in failure
+    if victim == "brain":  # the world wrote its ticks done
+        assert f"the world stopped at tick {tick:,} (metrics.json)" in failure
+    else:  # the brain kept its learning up to the tick the world reached
+        kept = list(folder.glob("weights-*-tick*.npz"))
+        assert len(kept) == 1 and kept[0].name in failure and kept[0].name.endswith(f"-tick{tick}.npz")
+    assert not (folder / "summary.json").exists()
+    assert not running_with(str(tmp_path))
+
+
+def test_kill_9_of_the_gateway_the_brain_says_so_and_goes_on(tmp_path):
+    gateway_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
+    with FakeBrick() as brick:
+        gateway = start("gateway", "--listen", gateway_ep, log=tmp_path / "gateway.log")
+        brain = start("brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", 1000, "--save",
+                      tmp_path / "w.npz", log=tmp_path / "brain.log")
+        try:
+            wait_for(lambda: len(brick.commands) > 5, 60, "the robot to move")
+            gateway.kill()
+            killed_at = time.monotonic()
+            wait_for(lambda: "WARNING the gateway left the bus" in (tmp_path / "brain.log").read_text(), 2, "the word")
+            print(f"the brain said the gateway left after {time.monotonic() - killed_at:.2f} s")
+            time.sleep(0.5)
+            assert brain.poll() is None
+            brain.send_signal(signal.SIGTERM)
+            assert finish(brain, 30, tmp_path / "brain.log") == 0
+        finally:
+            brain.kill()
+            gateway.kill()
+    assert (tmp_path / "w.npz").exists()  # its learning on the robot, saved as it stopped
+
+
+def test_kill_9_of_the_router_the_run_resumes_where_it_stopped(tmp_path):
+    """World and brain as clients of a router (the secured bus's layout): the router dies, both
+    say so at once, the world waits; a new router on the same port and the run goes on to the end
+    with exactly the undisturbed run's result."""
+    ticks, seed = 8000, 2
+    world = World(seed=seed)
+    closed_loop(world, brain_for(world, load_circuit("insect")), ticks)
+    (tmp_path / "client.json5").write_text('{mode: "client"}\n')
+    router_ep = endpoint(free_port())
+    router = start("router", "--listen", router_ep, log=tmp_path / "router1.log")
+    client = ("--connect", router_ep, "--zenoh-config", tmp_path / "client.json5")
+    p_world = start("world", *client, "--ticks", ticks, "--seed", seed, "--out", tmp_path, log=tmp_path / "world.log")
+    p_brain = start("brain", *client, "--once", log=tmp_path / "brain.log")
+    try:
+        wait_for(lambda: " run " in (tmp_path / "world.log").read_text(), 120, "the run to start")
+        time.sleep(1.0)
+        router.kill()
+        router.wait()
+        wait_for(lambda: "the brain left the bus" in (tmp_path / "world.log").read_text()
+                 and "the world left the bus" in (tmp_path / "brain.log").read_text(), 2, "both to say so")
+        time.sleep(1.0)
+        router = start("router", "--listen", router_ep, log=tmp_path / "router2.log")
+        assert finish(p_world, 120, tmp_path / "world.log") == 0
+        assert finish(p_brain, 30, tmp_path / "brain.log") == 0
+    finally:
+        for process in (router, p_world, p_brain):
+            process.kill()
+    log = (tmp_path / "world.log").read_text()
+    _, stopped = left_at(log, "brain")
+    assert f"brain back: continuing at tick {stopped}" in log
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["ticks"] == ticks and metrics["collisions"] == world.metrics.collisions.tolist()
