@@ -63,12 +63,12 @@ EXAMPLES = [
             run="r1", seed=4),
     Motor(tick=7, names=INSECT_ACTIONS, actions=Array.of(np.array([[1, 0]] * A, np.uint8)), run="r1"),
     Control(tick=40000, command="end", run="r1"),
-    WorldState(tick=7, sensor_names=("pain", "reward"), sensors=Array.of(np.full((50, A, 2), np.nan)),
+    WorldState(tick=7, run="r1", sensor_names=("pain", "reward"), sensors=Array.of(np.full((50, A, 2), np.nan)),
                pos=Array.of(np.zeros((50, A, 2))), heading=Array.of(np.zeros((50, A))),
                events=Array.of(np.zeros((50, A, 4), np.int64)), collisions=Array.of(np.zeros((50, A), np.int64)),
                food=Array.of(np.zeros((50, A), np.int64)), changes=Array.of(np.array([[7, 1, 3, 4, 0]], np.int64))),
-    WorldMap(tick=0, grid=Array.of(np.zeros((A, 41, 60), np.uint8)), x_min=80, y_min=1),
-    layout(CIRCUIT, 0),
+    WorldMap(tick=0, run="r1", grid=Array.of(np.zeros((A, 41, 60), np.uint8)), x_min=80, y_min=1),
+    layout(CIRCUIT, 0, "r1"),
 ]
 
 

@@ -17,7 +17,7 @@ COMMANDS = {
     "certs": ("spikinglab.certs", "certificates and configs for a bus with mutual TLS and access control"),
     "sweep": ("spikinglab.sweep", "the paper's Table 1: learning time for A+ = A- over seeds"),
     "conditioning": ("spikinglab.brain.conditioning", "classical conditioning demo on fig. 2 and fig. 4"),
-    "bench": (None, "benchmarks and experiments: bench engine | loop | recorder | gateway | table1 | robot | fuzz"),
+    "bench": (None, "benchmarks and experiments: bench engine | loop | recorder | gateway | table1 | robot | fuzz | soak"),
 }
 BENCHMARKS = {
     "engine": "spikinglab.bench.engine",
@@ -27,6 +27,7 @@ BENCHMARKS = {
     "table1": "spikinglab.bench.table1",
     "robot": "spikinglab.bench.robot",
     "fuzz": "spikinglab.bench.fuzz",
+    "soak": "spikinglab.bench.soak",
 }
 
 

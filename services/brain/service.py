@@ -161,12 +161,12 @@ class BrainNode:
             first = self.last_tick + 1
             rows = {"spiked": np.zeros((0, engine.agents, engine.spiked.shape[1]), np.uint8),
                     "potentials": np.zeros((0, engine.agents, engine.n_neurons), np.float32)}
-        return BrainState(tick=first, spiked=Array.of(rows["spiked"]), potentials=Array.of(rows["potentials"]),
+        return BrainState(tick=first, run=self.run or "", spiked=Array.of(rows["spiked"]), potentials=Array.of(rows["potentials"]),
                           weights=Array.of(engine.w), final=final)
 
 
-def layout(circuit, tick: int) -> BrainLayout:
-    return BrainLayout(tick=tick, circuit=circuit.name, nodes=circuit.node_names, neurons=len(circuit.neuron_names),
+def layout(circuit, tick: int, run: str = "") -> BrainLayout:
+    return BrainLayout(tick=tick, run=run, circuit=circuit.name, nodes=circuit.node_names, neurons=len(circuit.neuron_names),
                        synapses=tuple(circuit.synapse_label(k) for k in range(len(circuit.synapses))),
                        plastic=tuple(circuit.plastic_synapses))
 
@@ -208,7 +208,7 @@ def run(args: argparse.Namespace, session) -> int:
                     keep_learning(args, node, circuit, f"run {message.run} starts before it ended")
                 if state is not None and node.last_tick < 0:
                     wait_for_subscriber(state, "a recorder")
-                    state.put(layout(circuit, message.tick))
+                    state.put(layout(circuit, message.tick, message.run))
                 try:
                     answer = node.answer(message)
                 except BusError as e:
@@ -305,7 +305,7 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
     nothing = np.full(latest.values.shape, np.nan)
     if state is not None:
         wait_for_subscriber(state, "a recorder")
-        state.put(layout(node.circuit, 0))
+        state.put(layout(node.circuit, 0, node.run))
     if not args.no_realtime:
         realtime_clock()
     period = 1.0 / args.clock

@@ -17,7 +17,8 @@ import msgspec
 import numpy as np
 
 VERSION = 5  # 2: brain and world states come in batches of consecutive ticks; 3: no training switch on the bus;
-# 4: sensors, motor and control name the run they belong to; 5: motor names the reading it answers
+# 4: sensors, motor and control name the run they belong to; 5: motor names the reading it answers, the states
+# name their run
 # The insect's senses and actions: what a world or a robot gateway publishes and takes. The brain
 # binds them to its circuit by name (circuit files: `sensor = ...`, [actuators]).
 INSECT_SENSORS = ("smell_black", "smell_red", "smell_green", "pain", "reward")
@@ -122,6 +123,7 @@ class BrainState(Message, tag="brain_state", kw_only=True):
     [T, A, neurons] (f4), and the weights [A, synapses] (f8) after the batch's last tick. `final`:
     the last batch of the run."""
 
+    run: RunId = ""  # the run it belongs to (a recorder keeps to the run of the first map or layout)
     spiked: Array
     potentials: Array
     weights: Array
@@ -139,6 +141,7 @@ class BrainLayout(Message, tag="brain_layout", kw_only=True):
     """What the brain's arrays mean, sent once before its first state: node names (neurons first,
     then input neurons), the number of neurons, synapse labels "PRE->POST", the plastic ones."""
 
+    run: RunId = ""  # the run it belongs to (a recorder keeps to the run of the first map or layout)
     circuit: str
     nodes: tuple[str, ...]
     neurons: int
@@ -159,6 +162,7 @@ class WorldState(Message, tag="world_state", kw_only=True):
     the patches that changed, changes [K, 5] (tick, arena, x index, y index, new colour).
     `final`: the last batch of the run."""
 
+    run: RunId = ""  # the run it belongs to (a recorder keeps to the run of the first map or layout)
     sensor_names: tuple[str, ...]
     sensors: Array
     pos: Array
@@ -190,6 +194,7 @@ class WorldMap(Message, tag="world_map", kw_only=True):
     """The arenas: grid [arenas, width, height] of colours (EMPTY, BLACK, RED, GREEN), patch (0, 0)
     at (x_min, y_min)."""
 
+    run: RunId = ""  # the run it belongs to (a recorder keeps to the run of the first map or layout)
     grid: Array
     x_min: Coordinate
     y_min: Coordinate

@@ -30,6 +30,7 @@ log = logging.getLogger("spikinglab.bus")
 
 
 PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream", "unixpipe", "vsock", "serial")
+REASONS_KEPT = 32  # distinct rejection reasons counted per key; the rest as "other reasons"
 NOTHING_ANSWERS_AFTER = 10.0  # seconds: then a --connect that reached nobody is reported
 
 
@@ -212,7 +213,10 @@ class Inbox:
         not fit its run), by key (this inbox's unless named) and reason; logged, but a flood does
         not drown the log."""
         key = key or self.key
-        self.rejected[(key, str(error).split(":")[0])] += 1
+        reason = str(error).split(":")[0]
+        if (key, reason) not in self.rejected and sum(k == key for k, _ in self.rejected) >= REASONS_KEPT:
+            reason = "other reasons"  # a flood of distinct reasons must not grow memory without bound
+        self.rejected[(key, reason)] += 1
         total = self.rejected_total
         if total <= 20 or total % 1000 == 0:
             log.warning("rejected message on %s%s: %s (%d rejected so far)", key, f" {where}" if where else "",
@@ -262,6 +266,7 @@ class Presence:
     def __init__(self, session: zenoh.Session, group: str, service: str):
         self.service = service
         self._alive: set[str] = set()
+        self.seen = False  # whether one has been alive since this watch began
         self._changed = threading.Condition()
         self.events: queue.Queue = queue.Queue()  # ("up" | "down", key)
         self._sub = session.liveliness().declare_subscriber(keys.alive(group, service), self._on_sample, history=True)
@@ -269,6 +274,7 @@ class Presence:
     def _on_sample(self, sample) -> None:
         key = str(sample.key_expr)
         up = sample.kind == zenoh.SampleKind.PUT
+        self.seen = self.seen or up
         with self._changed:
             (self._alive.add if up else self._alive.discard)(key)
             self._changed.notify_all()

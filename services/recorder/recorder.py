@@ -20,6 +20,7 @@ ticks, never one log call per value. What goes where:
 from __future__ import annotations
 
 import math
+import re
 from collections import defaultdict
 
 import numpy as np
@@ -43,6 +44,7 @@ PATCH_COLOURS = [(EMPTY, "floor", (24, 24, 28)), (BLACK, "wall", (215, 215, 215)
                  (RED, "predator", (220, 50, 47)), (GREEN, "food", (60, 190, 80))]
 SEEN_COLOUR = {BLACK: (215, 215, 215), RED: (255, 80, 80), GREEN: (90, 230, 110)}
 SMELLS = {"smell_black": BLACK, "smell_red": RED, "smell_green": GREEN}
+RUN_ID = re.compile("[0-9a-f]{16}")  # as the world and the gateway name their runs (a late recorder takes the first)
 TRAIL_EVERY, TRAIL_STEP = 50, 5  # ticks between trail updates; keep every 5th position
 
 
@@ -84,6 +86,8 @@ class Recorder:
         self.first_tick: int | None = None
         self.last_tick = -1
         self.layout: BrainLayout | None = None
+        self.run: str | None = None  # the run recorded
+        self.first_map: WorldMap | None = None
         self.grid = None  # [arenas, width, height] as the world last told
         self.x_min = self.y_min = 0
         self.spike_counts: np.ndarray | None = None  # [agents, nodes] spikes seen (tests, summary)
@@ -122,6 +126,10 @@ class Recorder:
         is refused whole, before anything of it is logged."""
         def refuse(why):
             raise BusError(f"does not fit the recording: {why}")
+        if self.run is None and not isinstance(message, (WorldMap, BrainLayout)) and not RUN_ID.fullmatch(message.run):
+            refuse(f"a {type(message).__name__} of no run the services name, before the run's map or brain layout")
+        if self.run is not None and message.run != self.run:
+            raise BusError(f"another run: {message.run!r}, the recording's is {self.run!r}")
         if isinstance(message, WorldState):
             agents, changes = message.pos.shape[1], message.changes.numpy("changes", "<i8", 2)
             if self.agents and agents != self.agents:
@@ -139,15 +147,21 @@ class Recorder:
                     len(self.layout.nodes), self.layout.neurons, len(self.layout.synapses)):
                 refuse(f"{nodes} nodes, {neurons} neurons, {synapses} synapses; the brain's layout says "
                        f"{len(self.layout.nodes)}, {self.layout.neurons}, {len(self.layout.synapses)}")
+        elif isinstance(message, BrainLayout) and self.layout is not None and message != self.layout:
+            refuse("a second brain layout, not the one the recording has")
         elif isinstance(message, BrainLayout) and self.spike_counts is not None:
             if len(message.nodes) != self.spike_counts.shape[1]:
                 refuse(f"a layout of {len(message.nodes)} nodes for spikes of {self.spike_counts.shape[1]}")
         elif isinstance(message, WorldMap) and self.agents and self.grid is not None:
             if message.grid.shape[1:] != self.grid.shape[1:]:
                 refuse(f"a map of {list(message.grid.shape[1:])} patches during a run on {list(self.grid.shape[1:])}")
+            if message != self.first_map:
+                refuse("a second map during the run, not the one it began on")
 
     def on(self, message) -> None:
         self.fits(message)
+        if self.run is None:  # the run of the first map or layout: the services send those first
+            self.run = message.run
         handler = {WorldMap: self.on_world_map, WorldState: self.on_world_state, BrainState: self.on_brain_state,
                    BrainLayout: self.on_brain_layout}[type(message)]
         if message.tick >= 0 and not isinstance(message, (BrainLayout, WorldMap)):
@@ -160,6 +174,7 @@ class Recorder:
             self.flush()
 
     def on_world_map(self, m: WorldMap) -> None:
+        self.first_map = self.first_map or m
         self.grid = m.grid.numpy("grid", "|u1", 3).copy()
         self.x_min, self.y_min = m.x_min, m.y_min
         self._log_map(m.tick)

@@ -156,6 +156,13 @@ def run(args: argparse.Namespace, session) -> int:
             if ending and ((recorder.world_done or recorder.agents == 0) and
                            (recorder.brain_done or recorder.spike_counts is None) or time.monotonic() > ending):
                 break
+            seen = [presence for presence in watched.values() if presence.seen]
+            if seen and not any(p.alive for p in seen) and not args.forever and ending is None:
+                ending = time.monotonic() + END_GRACE  # they left without the run's end: what came is written
+                recorder.event(f"the {' and the '.join(n for n, p in watched.items() if p.seen)} left without the "
+                               f"run's end: the recording ends at tick {max(recorder.last_tick, 0)}", "WARN")
+                log.warning("the services recorded left without the run's end: ending the recording in %.0f s",
+                            END_GRACE)
             if time.monotonic() - last_flush > FLUSH_S:
                 recorder.flush()
                 last_flush = time.monotonic()

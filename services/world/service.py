@@ -120,7 +120,7 @@ def keep_state(batch: TickBatch, changes: list, world: World, t: int) -> None:
         changes.append((t, *row))
 
 
-def state_message(batch: TickBatch, changes: list, final: bool, world: World) -> WorldState:
+def state_message(batch: TickBatch, changes: list, final: bool, world: World, run: str) -> WorldState:
     """The ticks kept since the last message (none, when a run ends before its first tick)."""
     first, a = batch.take()
     if first is None:
@@ -130,7 +130,7 @@ def state_message(batch: TickBatch, changes: list, final: bool, world: World) ->
                                 "collisions": np.zeros((0, A), np.int64), "food": np.zeros((0, A), np.int64)}
     rows = np.array(changes, np.int64).reshape(-1, 5)
     changes.clear()
-    return WorldState(tick=first, sensor_names=SENSORS, sensors=Array.of(a["sensors"]), pos=Array.of(a["pos"]),
+    return WorldState(tick=first, run=run, sensor_names=SENSORS, sensors=Array.of(a["sensors"]), pos=Array.of(a["pos"]),
                       heading=Array.of(a["heading"]), events=Array.of(a["events"]), collisions=Array.of(a["collisions"]),
                       food=Array.of(a["food"]), changes=Array.of(rows), final=final)
 
@@ -190,13 +190,13 @@ def run(args: argparse.Namespace, session) -> int:
         state = bus.outbox(keys.world_state(args.group)) if args.publish_state else None
         brain = bus.presence("brain")
         wait_for_subscriber(sensors, "a brain", brain)
+        run_id = secrets.token_hex(8)  # the brain answers for this run only; an end names it
         if state is not None:
             wait_for_subscriber(state, "a recorder")
-            bus.outbox(keys.world_map(args.group)).put(
-                WorldMap(tick=0, grid=Array.of(world.grid), x_min=world.params.x_min, y_min=world.params.y_min))
+            bus.outbox(keys.world_map(args.group)).put(WorldMap(
+                tick=0, run=run_id, grid=Array.of(world.grid), x_min=world.params.x_min, y_min=world.params.y_min))
         trajectory = Trajectory(world, args.ticks)
         batch, changes = TickBatch(STATE_BATCH), []
-        run_id = secrets.token_hex(8)  # the brain answers for this run only; an end names it
         log.info("run %s: %d ticks, seed %d, %d agent(s)", run_id, args.ticks, world.seed, world.agents)
         started = time.perf_counter()
         progress = Progress(world, args.ticks, args.progress)  # from here on, Ctrl-C ends the run with a result
@@ -207,7 +207,7 @@ def run(args: argparse.Namespace, session) -> int:
         except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the ticks done are a result too, marked partial
             log.warning("interrupted at tick %d of %d: ending the run there", world.tick, args.ticks)
             if state is not None:
-                state.put(state_message(batch, changes, True, world))
+                state.put(state_message(batch, changes, True, world, run_id))
         done = world.tick
         elapsed = time.perf_counter() - started
         progress.close(done)
@@ -260,7 +260,7 @@ def tick_loop(args, world, sensors, motor, brain, state, request, progress, traj
             request = sensing(world, t + 1, request.run)
             sensors.put(request)
         if state is not None and (batch.full or t + 1 == args.ticks):
-            state.put(state_message(batch, changes, t + 1 == args.ticks, world))
+            state.put(state_message(batch, changes, t + 1 == args.ticks, world, request.run))
         progress.update(t + 1)
 
 
