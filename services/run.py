@@ -140,10 +140,8 @@ def main(argv=None) -> int:
     if json.loads((folder / "metrics.json").read_text())["ticks"] == 0:  # stopped while the kernels compiled
         failed(folder, "interrupted before the first tick")
         return 130
-    summary = summarise(folder, args, circuit, run_id, time.time() - started)
-    if not args.no_record:
-        summary["recording"] = recording_status(launcher.children["recorder"].popen.returncode, folder)
-        (folder / "summary.json").write_text(json.dumps(summary, indent=1))
+    recording = None if args.no_record else recording_status(launcher.children["recorder"].popen.returncode, folder)
+    summary = summarise(folder, args, circuit, run_id, time.time() - started, recording)
     plot(folder, summary)
     plot_trajectory(folder, summary)
     report(folder, summary)
@@ -202,7 +200,8 @@ def learning_rate(circuit, which: str = "a_plus") -> float | list[float]:
     return rates.pop() if len(rates) == 1 else sorted(rates)
 
 
-def summarise(folder: Path, args, circuit, run_id: str, wall_s: float) -> dict:
+def summarise(folder: Path, args, circuit, run_id: str, wall_s: float,
+              recording: dict | None = None) -> dict:
     metrics = json.loads((folder / "metrics.json").read_text())
     brain_stats = json.loads((folder / "brain-stats.json").read_text()) if (folder / "brain-stats.json").exists() else {}
     weights = load_weights(folder / "weights.npz", circuit)
@@ -242,6 +241,8 @@ def summarise(folder: Path, args, circuit, run_id: str, wall_s: float) -> dict:
         "world": metrics["world"],
         "rejected_messages": {"world": metrics.get("rejected_messages", {}), "brain": brain_stats.get("rejected_messages", {})},
     }
+    if recording is not None:  # whether recording.rrd holds the whole run
+        summary["recording"] = recording
     (folder / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary
 

@@ -161,12 +161,13 @@ class BrainNode:
             first = self.last_tick + 1
             rows = {"spiked": np.zeros((0, engine.agents, engine.spiked.shape[1]), np.uint8),
                     "potentials": np.zeros((0, engine.agents, engine.n_neurons), np.float32)}
-        return BrainState(tick=first, run=self.run or "", spiked=Array.of(rows["spiked"]), potentials=Array.of(rows["potentials"]),
-                          weights=Array.of(engine.w), final=final)
+        return BrainState(tick=first, run=self.run or "", spiked=Array.of(rows["spiked"]),
+                          potentials=Array.of(rows["potentials"]), weights=Array.of(engine.w), final=final)
 
 
 def layout(circuit, tick: int, run: str = "") -> BrainLayout:
-    return BrainLayout(tick=tick, run=run, circuit=circuit.name, nodes=circuit.node_names, neurons=len(circuit.neuron_names),
+    return BrainLayout(tick=tick, run=run, circuit=circuit.name, nodes=circuit.node_names,
+                       neurons=len(circuit.neuron_names),
                        synapses=tuple(circuit.synapse_label(k) for k in range(len(circuit.synapses))),
                        plastic=tuple(circuit.plastic_synapses))
 
@@ -204,8 +205,7 @@ def run(args: argparse.Namespace, session) -> int:
             stopped = node.brain is not None and kept != (node.run, node.last_tick)
             if message is not None:
                 if stopped and message.run != node.run and message.tick == 0:
-                    kept = (node.run, node.last_tick)
-                    keep_learning(args, node, circuit, f"run {message.run} starts before it ended")
+                    kept = keep_learning(args, node, circuit, f"run {message.run} starts before it ended")
                 if state is not None and node.last_tick < 0:
                     wait_for_subscriber(state, "a recorder")
                     state.put(layout(circuit, message.tick, message.run))
@@ -224,8 +224,7 @@ def run(args: argparse.Namespace, session) -> int:
             order = control.get(timeout=0)
             if order is None:
                 if stopped and not world.alive:  # gone without an end (its end would be here by now)
-                    kept = (node.run, node.last_tick)
-                    keep_learning(args, node, circuit, "its world left the bus")
+                    kept = keep_learning(args, node, circuit, "its world left the bus")
                 continue
             try:
                 node.ends(order)
@@ -253,17 +252,18 @@ def run(args: argparse.Namespace, session) -> int:
         bus.close()
 
 
-def keep_learning(args, node: BrainNode, circuit, why: str) -> None:
+def keep_learning(args, node: BrainNode, circuit, why: str) -> tuple:
     """A run stopped without its end (`why`): its weights so far are saved beside --save, never
-    lost to the next run."""
+    lost to the next run. Returns (run, last tick): what was kept."""
     if not args.save:
         log.warning("run %s stopped at tick %d without its end (%s); its weights are not saved (no --save)",
                     node.run, node.last_tick, why)
-        return
+        return node.run, node.last_tick
     path = args.save.with_name(f"{args.save.stem}-{node.run}-tick{node.last_tick + 1}.npz")
     save_weights(path, node.brain.engine, circuit, tick=node.last_tick + 1)
     log.warning("run %s stopped at tick %d without its end (%s): its weights so far saved to %s", node.run,
                 node.last_tick + 1, why, path)
+    return node.run, node.last_tick
 
 
 def realtime_clock() -> None:

@@ -263,11 +263,12 @@ class Outbox:
 class Presence:
     """Watches the liveliness tokens of one service of a group: how many are alive, and changes."""
 
-    def __init__(self, session: zenoh.Session, group: str, service: str):
+    def __init__(self, session: zenoh.Session, group: str, service: str, on_change=None):
         self.service = service
         self._alive: set[str] = set()
         self.seen = False  # whether one has been alive since this watch began
         self._changed = threading.Condition()
+        self._on_change = on_change  # called with ("up" | "down", key) on zenoh's thread
         self.events: queue.Queue = queue.Queue()  # ("up" | "down", key)
         self._sub = session.liveliness().declare_subscriber(keys.alive(group, service), self._on_sample, history=True)
 
@@ -278,7 +279,10 @@ class Presence:
         with self._changed:
             (self._alive.add if up else self._alive.discard)(key)
             self._changed.notify_all()
-        self.events.put(("up" if up else "down", key))
+        if self._on_change is not None:
+            self._on_change("up" if up else "down", key)
+        else:
+            self.events.put(("up" if up else "down", key))
 
     @property
     def alive(self) -> bool:
@@ -320,20 +324,19 @@ class Bus:
         """Log each other service of the group that joins or leaves the bus, with `where()` (the
         tick this one has reached): a killed process is seen within milliseconds, a frozen one
         when its lease ends (about 10 s), one behind a dead router with the router."""
-        def on_change(sample) -> None:
-            service = str(sample.key_expr).rsplit("/", 1)[-1]
+        def on_change(change: str, key: str) -> None:
+            service = key.rsplit("/", 1)[-1]
             if service == self.service:
                 return
             try:
                 context = where()
             except Exception:  # a context is a courtesy: never a reason to miss the news
                 context = ""
-            if sample.kind == zenoh.SampleKind.DELETE:
+            if change == "down":
                 log.warning("the %s left the bus%s", service, context)
             else:
                 log.info("the %s is on the bus%s", service, context)
-        watcher = self.session.liveliness().declare_subscriber(keys.alive(self.group, "*"), on_change)
-        self._owned.append(watcher)
+        self._owned.append(Presence(self.session, self.group, "*", on_change))
 
     def presence(self, service: str) -> Presence:
         watch = Presence(self.session, self.group, service)
@@ -343,7 +346,7 @@ class Bus:
     def close(self) -> None:
         for item in reversed(self._owned):
             try:
-                (item.close if hasattr(item, "close") else item.undeclare)()
+                item.close()
             except Exception:  # already gone with the session: nothing left to release
                 pass
         self._token.undeclare()

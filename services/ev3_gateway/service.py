@@ -74,7 +74,8 @@ def parser() -> argparse.ArgumentParser:
                    help="value fed for pain and reward (default 0: a spike in the tick it is read)")
     m.add_argument("--motor-timeout", type=float, default=0.2,
                    help="stop when the brain was not heard, or no command came after the last one ended, for this "
-                        "long (default 0.2 s: with the brain heard every 50 ms, a stall stops the motors within 250 ms)")
+                        "long (default 0.2 s: with the brain heard every 50 ms, a stall stops the motors within "
+                        "250 ms)")
     m.add_argument("--max-command-age", type=float, default=0.2,
                    help="drop a motor command that answers a reading older than this (default 0.2 s): a brain "
                         "that stalled sends no backlog")

@@ -130,7 +130,8 @@ def state_message(batch: TickBatch, changes: list, final: bool, world: World, ru
                                 "collisions": np.zeros((0, A), np.int64), "food": np.zeros((0, A), np.int64)}
     rows = np.array(changes, np.int64).reshape(-1, 5)
     changes.clear()
-    return WorldState(tick=first, run=run, sensor_names=SENSORS, sensors=Array.of(a["sensors"]), pos=Array.of(a["pos"]),
+    return WorldState(tick=first, run=run, sensor_names=SENSORS, sensors=Array.of(a["sensors"]),
+                      pos=Array.of(a["pos"]),
                       heading=Array.of(a["heading"]), events=Array.of(a["events"]), collisions=Array.of(a["collisions"]),
                       food=Array.of(a["food"]), changes=Array.of(rows), final=final)
 
