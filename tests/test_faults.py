@@ -157,3 +157,23 @@ def test_brain_and_world_meet_only_through_a_router(tmp_path):
     finally:
         router.kill()
     assert json.loads((tmp_path / "metrics.json").read_text())["ticks"] == 1500
+
+
+def test_clients_started_before_their_router_wait_for_it(tmp_path):
+    """A launch starts its processes at once: a client (the secured bus's services are clients)
+    must not fail because its router is still starting."""
+    (tmp_path / "client.json5").write_text('{mode: "client"}\n')
+    router_ep = endpoint(free_port())
+    client = ("--connect", router_ep, "--zenoh-config", tmp_path / "client.json5")
+    world = start("world", *client, "--ticks", 1500, "--out", tmp_path, log=tmp_path / "world.log")
+    brain = start("brain", *client, "--once", log=tmp_path / "brain.log")
+    time.sleep(2.0)
+    router = start("router", "--listen", router_ep, log=tmp_path / "router.log")
+    try:
+        assert finish(world, 60, tmp_path / "world.log") == 0
+        assert finish(brain, 30, tmp_path / "brain.log") == 0
+    finally:
+        router.kill()
+        world.kill()
+        brain.kill()
+    assert json.loads((tmp_path / "metrics.json").read_text())["ticks"] == 1500

@@ -80,12 +80,17 @@ def zenoh_config_file(text: str) -> dict:
 def make_config(connect=(), listen=(), config_file: dict | None = None, mode: str | None = None) -> zenoh.Config:
     """A session's config: the --zenoh-config file's settings if given, then these. The mode is
     `mode` if given (a router), else the file's, else peer; multicast scouting stays off unless
-    the file turns it on (sessions find each other through the endpoints given)."""
+    the file turns it on (sessions find each other through the endpoints given); a client waits up
+    to NOTHING_ANSWERS_AFTER for its router unless the file says otherwise."""
     settings = dict(config_file["settings"]) if config_file else {}
     if mode is not None or "mode" not in settings:
         settings["mode"] = mode or "peer"
     scouting = settings.setdefault("scouting", {})
     scouting.setdefault("multicast", {}).setdefault("enabled", False)
+    if settings["mode"] == "client":  # a client cannot open without its router: wait for one started with it
+        timeouts = settings.setdefault("connect", {}).setdefault("timeout_ms", {})
+        if isinstance(timeouts, dict):
+            timeouts.setdefault("client", int(NOTHING_ANSWERS_AFTER * 1000))
     if connect:
         settings.setdefault("connect", {})["endpoints"] = list(connect)
     if listen:
