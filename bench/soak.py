@@ -70,8 +70,10 @@ def main(argv=None) -> dict:
                          out / "recorder.log")
         processes = {"world": world, "brain": brain, "recorder": recorder}
         stop, counts = threading.Event(), {"sent": 0}
-        while " run " not in (out / "world.log").read_text():  # the run has begun: a recorder takes the
-            time.sleep(0.1)  # shape of the first map, layout and state it gets (docs/security.md)
+        # the fuzzer starts once the run has: on the plain bus the first map, layout or sensors set the
+        # run that recorder and brain serve, a forged one too (docs/security.md: the secured bus stops that)
+        while " run " not in (out / "world.log").read_text() or "brain for" not in (out / "brain.log").read_text():
+            time.sleep(0.1)
         fuzzer = threading.Thread(target=fuzz, args=([world_ep, brain_ep], args.fuzz_per_s, stop, counts))
         fuzzer.start()
         samples = []  # (seconds, {name: MB})

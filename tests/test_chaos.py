@@ -9,12 +9,16 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
+from spikinglab import snapshots
+from spikinglab.brain.checkpoint import load_weights
 from spikinglab.brain.circuit import load_circuit
 from spikinglab.ev3_gateway.fake_brick import FakeBrick
 from spikinglab.loop import brain_for, closed_loop
 from spikinglab.recorder.screenshot import last_tick, viewer_command
+from spikinglab.world.service import metrics_of
 from spikinglab.world.world import World
 
 from .processes import endpoint, finish, free_port, running_with, start, wait_for
@@ -150,3 +154,49 @@ def test_kill_9_of_the_router_the_run_resumes_where_it_stopped(tmp_path):
     assert f"brain back: continuing at tick {stopped}" in log
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["ticks"] == ticks and metrics["collisions"] == world.metrics.collisions.tolist()
+
+
+@pytest.mark.parametrize("victims", [("world",), ("world", "brain")])
+def test_kill_9_then_the_same_commands_resume_the_run_tick_for_tick(tmp_path, victims):
+    """World and brain keep checkpoints; kill -9 of the world (or of both) mid-run, then the same
+    commands again: the run resumes at the last checkpoint and ends with exactly the undisturbed
+    run's path (every tick of it), collisions, food and weights."""
+    ticks, seed, every = 9000, 3, 2000
+    world = World(seed=seed)
+    brain = brain_for(world, load_circuit("insect"))
+    path = np.zeros((ticks, 2))
+    closed_loop(world, brain, ticks, lambda t: path.__setitem__(t, world.pos[0]))
+    world_ep = endpoint(free_port())
+    world_args = ("--listen", world_ep, "--ticks", ticks, "--seed", seed, "--out", tmp_path, "--checkpoint",
+                  tmp_path / "world-kept", "--checkpoint-every", every)
+    brain_args = ("--connect", world_ep, "--once", "--save", tmp_path / "w.npz", "--checkpoint",
+                  tmp_path / "brain-kept")
+    processes = {"world": start("world", *world_args, log=tmp_path / "world1.log"),
+                 "brain": start("brain", *brain_args, log=tmp_path / "brain1.log")}
+    try:
+        kept = tmp_path / "world-kept" / "world.npz"
+        wait_for(lambda: kept.exists() and snapshots.read(kept)[1]["tick"] >= 2 * every, 120, "a second checkpoint")
+        for victim in victims:
+            processes[victim].kill()
+            processes[victim].wait()
+        resumed_at = snapshots.read(kept)[1]["tick"]
+        for victim in victims:
+            processes[victim] = start(victim, *(world_args if victim == "world" else brain_args),
+                                      log=tmp_path / f"{victim}2.log")
+        assert finish(processes["world"], 120, tmp_path / "world2.log") == 0
+        assert finish(processes["brain"], 30, tmp_path / "brain2.log") == 0
+    finally:
+        for process in processes.values():
+            process.kill()
+    assert f"resumed at tick {resumed_at}" in (tmp_path / "world2.log").read_text()
+    brain_log = (tmp_path / f"brain{len(victims)}.log").read_text()
+    assert f"resumed at tick {resumed_at}" in brain_log and "afresh" not in brain_log
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["resumed_at"] == resumed_at
+    undisturbed = metrics_of(world, ticks, 1.0)
+    for key in ("collisions", "collisions_per_1000_ticks", "food", "distance", "learning_time", "resets"):
+        assert metrics[key] == undisturbed[key], key
+    with np.load(tmp_path / "trajectory.npz") as kept_path:  # agent 0's place in every tick
+        assert np.array_equal(kept_path["early"], path[:5000]) and np.array_equal(kept_path["late"], path[-5000:])
+    assert np.array_equal(load_weights(tmp_path / "w.npz", load_circuit("insect")), brain.engine.w)
+    assert not kept.exists()  # the run is whole: nothing left to resume

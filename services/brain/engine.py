@@ -30,6 +30,8 @@ import math
 import numpy as np
 from numba import get_num_threads, njit, prange
 
+from spikinglab.snapshots import copy_into
+
 from .circuit import Circuit
 from .stdp import stdp_table
 
@@ -468,6 +470,19 @@ class Engine:
         if feed.shape != self.no_feed.shape:
             raise ValueError(f"feed must have shape {self.no_feed.shape} (agents, inputs), got {feed.shape}")
         return feed
+
+    def snapshot(self) -> dict[str, np.ndarray]:
+        """Copies of everything the next ticks depend on: clock, potentials, weights, counters,
+        histories and pulses in flight (whole-run checkpoints, services/snapshots.py)."""
+        return {name: array.copy() for name, array in self._state_arrays().items()}
+
+    def restore(self, arrays: dict[str, np.ndarray]) -> None:
+        """Back to a snapshot() of an engine of the same circuit and agents, copied in place."""
+        copy_into(self._state_arrays(), arrays, "engine snapshot")
+
+    def _state_arrays(self) -> dict[str, np.ndarray]:
+        return {"clock": self.clock, "v": self._v, "w": self._w, "state": self.state, "last_spike": self.last_spike,
+                "hist": self.hist, "ring": self.ring, "spiked": self._spiked}
 
     def get_weights(self) -> np.ndarray:
         """A copy of all synapse weights, [A, synapses] (checkpoints)."""

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from spikinglab import snapshots
 from spikinglab.bus import keys
 from spikinglab.bus.schemas import Array, BrainLayout, BrainState, BusError, Control, Motor, Sensors, TickBatch
 from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
@@ -50,6 +51,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--load", type=Path, help="start from the weights in this checkpoint (.npz)")
     p.add_argument("--save", type=Path, help="write the final weights here (.npz) when the run ends")
     p.add_argument("--once", action="store_true", help="exit after one run ends (default: serve the next run)")
+    p.add_argument("--checkpoint", type=Path, metavar="DIR",
+                   help="keep the brain's whole state here whenever the world keeps a checkpoint (world "
+                        "--checkpoint), the last two per run: a resumed run goes back to them tick for tick")
     p.add_argument("--stats", type=Path,
                    help="write the rejected messages (and, free-running, the tick rate and lateness) here (JSON) "
                         "when a run ends")
@@ -83,8 +87,10 @@ def add_engine_args(p: argparse.ArgumentParser) -> None:
 class BrainNode:
     """The lock-step logic, without the transport: a Sensors message in, a Motor message out."""
 
-    def __init__(self, circuit, training: bool = True, weights: np.ndarray | None = None, **engine_options):
+    def __init__(self, circuit, training: bool = True, weights: np.ndarray | None = None,
+                 checkpoints: Path | None = None, **engine_options):
         self.circuit, self.training, self.initial_weights = circuit, training, weights
+        self.checkpoints = checkpoints  # the folder of this brain's whole-state checkpoints (None: none kept)
         self.engine_options = engine_options  # semantics, order, seed
         self.brain: Brain | None = None
         self.batch = TickBatch(STATE_BATCH)  # spikes and potentials not yet published
@@ -92,6 +98,7 @@ class BrainNode:
         self.last_tick = -1
         self.run: str | None = None  # the run served, as its sensor messages name it
         self.last_answer: Motor | None = None
+        self.warned = False  # said that the world keeps checkpoints and this brain does not
 
     def start(self, message: Sensors) -> None:
         """A fresh brain for the sensors and agents of `message` (a new run)."""
@@ -109,12 +116,17 @@ class BrainNode:
                  ", ".join(message.names), "on" if self.training else "off",
                  ", ".join(f"{k} {v}" for k, v in options.items()))
 
+    def starts_run(self, message: Sensors) -> bool:
+        """Whether `message` starts a run this node does not serve: its tick 0, or a resumed run's
+        first tick (a checkpoint), or whatever comes first."""
+        return self.brain is None or (message.run != self.run and (message.tick == 0 or message.checkpoint))
+
     def answer(self, message: Sensors) -> Motor | None:
         """The Motor answer to `message`, or None for an older tick (the world moved on). A message
         that does not fit (another run mid-run, other agents or sensors) raises BusError."""
         self.stepped = False
         values = message.values.numpy("values", "<f8", 2)
-        if self.brain is None or (message.run != self.run and message.tick == 0):
+        if self.starts_run(message):
             try:
                 check_sensors(self.circuit, message.names)
             except ValueError as e:
@@ -123,23 +135,71 @@ class BrainNode:
                 log.info("run %s starts: the brain starts afresh", message.run)
             self.start(message)
             self.run, self.last_tick = message.run, -1
+            if message.tick > 0:
+                self.go_back(message, joining=True)
         if message.run != self.run:
             raise BusError(f"another run: sensors of run {message.run!r} at tick {message.tick}, the brain serves "
                            f"run {self.run!r}")
         if message.names != self.brain.sensor_names or values.shape[0] != self.brain.agents:
             raise BusError(f"does not fit the run: {values.shape[0]} agents with sensors {list(message.names)}, this "
                            f"brain serves {self.brain.agents} with {list(self.brain.sensor_names)}")
+        if message.checkpoint and message.tick < self.last_tick:  # the world resumed the run from there
+            self.go_back(message)
         if message.tick == self.last_tick:
             return self.last_answer  # the world asks again: same answer, no second step
         if message.tick < self.last_tick:
             return None
         if self.last_tick >= 0 and message.tick != self.last_tick + 1:
             log.info("joined at tick %d (last seen %d)", message.tick, self.last_tick)
+        if message.checkpoint:
+            self.keep_checkpoint(message.tick)
         actions = self.brain.step(values)
         self.last_tick, self.stepped = message.tick, True
         self.last_answer = Motor(tick=message.tick, names=self.brain.action_names, actions=Array.of(actions),
                                  run=self.run)
         return self.last_answer
+
+    def checkpoint_path(self, tick: int) -> Path:
+        return self.checkpoints / f"brain-{self.run}-tick{tick}.npz"
+
+    def keep_checkpoint(self, tick: int) -> None:
+        """The whole brain at the start of `tick`, where the world keeps its own; the last two of the run."""
+        if self.checkpoints is None:
+            if not self.warned:
+                log.warning("the world keeps checkpoints of run %s but this brain does not (no --checkpoint): a "
+                            "resumed run would start the brain afresh", self.run)
+                self.warned = True
+            return
+        path = self.checkpoint_path(tick)
+        if not path.exists():  # a repeat of the tick: already kept
+            snapshots.write(path, self.brain.engine.snapshot(), {"run": self.run, "tick": tick,
+                                                                 "circuit": self.circuit.name})
+        kept = sorted(self.checkpoints.glob(f"brain-{self.run}-tick*.npz"),
+                      key=lambda p: int(p.stem.rsplit("tick", 1)[1]))
+        for old in kept[:-2]:
+            old.unlink(missing_ok=True)
+
+    def go_back(self, message: Sensors, joining: bool = False) -> None:
+        """To the start of `message.tick` of this run, from the checkpoint kept there. A brain that
+        joins a run without one starts afresh at that tick (said); one asked to go back raises BusError."""
+        path = self.checkpoint_path(message.tick) if self.checkpoints else None
+        try:
+            if path is None or not path.exists():
+                raise ValueError(f"no checkpoint of run {self.run} at tick {message.tick}"
+                                 + (f" in {self.checkpoints}" if self.checkpoints else " (no --checkpoint)"))
+            arrays, meta = snapshots.read(path)
+            if meta.get("circuit") != self.circuit.name:
+                raise ValueError(f"{path}: a brain of circuit {meta.get('circuit')!r}, this is {self.circuit.name!r}")
+            self.brain.engine.restore(arrays)
+        except ValueError as e:
+            if not joining:
+                raise BusError(f"cannot resume: {e}") from None
+            log.warning("joined run %s at tick %d afresh (%s): the learning before it is not in this brain",
+                        self.run, message.tick, e)
+            return
+        self.last_tick, self.last_answer = message.tick - 1, None
+        self.batch = TickBatch(STATE_BATCH)
+        log.info("run %s resumed at tick %d from %s", self.run, message.tick, path)
 
     def ends(self, order: Control) -> bool:
         """Whether `order` ends this node's run: an "end" for the run it serves, not before its last tick."""
@@ -182,8 +242,8 @@ def run(args: argparse.Namespace, session) -> int:
         log.error("%s", e)
         return 2
     def new_node() -> BrainNode:  # one per run the brain serves
-        return BrainNode(circuit, training=not args.no_training, weights=weights, seed=args.seed,
-                         semantics=args.semantics, order=args.order)
+        return BrainNode(circuit, training=not args.no_training, weights=weights, checkpoints=args.checkpoint,
+                         seed=args.seed, semantics=args.semantics, order=args.order)
     node = new_node()
     bus = Bus(session, args.group, "brain")
     bus.watch_others(lambda: f" at tick {node.last_tick + 1} of run {node.run}" if node.run else "")
@@ -204,34 +264,18 @@ def run(args: argparse.Namespace, session) -> int:
             message = sensors.get(timeout=0.25)
             stopped = node.brain is not None and kept != (node.run, node.last_tick)
             if message is not None:
-                if stopped and message.run != node.run and message.tick == 0:
+                if stopped and node.starts_run(message):
                     kept = keep_learning(args, node, circuit, f"run {message.run} starts before it ended")
-                if state is not None and node.last_tick < 0:
-                    wait_for_subscriber(state, "a recorder")
-                    state.put(layout(circuit, message.tick, message.run))
+                serve(node, message, sensors, motor, state, circuit)
+            elif stopped and not world.alive:  # gone without an end (its end would be here by now)
+                kept = keep_learning(args, node, circuit, "its world left the bus")
+            # every turn, all that waits: a flood on the control key must not pile up while the run goes on
+            while (order := control.get(timeout=0)) is not None:
                 try:
-                    answer = node.answer(message)
+                    node.ends(order)
                 except BusError as e:
-                    sensors.refuse(e, f"(tick {message.tick})")
+                    control.refuse(e)
                     continue
-                if answer is not None:
-                    motor.put(answer)  # first: the world waits for it; the recorder does not
-                    if state is not None and node.stepped:
-                        node.keep_state()
-                        if node.batch.full:
-                            state.put(node.state_message())
-                continue
-            order = control.get(timeout=0)
-            if order is None:
-                if stopped and not world.alive:  # gone without an end (its end would be here by now)
-                    kept = keep_learning(args, node, circuit, "its world left the bus")
-                continue
-            try:
-                node.ends(order)
-            except BusError as e:
-                control.refuse(e)
-                continue
-            if order.command == "end":
                 if state is not None and node.brain is not None:  # the rest, and the final weights
                     state.put(node.state_message(final=True))
                 log.info("run ended at tick %d; rejected messages: %s", order.tick, bus.rejections() or "none")
@@ -250,6 +294,24 @@ def run(args: argparse.Namespace, session) -> int:
         raise
     finally:
         bus.close()
+
+
+def serve(node: BrainNode, message: Sensors, sensors, motor, state, circuit) -> None:
+    """Answer one Sensors message (lock-step): the Motor first, then the recorder's share."""
+    if state is not None and node.last_tick < 0:
+        wait_for_subscriber(state, "a recorder")
+        state.put(layout(circuit, message.tick, message.run))
+    try:
+        answer = node.answer(message)
+    except BusError as e:
+        sensors.refuse(e, f"(tick {message.tick})")
+        return
+    if answer is not None:
+        motor.put(answer)  # first: the world waits for it; the recorder does not
+        if state is not None and node.stepped:
+            node.keep_state()
+            if node.batch.full:
+                state.put(node.state_message())
 
 
 def keep_learning(args, node: BrainNode, circuit, why: str) -> tuple:

@@ -16,9 +16,9 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
-VERSION = 5  # 2: brain and world states come in batches of consecutive ticks; 3: no training switch on the bus;
+VERSION = 6  # 2: brain and world states come in batches of consecutive ticks; 3: no training switch on the bus;
 # 4: sensors, motor and control name the run they belong to; 5: motor names the reading it answers, the states
-# name their run
+# name their run; 6: sensors say when the world keeps a checkpoint
 # The insect's senses and actions: what a world or a robot gateway publishes and takes. The brain
 # binds them to its circuit by name (circuit files: `sensor = ...`, [actuators]).
 INSECT_SENSORS = ("smell_black", "smell_red", "smell_green", "pain", "reward")
@@ -81,6 +81,7 @@ class Sensors(Message, tag="sensors", kw_only=True):
     values: Array
     run: RunId = ""
     seed: Annotated[int, msgspec.Meta(ge=0, lt=2**62)] = 0  # the world's: the brain's netlogo order uses seed + a
+    checkpoint: bool = False  # the world kept its state at the start of this tick: the brain keeps its own too
 
     def check(self):
         values = self.values.numpy("values", "<f8", 2)

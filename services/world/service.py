@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from spikinglab import snapshots
 from spikinglab.bus import keys
 from spikinglab.bus.schemas import (
     EVENT_COLUMNS,
@@ -50,6 +51,11 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, help="write metrics.json (collisions over time, learning time, ...) here")
     p.add_argument("--publish-state", action="store_true", help="publish poses and events every tick (recorder)")
     p.add_argument("--progress", action="store_true", help="show a progress bar")
+    p.add_argument("--checkpoint", type=Path, metavar="DIR",
+                   help="keep the whole world here every --checkpoint-every ticks, and resume the run kept here "
+                        "(with the same options) if there is one; the brain keeps its own (brain --checkpoint)")
+    p.add_argument("--checkpoint-every", type=at_least(1), default=10_000, metavar="TICKS",
+                   help="ticks between checkpoints (default %(default)s)")
     add_bus_args(p)
     return p
 
@@ -93,8 +99,9 @@ class Progress:
         self.world, self.bar = world, None
         if enabled:
             from tqdm import tqdm
-            self.bar = tqdm(total=ticks, unit="tick", unit_scale=True, dynamic_ncols=True, mininterval=0.5)
-        self._shown = 0
+            self.bar = tqdm(total=ticks, initial=world.tick, unit="tick", unit_scale=True, dynamic_ncols=True,
+                            mininterval=0.5)
+        self._shown = world.tick  # a resumed run starts there
 
     def update(self, tick: int) -> None:
         if self.bar is None or tick - self._shown < 500:
@@ -136,11 +143,13 @@ def state_message(batch: TickBatch, changes: list, final: bool, world: World, ru
                       food=Array.of(a["food"]), changes=Array.of(rows), final=final)
 
 
-def metrics_of(world: World, ticks: int, elapsed: float) -> dict:
+def metrics_of(world: World, ticks: int, elapsed: float, resumed_at: int = 0) -> dict:
     m, p = world.metrics, world.params
     return {
         "ticks": ticks, "agents": world.agents, "seed": world.seed, "shared_arena": world.shared,
-        "training": world.training, "elapsed_s": round(elapsed, 3), "ticks_per_s": round(ticks / max(elapsed, 1e-9), 1),
+        "training": world.training, "elapsed_s": round(elapsed, 3),
+        "ticks_per_s": round((ticks - resumed_at) / max(elapsed, 1e-9), 1),
+        "resumed_at": resumed_at or None,  # the tick this process resumed the run at (its checkpoint)
         "world": {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(p).items()},
         "collisions_per_1000_ticks": np.array(m.bins).T.tolist() if m.bins else [[] for _ in range(world.agents)],
         "collisions": m.collisions.tolist(),
@@ -169,6 +178,10 @@ class Trajectory:
             self.early[t] = self.world.pos[0]
         self.late[t % self.n] = self.world.pos[0]
 
+    def arrays(self) -> dict[str, np.ndarray]:
+        """What a checkpoint keeps of the path (restored in place by snapshots.copy_into)."""
+        return {"early": self.early, "late": self.late, "grid_early": self.grid_early}
+
     def save(self, path: Path, ticks: int) -> None:
         late = np.roll(self.late, -(ticks % self.n), axis=0)  # oldest first
         np.savez_compressed(path, early=self.early, late=late, late_from=ticks - self.n,
@@ -176,12 +189,50 @@ class Trajectory:
                             x_min=self.world.params.x_min, y_min=self.world.params.y_min)
 
 
+CHECKPOINT = "world.npz"  # in --checkpoint DIR: the world of one run, at its last checkpoint
+
+
+def run_options(args: argparse.Namespace) -> dict:
+    """The options that make a run what it is: a checkpoint resumes only under the same ones."""
+    return {"ticks": args.ticks, "seed": args.seed, "agents": args.agents, "shared": args.shared,
+            "preset": args.preset, "map": str(args.map) if args.map else None, "no_training": args.no_training,
+            "learned_after": args.learned_after}
+
+
+def keep_checkpoint(args: argparse.Namespace, world: World, trajectory: Trajectory, run_id: str) -> None:
+    arrays = {**{f"world.{k}": v for k, v in world.snapshot().items()},
+              **{f"trajectory.{k}": v for k, v in trajectory.arrays().items()}}
+    snapshots.write(args.checkpoint / CHECKPOINT, arrays, {"run": run_id, "tick": world.tick,
+                                                           "options": run_options(args)})
+
+
+def resume(args: argparse.Namespace, world: World, trajectory: Trajectory) -> str | None:
+    """The run kept in --checkpoint, restored into `world` and `trajectory` (None: nothing kept).
+    ValueError when it is not a checkpoint of a run with these options."""
+    path = args.checkpoint / CHECKPOINT
+    if not path.exists():
+        return None
+    arrays, meta = snapshots.read(path)
+    kept, wanted = meta.get("options", {}), run_options(args)
+    differ = [f"--{k.replace('_', '-')} {kept.get(k)} there, {v} here" for k, v in wanted.items() if kept.get(k) != v]
+    if differ:
+        raise ValueError(f"{path} holds run {meta.get('run')} at tick {meta.get('tick')} made with other options "
+                         f"({'; '.join(differ)}): resume it with those, or give another --checkpoint folder")
+    world.restore({k[6:]: v for k, v in arrays.items() if k.startswith("world.")})
+    snapshots.copy_into(trajectory.arrays(), {k[11:]: v for k, v in arrays.items() if k.startswith("trajectory.")},
+                        str(path))
+    return meta["run"]
+
+
 def run(args: argparse.Namespace, session) -> int:
     try:
         world = world_from_args(args)
+        trajectory = Trajectory(world, args.ticks)
+        resumed = resume(args, world, trajectory) if args.checkpoint else None
     except (MapError, ValueError) as e:
         log.error("%s", e)
         return 2
+    start = world.tick
     bus = Bus(session, args.group, "world")
     bus.watch_others(lambda: f" at tick {world.tick}")
     try:
@@ -191,18 +242,19 @@ def run(args: argparse.Namespace, session) -> int:
         state = bus.outbox(keys.world_state(args.group)) if args.publish_state else None
         brain = bus.presence("brain")
         wait_for_subscriber(sensors, "a brain", brain)
-        run_id = secrets.token_hex(8)  # the brain answers for this run only; an end names it
+        run_id = resumed or secrets.token_hex(8)  # the brain answers for this run only; an end names it
         if state is not None:
             wait_for_subscriber(state, "a recorder")
             bus.outbox(keys.world_map(args.group)).put(WorldMap(
-                tick=0, run=run_id, grid=Array.of(world.grid), x_min=world.params.x_min, y_min=world.params.y_min))
-        trajectory = Trajectory(world, args.ticks)
+                tick=start, run=run_id, grid=Array.of(world.grid), x_min=world.params.x_min, y_min=world.params.y_min))
         batch, changes = TickBatch(STATE_BATCH), []
+        if resumed:
+            log.info("run %s resumed at tick %d from %s", run_id, start, args.checkpoint / CHECKPOINT)
         log.info("run %s: %d ticks, seed %d, %d agent(s)", run_id, args.ticks, world.seed, world.agents)
         started = time.perf_counter()
         progress = Progress(world, args.ticks, args.progress)  # from here on, Ctrl-C ends the run with a result
         try:
-            request = sensing(world, 0, run_id)
+            request = sensing(world, start, run_id, checkpoint=bool(resumed))  # the brain goes back to it too
             sensors.put(request)
             tick_loop(args, world, sensors, motor, brain, state, request, progress, trajectory, batch, changes)
         except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the ticks done are a result too, marked partial
@@ -213,11 +265,15 @@ def run(args: argparse.Namespace, session) -> int:
         elapsed = time.perf_counter() - started
         progress.close(done)
         control.put(Control(tick=done, command="end", run=run_id))
-        result = metrics_of(world, done, elapsed)
+        result = metrics_of(world, done, elapsed, start)
         result["rejected_messages"] = bus.rejections()
         result["partial"] = done < args.ticks
         log.info("%d ticks in %.1f s (%.0f ticks/s); collisions %s; learning time %s", done, elapsed,
-                 done / max(elapsed, 1e-9), result["collisions"][:8], result["learning_time"][:8])
+                 result["ticks_per_s"], result["collisions"][:8], result["learning_time"][:8])
+        if args.checkpoint and done == args.ticks:  # the run is whole: nothing left to resume
+            (args.checkpoint / CHECKPOINT).unlink(missing_ok=True)
+        elif args.checkpoint and (args.checkpoint / CHECKPOINT).exists():
+            log.info("the same command resumes this run from its last checkpoint (%s)", args.checkpoint / CHECKPOINT)
         if args.out:
             args.out.mkdir(parents=True, exist_ok=True)
             (args.out / "metrics.json").write_text(json.dumps(result))
@@ -228,14 +284,16 @@ def run(args: argparse.Namespace, session) -> int:
         bus.close()
 
 
-def sensing(world: World, tick: int, run_id: str) -> Sensors:
-    """What the world's insects sense for `tick` (the seed: the brain's netlogo order follows it)."""
-    return Sensors(tick=tick, names=SENSORS, values=Array.of(world.sense()), run=run_id, seed=world.seed)
+def sensing(world: World, tick: int, run_id: str, checkpoint: bool = False) -> Sensors:
+    """What the world's insects sense for `tick` (the seed: the brain's netlogo order follows it;
+    `checkpoint`: the world kept its state at the start of this tick, the brain keeps its own)."""
+    return Sensors(tick=tick, names=SENSORS, values=Array.of(world.sense()), run=run_id, seed=world.seed,
+                   checkpoint=checkpoint)
 
 
 def tick_loop(args, world, sensors, motor, brain, state, request, progress, trajectory, batch, changes) -> None:
     """The lock-step ticks: each waits for the brain's answer to the last sensors sent."""
-    for t in range(args.ticks):
+    for t in range(world.tick, args.ticks):
         actions = None
         while actions is None:
             answer = motor.get(timeout=RESEND_AFTER)
@@ -258,7 +316,10 @@ def tick_loop(args, world, sensors, motor, brain, state, request, progress, traj
         if state is not None:  # this tick's poses, events and changes, before the next sense()
             keep_state(batch, changes, world, t)
         if t + 1 < args.ticks:  # the brain's next tick first: the recorder can wait
-            request = sensing(world, t + 1, request.run)
+            keep = args.checkpoint is not None and (t + 1) % args.checkpoint_every == 0
+            if keep:
+                keep_checkpoint(args, world, trajectory, request.run)
+            request = sensing(world, t + 1, request.run, keep)
             sensors.put(request)
         if state is not None and (batch.full or t + 1 == args.ticks):
             state.put(state_message(batch, changes, t + 1 == args.ticks, world, request.run))

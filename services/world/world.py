@@ -33,6 +33,7 @@ from spikinglab.bus.schemas import (
     INSECT_SENSORS,
     RED,
 )
+from spikinglab.snapshots import copy_into
 
 # Sensor columns the world publishes and action columns it takes (the bus's names; the circuit
 # binds them by name).
@@ -277,6 +278,29 @@ class World:
         if self.tick % BIN == 0:
             self.metrics.bins.append(self._bin.copy())
             self._bin[:] = 0
+
+    def snapshot(self) -> dict[str, np.ndarray]:
+        """Copies of everything the next ticks depend on or report: arenas, poses, counters and
+        the collision bins (whole-run checkpoints, services/snapshots.py)."""
+        arrays = {name: array.copy() for name, array in self._state_arrays().items()}
+        arrays["tick"] = np.int64(self.tick)
+        arrays["bins"] = np.array(self.metrics.bins, np.int64).reshape(-1, self.agents)
+        return arrays
+
+    def restore(self, arrays: dict[str, np.ndarray]) -> None:
+        """Back to a snapshot() of a world of the same arenas and agents, copied in place."""
+        arrays = dict(arrays)
+        tick, bins = int(arrays.pop("tick")), arrays.pop("bins")
+        if bins.shape != (tick // BIN, self.agents):
+            raise ValueError(f"world snapshot: {bins.shape[0]} bins of collisions at tick {tick}")
+        copy_into(self._state_arrays(), arrays, "world snapshot")
+        self.tick, self.metrics.bins = tick, list(bins)
+
+    def _state_arrays(self) -> dict[str, np.ndarray]:
+        m = self.metrics
+        return {"grid": self.grid, "pos": self.pos, "heading": self.heading, "last_patch": self.last_patch,
+                "bin": self._bin, **{f"metrics.{f.name}": getattr(m, f.name) for f in dataclasses.fields(m)
+                                     if f.name != "bins"}}
 
     def patch_at(self, agent: int = 0) -> int:
         p = self.params
