@@ -200,3 +200,37 @@ def test_kill_9_then_the_same_commands_resume_the_run_tick_for_tick(tmp_path, vi
         assert np.array_equal(kept_path["early"], path[:5000]) and np.array_equal(kept_path["late"], path[-5000:])
     assert np.array_equal(load_weights(tmp_path / "w.npz", load_circuit("insect")), brain.engine.w)
     assert not kept.exists()  # the run is whole: nothing left to resume
+
+
+def test_a_frozen_recorder_never_holds_the_run_back(tmp_path):
+    """SIGSTOP of the recorder mid-run: world and brain run on to their end (their state streams
+    drop rather than wait; before, the world stalled); on SIGCONT the recorder says the run's end
+    never came and writes a file that opens, up to where it got."""
+    world_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
+    world = start("world", "--listen", world_ep, "--ticks", 20000, "--agents", 20, "--publish-state", "--out", tmp_path,
+                  log=tmp_path / "world.log")
+    brain = start("brain", "--listen", brain_ep, "--connect", world_ep, "--once", "--publish-state",
+                  log=tmp_path / "brain.log")
+    recorder = start("record", "--connect", world_ep, "--connect", brain_ep, "--out", tmp_path / "run.rrd",
+                     "--backlog-mb", 1, log=tmp_path / "recorder.log")
+    try:
+        wait_for(lambda: " run " in (tmp_path / "world.log").read_text(), 120, "the run to start")
+        time.sleep(1.0)
+        recorder.send_signal(signal.SIGSTOP)
+        assert finish(world, 120, tmp_path / "world.log") == 0
+        assert finish(brain, 30, tmp_path / "brain.log") == 0
+        recorder.send_signal(signal.SIGCONT)
+        assert finish(recorder, 60, tmp_path / "recorder.log") == 0
+    finally:
+        for process in (world, brain, recorder):
+            process.send_signal(signal.SIGCONT)
+            process.kill()
+    said = (tmp_path / "recorder.log").read_text()
+    written = re.search(r"recording written to .* \(ticks 0\.\.(\d+)\).* ticks missing: (.*); rejected: (.*)", said)
+    assert written and int(written.group(1)) < 19999, said[-2000:]
+    assert "left without the run's end" in said
+    pace = json.loads((tmp_path / "metrics.json").read_text())["ticks_per_s"]
+    print(f"frozen recorder: the run went on to its end at {pace:,.0f} ticks/s; recorded ticks 0..{written.group(1)} "
+          f"of 20,000; ticks missing within: {written.group(2)}; rejected or dropped: {written.group(3)}")
+    verified = subprocess.run([*viewer_command(), "rrd", "verify", str(tmp_path / "run.rrd")], capture_output=True)
+    assert verified.returncode == 0, verified.stderr

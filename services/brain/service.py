@@ -256,7 +256,7 @@ def run(args: argparse.Namespace, session) -> int:
         sensors = bus.inbox(keys.sensors(args.group), Sensors)
         control = bus.inbox(keys.control(args.group), Control)
         motor = bus.outbox(keys.motor(args.group))
-        state = bus.outbox(keys.brain_state(args.group)) if args.publish_state else None
+        state = bus.outbox(keys.brain_state(args.group), lossy=True) if args.publish_state else None
         world = bus.presence("world")
         log.info("brain ready on group %s (%s)", args.group, bus.sender)
         kept = None  # (run, tick) whose learning was saved when the run stopped without its end
@@ -348,7 +348,7 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
     sensors = bus.inbox(keys.sensors(args.group), Sensors)
     control = bus.inbox(keys.control(args.group), Control)
     motor = bus.outbox(keys.motor(args.group))
-    state = bus.outbox(keys.brain_state(args.group)) if args.publish_state else None
+    state = bus.outbox(keys.brain_state(args.group), lossy=True) if args.publish_state else None
     latest, latest_at = None, 0.0
     log.info("brain ready on group %s (%s), free-running at %g Hz; waiting for sensors", args.group, bus.sender,
              args.clock)

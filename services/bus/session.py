@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import _thread
 import argparse
+import collections
 import json
 import logging
 import os
@@ -30,6 +31,7 @@ log = logging.getLogger("spikinglab.bus")
 
 
 PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream", "unixpipe", "vsock", "serial")
+DROPPED = "dropped, backlog full"  # the reason counted for messages a Backlog dropped
 REASONS_KEPT = 32  # distinct rejection reasons counted per key; the rest as "other reasons"
 NOTHING_ANSWERS_AFTER = 10.0  # seconds: then a --connect that reached nobody is reported
 
@@ -143,9 +145,44 @@ def by_key(rejected: Counter) -> dict[str, dict[str, int]]:
     return out
 
 
+class Backlog:
+    """A subscriber's queue bounded in bytes, for readers that may fall behind (the recorder): a
+    message that would take it past `limit` is dropped and counted, never held without limit.
+    The same try_recv()/recv() as zenoh's channels; filled on zenoh's thread."""
+
+    def __init__(self, limit: int):
+        self.limit, self.size, self.dropped = limit, 0, 0
+        self._items: collections.deque = collections.deque()
+        self._ready = threading.Condition()
+
+    def __call__(self, sample) -> None:
+        n = len(sample.payload)
+        with self._ready:
+            if n and self.size + n > self.limit:
+                self.dropped += 1
+                return
+            self._items.append(sample)
+            self.size += n
+            self._ready.notify()
+
+    def try_recv(self):
+        with self._ready:
+            if not self._items:
+                return None
+            sample = self._items.popleft()
+            self.size -= len(sample.payload)
+            return sample
+
+    def recv(self):
+        with self._ready:
+            self._ready.wait_for(lambda: self._items)
+        return self.try_recv()
+
+
 class Inbox:
     """A subscriber whose messages are decoded strictly: good ones are returned by `get()`, bad
-    ones are counted and logged (key, sender, reason) and dropped whole.
+    ones are counted and logged (key, sender, reason) and dropped whole. With `backlog_bytes`, what
+    waits to be read is bounded (Backlog): more is dropped and counted as "dropped, backlog full".
 
     The owner's loop blocks in the channel's recv(), the fastest hand-over zenoh-python has
     (about 0.2 ms per lock-step round trip between two processes, against 0.28 ms through a
@@ -156,11 +193,14 @@ class Inbox:
 
     WAKE_EVERY = 0.25
 
-    def __init__(self, session: zenoh.Session, key: str, kinds, capacity: int = 100_000):
+    def __init__(self, session: zenoh.Session, key: str, kinds, capacity: int = 100_000,
+                 backlog_bytes: int | None = None):
         self.key, self.kinds = key, kinds
         self.rejected: Counter = Counter()
         self._session = session
-        self._sub = session.declare_subscriber(key, zenoh.handlers.FifoChannel(capacity))
+        self._backlog = Backlog(backlog_bytes) if backlog_bytes else None
+        self._sub = session.declare_subscriber(key, self._backlog or zenoh.handlers.FifoChannel(capacity))
+        self._channel = self._backlog or self._sub
         self._deadline: float | None = None  # when the blocked owner wants to be woken
         self._closed = threading.Event()
         self._ticker = threading.Thread(target=self._tick, name=f"wake {key}", daemon=True)
@@ -177,13 +217,13 @@ class Inbox:
         """The next good message; None once `timeout` seconds pass without one."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
-            sample = self._sub.try_recv()
+            sample = self._channel.try_recv()
             if sample is None:
                 now = time.monotonic()
                 if deadline is not None and now >= deadline:
                     return None
                 self._deadline = min(deadline, now + self.WAKE_EVERY) if deadline else now + self.WAKE_EVERY
-                sample = self._sub.recv()
+                sample = self._channel.recv()
                 self._deadline = None
             payload = sample.payload.to_bytes()
             if not payload:  # a wake-up
@@ -197,7 +237,7 @@ class Inbox:
         """The newest good message waiting, without blocking; the older ones are dropped undecoded
         (a free-running loop wants the current reading, not the history)."""
         waiting = []
-        while (sample := self._sub.try_recv()) is not None:
+        while (sample := self._channel.try_recv()) is not None:
             waiting.append(sample)
         for sample in reversed(waiting):
             payload = sample.payload.to_bytes()
@@ -228,12 +268,22 @@ class Inbox:
                         error, total)
 
     @property
+    def dropped(self) -> int:
+        """Messages dropped because the backlog was full (the reader fell behind)."""
+        return self._backlog.dropped if self._backlog else 0
+
+    @property
+    def counts(self) -> Counter:
+        """Rejected and dropped messages: {(key, reason): n}."""
+        return self.rejected + Counter({(self.key, DROPPED): self.dropped} if self.dropped else {})
+
+    @property
     def rejected_total(self) -> int:
         return sum(self.rejected.values())
 
     def rejections(self) -> dict[str, dict[str, int]]:
-        """Rejected messages so far: {key: {reason: count}}."""
-        return by_key(self.rejected)
+        """Rejected (and dropped) messages so far: {key: {reason: count}}."""
+        return by_key(self.counts)
 
     def close(self) -> None:
         # join the ticker: a daemon thread still inside a zenoh call when Python finalises is
@@ -244,13 +294,16 @@ class Inbox:
 
 
 class Outbox:
-    """A publisher of messages. BLOCK congestion control: no message is dropped when the link is
-    busy (lock-step and recording count on every one); express: sent at once, not batched."""
+    """A publisher of messages; express: sent at once, not batched. BLOCK congestion control: no
+    message is dropped when the link is busy (lock-step counts on every one); `lossy`: DROP, for
+    streams that must never hold the run back (the recording: a frozen recorder would stall the
+    world; it counts the ticks missing instead)."""
 
-    def __init__(self, session: zenoh.Session, key: str, sender: str):
+    def __init__(self, session: zenoh.Session, key: str, sender: str, lossy: bool = False):
         self.key = key
         self._sender = sender.encode()
-        self._pub = session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK, express=True)
+        control = zenoh.CongestionControl.DROP if lossy else zenoh.CongestionControl.BLOCK
+        self._pub = session.declare_publisher(key, congestion_control=control, express=True)
 
     def put(self, message: Message) -> None:
         self._pub.put(encode(message), attachment=self._sender)
@@ -311,19 +364,19 @@ class Bus:
         self._token = session.liveliness().declare_token(keys.alive(group, service))
         self._owned: list = []
 
-    def outbox(self, key: str) -> Outbox:
-        box = Outbox(self.session, key, self.sender)
+    def outbox(self, key: str, lossy: bool = False) -> Outbox:
+        box = Outbox(self.session, key, self.sender, lossy)
         self._owned.append(box)
         return box
 
-    def inbox(self, key: str, kinds) -> Inbox:
-        box = Inbox(self.session, key, kinds)
+    def inbox(self, key: str, kinds, backlog_bytes: int | None = None) -> Inbox:
+        box = Inbox(self.session, key, kinds, backlog_bytes=backlog_bytes)
         self._owned.append(box)
         return box
 
     def rejections(self) -> dict[str, dict[str, int]]:
         """Every inbox's rejected messages: {key: {reason: count}} (stats files, summary.json)."""
-        return by_key(sum((box.rejected for box in self._owned if isinstance(box, Inbox)), Counter()))
+        return by_key(sum((box.counts for box in self._owned if isinstance(box, Inbox)), Counter()))
 
     def watch_others(self, where=lambda: "") -> None:
         """Log each other service of the group that joins or leaves the bus, with `where()` (the

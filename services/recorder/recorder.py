@@ -98,6 +98,8 @@ class Recorder:
         self.world_done = False  # the world's final batch has arrived
         self._announced = False  # whether "recording starts at tick N" was said
         self._trail: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # agent -> (ticks, positions)
+        self.missing: dict[str, int] = {}  # "world" / "brain" -> ticks of its state that never came
+        self._next_tick: dict[str, int] = {}  # the tick each state stream's next batch should start at
         self._reset_buffers()
         rec.log("/world/map", rr.AnnotationContext([(c, name, rgb) for c, name, rgb in PATCH_COLOURS]), static=True)
         rec.log("/learning/collisions_per_1000", rr.SeriesLines(names="collision events per 1,000 ticks",
@@ -196,6 +198,7 @@ class Recorder:
         collisions = m.collisions.numpy("collisions", "<i8", 2)
         changes = m.changes.numpy("changes", "<i8", 2)
         self.agents = pos.shape[1]
+        self._count_gap("world", m.tick, len(pos))
         self.last_tick = max(self.last_tick, m.tick + len(pos) - 1)
         if self._collisions_at_bin is None:
             self._collisions_at_bin = np.zeros(self.agents, np.int64)
@@ -239,6 +242,7 @@ class Recorder:
         if self.spike_counts is None or self.spike_counts.shape != spiked.shape[1:]:
             self.spike_counts = np.zeros(spiked.shape[1:], np.int64)
         self.spike_counts += spiked.sum(axis=0, dtype=np.int64)
+        self._count_gap("brain", m.tick, len(spiked))
         for k in range(len(spiked)):
             self.b["spikes"].append((m.tick + k, spiked[k][rows]))
             self.b["potentials"].append((m.tick + k, potentials[k][rows]))
@@ -247,6 +251,15 @@ class Recorder:
         weights = m.weights.numpy("weights", "<f8", 2)
         self.b["weights"].append((last, weights[rows]))
         self.brain_done = m.final
+
+    def _count_gap(self, stream: str, first: int, ticks: int) -> None:
+        """Count and say the ticks of a state stream that never came (dropped on the way)."""
+        expected = self._next_tick.get(stream)
+        if expected is not None and first > expected:
+            self.missing[stream] = self.missing.get(stream, 0) + first - expected
+            self.event(f"ticks {expected}..{first - 1} of the {stream}'s state are missing: dropped on the way (the "
+                       "recorder fell behind)", "WARN", first)
+        self._next_tick[stream] = max(expected or 0, first + ticks)
 
     def event(self, text: str, level: str = "INFO", tick: int | None = None) -> None:
         self.rec.set_time("tick", sequence=max(tick if tick is not None else self.last_tick, 0))

@@ -27,7 +27,7 @@ import rerun as rr
 from spikinglab.bus import keys
 from spikinglab.bus.schemas import BrainLayout, BrainState, BusError, WorldMap, WorldState
 from spikinglab.bus.session import Bus, add_bus_args, service_main
-from spikinglab.options import Parser, agent_list, port
+from spikinglab.options import Parser, agent_list, at_least, port
 
 from .recorder import Recorder, blueprint
 
@@ -52,6 +52,10 @@ def parser() -> argparse.ArgumentParser:
                    help="agents with raster, potentials, weights, ray, trail, e.g. 0,3 (default 0)")
     p.add_argument("--flush-every", type=int, default=1000, help="ticks per batch written (default 1,000)")
     p.add_argument("--forever", action="store_true", help="keep recording after the run's end")
+    p.add_argument("--backlog-mb", type=at_least(1), default=256,
+                   help="messages waiting to be recorded, at most (default %(default)s MB): beyond, they are dropped "
+                        "and counted, and the ticks missing are said; a recorder that falls behind never holds the "
+                        "run back nor grows without limit")
     p.add_argument("--nice", type=int, default=10, help="scheduling priority increment (default 10: after world and brain)")
     add_bus_args(p)
     return p
@@ -121,7 +125,8 @@ def run(args: argparse.Namespace, session) -> int:
     recorder = Recorder(rec, detail=detail, flush_every=args.flush_every)
     bus.watch_others(lambda: f" (recorded up to tick {recorder.last_tick})")
     # only the state streams: the lock-step messages (sensors, motor) never come to the recorder
-    inbox = bus.inbox(keys.state(args.group), (WorldMap, WorldState, BrainState, BrainLayout))
+    inbox = bus.inbox(keys.state(args.group), (WorldMap, WorldState, BrainState, BrainLayout),
+                      backlog_bytes=args.backlog_mb << 20)
     watched = {name: bus.presence(name) for name in ("world", "brain")}
     recorder.event(f"recorder started on group {args.group}, writing {out}")
     log.info("recording group %s to %s", args.group, out)
@@ -147,10 +152,10 @@ def run(args: argparse.Namespace, session) -> int:
                         ending = time.monotonic() + END_GRACE
                 except BusError as e:  # it does not fit the recording: refused whole, counted
                     inbox.refuse(e, f"({type(message).__name__} of tick {message.tick})")
-            if inbox.rejected_total != rejected:
-                reasons = ", ".join(f"{n} x {r} on {k}" for (k, r), n in inbox.rejected.items())
-                recorder.event(f"rejected messages so far: {inbox.rejected_total} ({reasons})", "WARN")
-                rejected = inbox.rejected_total
+            if inbox.rejected_total + inbox.dropped != rejected:
+                reasons = ", ".join(f"{n} x {r} on {k}" for (k, r), n in inbox.counts.items())
+                rejected = inbox.rejected_total + inbox.dropped
+                recorder.event(f"rejected or dropped messages so far: {rejected} ({reasons})", "WARN")
             # the run is over when every stream that came has sent its final batch (the world's and
             # the brain's come on different links, in either order)
             if ending and ((recorder.world_done or recorder.agents == 0) and
@@ -172,9 +177,9 @@ def run(args: argparse.Namespace, session) -> int:
         rec.disconnect()
         bus.close()
         took = max(time.monotonic() - first_at, 1e-9)
-        log.info("recording written to %s (ticks %s..%s): %d messages in %.1f s, %.0f messages/s; rejected: %s",
-                 out, recorder.first_tick, recorder.last_tick, received, took, received / took,
-                 bus.rejections() or "none")
+        log.info("recording written to %s (ticks %s..%s): %d messages in %.1f s, %.0f messages/s; ticks missing: %s; "
+                 "rejected: %s", out, recorder.first_tick, recorder.last_tick, received, took, received / took,
+                 recorder.missing or "none", bus.rejections() or "none")
     return 0
 
 

@@ -239,7 +239,8 @@ def run(args: argparse.Namespace, session) -> int:
         sensors = bus.outbox(keys.sensors(args.group))
         motor = bus.inbox(keys.motor(args.group), Motor)
         control = bus.outbox(keys.control(args.group))
-        state = bus.outbox(keys.world_state(args.group)) if args.publish_state else None
+        # lossy: a recorder that falls behind or freezes must not hold the run back (it counts the gap)
+        state = bus.outbox(keys.world_state(args.group), lossy=True) if args.publish_state else None
         brain = bus.presence("brain")
         wait_for_subscriber(sensors, "a brain", brain)
         run_id = resumed or secrets.token_hex(8)  # the brain answers for this run only; an end names it
