@@ -75,7 +75,7 @@ EXAMPLES = [
 def serving_brain() -> BrainNode:
     """A brain that has answered the Sensors example: it serves run r1, for 3 agents."""
     node = BrainNode(CIRCUIT)
-    node.answer(EXAMPLES[0])
+    node.answer(msgspec.structs.replace(EXAMPLES[0], tick=0))  # from the run's start: no word of joining late
     return node
 
 

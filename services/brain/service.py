@@ -37,6 +37,8 @@ log = logging.getLogger("spikinglab.brain")
 STATE_BATCH = 50  # ticks per BrainState message (one put per 50 ticks keeps recording off the loop's back)
 HEARTBEAT_S = 0.05  # free-running: a motor message (an empty one if nothing fired) at least this often
 CATCH_UP_S = 0.05  # free-running: a clock this far behind skips ahead instead of running the missed ticks
+QUIET_S = 2.0  # lock-step: another run may start only once the run served has been silent this long (its
+# world re-sends every second while it lives), so a message of another run cannot take over a live one
 
 
 def parser() -> argparse.ArgumentParser:
@@ -88,7 +90,7 @@ class BrainNode:
     """The lock-step logic, without the transport: a Sensors message in, a Motor message out."""
 
     def __init__(self, circuit, training: bool = True, weights: np.ndarray | None = None,
-                 checkpoints: Path | None = None, **engine_options):
+                 checkpoints: Path | None = None, quiet_s: float = QUIET_S, **engine_options):
         self.circuit, self.training, self.initial_weights = circuit, training, weights
         self.checkpoints = checkpoints  # the folder of this brain's whole-state checkpoints (None: none kept)
         self.engine_options = engine_options  # semantics, order, seed
@@ -99,6 +101,7 @@ class BrainNode:
         self.run: str | None = None  # the run served, as its sensor messages name it
         self.last_answer: Motor | None = None
         self.warned = False  # said that the world keeps checkpoints and this brain does not
+        self.quiet_s, self.heard_at = quiet_s, 0.0  # when the run served last asked (monotonic)
 
     def start(self, message: Sensors) -> None:
         """A fresh brain for the sensors and agents of `message` (a new run)."""
@@ -118,8 +121,11 @@ class BrainNode:
 
     def starts_run(self, message: Sensors) -> bool:
         """Whether `message` starts a run this node does not serve: its tick 0, or a resumed run's
-        first tick (a checkpoint), or whatever comes first."""
-        return self.brain is None or (message.run != self.run and (message.tick == 0 or message.checkpoint))
+        first tick (a checkpoint), once the run served has gone quiet; or whatever comes first."""
+        if self.brain is None:
+            return True
+        return (message.run != self.run and (message.tick == 0 or message.checkpoint)
+                and time.monotonic() - self.heard_at > self.quiet_s)
 
     def answer(self, message: Sensors) -> Motor | None:
         """The Motor answer to `message`, or None for an older tick (the world moved on). A message
@@ -140,6 +146,7 @@ class BrainNode:
         if message.run != self.run:
             raise BusError(f"another run: sensors of run {message.run!r} at tick {message.tick}, the brain serves "
                            f"run {self.run!r}")
+        self.heard_at = time.monotonic()
         if message.names != self.brain.sensor_names or values.shape[0] != self.brain.agents:
             raise BusError(f"does not fit the run: {values.shape[0]} agents with sensors {list(message.names)}, this "
                            f"brain serves {self.brain.agents} with {list(self.brain.sensor_names)}")

@@ -1,5 +1,7 @@
 """The brain service's lock-step answers, without the bus (BrainNode.answer)."""
 
+import time
+
 import numpy as np
 import pytest
 
@@ -77,11 +79,15 @@ def test_only_an_end_of_the_run_served_ends_it():
     assert node.ends(Control(tick=10, command="end", run="r1"))
 
 
-def test_tick_zero_of_another_run_is_a_new_run():
-    node = BrainNode(CIRCUIT)
+def test_tick_zero_of_another_run_is_a_new_run_once_the_run_served_is_quiet():
+    node = BrainNode(CIRCUIT, quiet_s=0.3)
     fresh = [actions(node.answer(sensors(t))) for t in range(200)]
     learned = node.brain.engine.get_weights().copy()
     assert node.answer(sensors(0)) is None  # tick 0 of the same run again: older, not a new run
+    with pytest.raises(BusError, match="another run"):  # the run served is alive: no take-over
+        node.answer(sensors(0, run="r2"))
+    np.testing.assert_array_equal(node.brain.engine.get_weights(), learned)
+    time.sleep(0.4)
     again = [actions(node.answer(sensors(t, run="r2"))) for t in range(200)]
     assert not np.array_equal(learned, initial_weights())  # the first run changed the weights
     np.testing.assert_array_equal(node.brain.engine.get_weights(), learned)  # and the second, from scratch, the same
