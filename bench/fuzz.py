@@ -18,6 +18,7 @@ Run: `spikinglab bench fuzz [--examples N]`.
 from __future__ import annotations
 
 import json
+import logging
 import traceback
 import warnings
 from collections import Counter
@@ -301,6 +302,7 @@ def main(argv=None) -> dict:
                    help="payloads per source and kind (default 2000; each is tried as every kind and any kind)")
     args = p.parse_args(argv)
     warnings.simplefilter("ignore", RuntimeWarning)  # numpy's overflow notes on the extreme values thrown
+    logging.getLogger("spikinglab").setLevel(logging.ERROR)  # the services' word on each payload they take
     table, escape = run(args.examples)
     print(f"{'key':36} {'payloads':>9} {'rejected':>9} {'refused':>8} {'taken':>7} {'escapes':>8}")
     for key, c in table.items():
