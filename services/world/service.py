@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import re
 import secrets
 import sys
 import time
@@ -189,6 +190,7 @@ class Trajectory:
                             x_min=self.world.params.x_min, y_min=self.world.params.y_min)
 
 
+RUN_ID = re.compile("[0-9a-f]{16}")  # as this service names its runs
 CHECKPOINT = "world.npz"  # in --checkpoint DIR: the world of one run, at its last checkpoint
 
 
@@ -218,6 +220,8 @@ def resume(args: argparse.Namespace, world: World, trajectory: Trajectory) -> st
     if differ:
         raise ValueError(f"{path} holds run {meta.get('run')} at tick {meta.get('tick')} made with other options "
                          f"({'; '.join(differ)}): resume it with those, or give another --checkpoint folder")
+    if not RUN_ID.fullmatch(str(meta.get("run"))):
+        raise ValueError(f"{path}: not a world checkpoint (no run id in it)")
     world.restore({k[6:]: v for k, v in arrays.items() if k.startswith("world.")})
     snapshots.copy_into(trajectory.arrays(), {k[11:]: v for k, v in arrays.items() if k.startswith("trajectory.")},
                         str(path))

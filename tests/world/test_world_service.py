@@ -1,5 +1,7 @@
 """The world service's messages, without the bus."""
 
+import numpy as np
+import pytest
 import rerun as rr
 
 from spikinglab.bus.schemas import TickBatch, WorldState, decode, encode
@@ -17,3 +19,22 @@ def test_a_run_ended_before_its_first_tick_still_sends_a_final_state():
     recorder = Recorder(rr.RecordingStream("spikinglab-test"))
     recorder.on(message)
     assert recorder.world_done and recorder.agents == 2
+
+
+def test_a_checkpoint_resumes_only_under_the_options_that_made_it(tmp_path):
+    from spikinglab.world.service import Trajectory, keep_checkpoint, parser, resume, world_from_args
+    made = parser().parse_args(["--seed", "4", "--ticks", "3000", "--checkpoint", str(tmp_path)])
+    world = world_from_args(made)
+    for _ in range(1200):
+        world.sense()
+        world.act(np.array([[1, 1]], np.uint8))
+    keep_checkpoint(made, world, Trajectory(world, made.ticks), "0123456789abcdef")
+    again = world_from_args(made)
+    assert resume(made, again, Trajectory(again, made.ticks)) == "0123456789abcdef"
+    assert again.tick == 1200 and np.array_equal(again.pos, world.pos) and len(again.metrics.bins) == 1
+    other = parser().parse_args(["--seed", "5", "--ticks", "3000", "--checkpoint", str(tmp_path)])
+    with pytest.raises(ValueError, match=r"other options \(--seed 4 there, 5 here\)"):
+        resume(other, world_from_args(other), Trajectory(world_from_args(other), other.ticks))
+    (tmp_path / "world.npz").write_bytes(b"not an npz")
+    with pytest.raises(ValueError, match="not a run checkpoint"):
+        resume(made, world_from_args(made), Trajectory(world, made.ticks))
