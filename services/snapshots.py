@@ -16,10 +16,15 @@ import numpy as np
 
 
 def write(path: Path, arrays: dict[str, np.ndarray], meta: dict) -> None:
+    write_npz(path, meta=json.dumps(meta), **{f"a.{k}": v for k, v in arrays.items()})
+
+
+def write_npz(path: Path, **arrays) -> None:
+    """np.savez to a temporary file, then renamed: a reader never sees a half-written file."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez(tmp, meta=json.dumps(meta), **{f"a.{k}": v for k, v in arrays.items()})
+    np.savez(tmp, **arrays)
     tmp.replace(path)
 
 

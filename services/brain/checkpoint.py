@@ -7,17 +7,15 @@ from pathlib import Path
 
 import numpy as np
 
+from spikinglab.snapshots import write_npz
+
 from .circuit import Circuit
 from .engine import Engine
 
 
 def save_weights(path: Path, engine: Engine, circuit: Circuit, tick: int = 0) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     labels = [circuit.synapse_label(k) for k in range(len(circuit.synapses))]
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez(tmp, weights=engine.get_weights(), synapses=np.array(labels), circuit=circuit.name, tick=tick)
-    tmp.replace(path)  # never a half-written checkpoint
+    write_npz(path, weights=engine.get_weights(), synapses=np.array(labels), circuit=circuit.name, tick=tick)
 
 
 def load_weights(path: Path, circuit: Circuit) -> np.ndarray:

@@ -11,6 +11,8 @@ bumps VERSION.
 from __future__ import annotations
 
 import math
+import re
+import secrets
 from typing import Annotated
 
 import msgspec
@@ -61,6 +63,14 @@ class Array(msgspec.Struct, frozen=True):
 
 
 RunId = Annotated[str, msgspec.Meta(max_length=64)]  # chosen by the world (or gateway) when its run starts
+RUN_ID = re.compile("[0-9a-f]{16}")  # what new_run_id() gives
+
+
+def new_run_id() -> str:
+    """A fresh run id, as the world and the gateway name each run they start."""
+    return secrets.token_hex(8)
+
+
 Tick = Annotated[int, msgspec.Meta(ge=0, lt=2**62)]  # a run's ticks; rerun and numpy take them as int64
 Coordinate = Annotated[int, msgspec.Meta(ge=-(2**31), lt=2**31)]
 SENSED_MAX = 2.0**31  # a sensor value is a number of ticks for the input neuron to wait (int32 counters)

@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import secrets
 import signal
 import sys
 import threading
@@ -35,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from spikinglab.bus import keys
-from spikinglab.bus.schemas import INSECT_SENSORS, Array, BusError, Control, Motor, Sensors
+from spikinglab.bus.schemas import INSECT_SENSORS, Array, BusError, Control, Motor, Sensors, new_run_id
 from spikinglab.bus.session import Bus, add_bus_args, guard_threads, open_session, thread_died
 from spikinglab.options import Parser
 
@@ -181,7 +180,7 @@ class Gateway:
         self.linked = threading.Event()
         self.done = threading.Event()
         self.rules = MotorRules(args.move_ms, args.spin_ms, args.motor_timeout)
-        self.run_id = secrets.token_hex(8)  # the brain's motor messages answer readings of this run
+        self.run_id = new_run_id()  # the brain's motor messages answer readings of this run
         self.started = time.monotonic()
         self.published = np.zeros(READINGS_KEPT)  # when reading k was published, at k % READINGS_KEPT
         self.stats = {"polls": 0, "commands": 0, "safety_stops": 0, "stale_commands": 0, "link_losses": 0,

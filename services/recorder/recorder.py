@@ -20,7 +20,6 @@ ticks, never one log call per value. What goes where:
 from __future__ import annotations
 
 import math
-import re
 from collections import defaultdict
 
 import numpy as np
@@ -33,6 +32,7 @@ from spikinglab.bus.schemas import (
     EV_LEARNED,
     GREEN,
     RED,
+    RUN_ID,
     BrainLayout,
     BrainState,
     BusError,
@@ -44,7 +44,6 @@ PATCH_COLOURS = [(EMPTY, "floor", (24, 24, 28)), (BLACK, "wall", (215, 215, 215)
                  (RED, "predator", (220, 50, 47)), (GREEN, "food", (60, 190, 80))]
 SEEN_COLOUR = {BLACK: (215, 215, 215), RED: (255, 80, 80), GREEN: (90, 230, 110)}
 SMELLS = {"smell_black": BLACK, "smell_red": RED, "smell_green": GREEN}
-RUN_ID = re.compile("[0-9a-f]{16}")  # as the world and the gateway name their runs (a late recorder takes the first)
 TRAIL_EVERY, TRAIL_STEP = 50, 5  # ticks between trail updates; keep every 5th position
 
 

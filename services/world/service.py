@@ -15,8 +15,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import re
-import secrets
 import sys
 import time
 from pathlib import Path
@@ -27,6 +25,7 @@ from spikinglab import snapshots
 from spikinglab.bus import keys
 from spikinglab.bus.schemas import (
     EVENT_COLUMNS,
+    RUN_ID,
     Array,
     BusError,
     Control,
@@ -35,6 +34,7 @@ from spikinglab.bus.schemas import (
     TickBatch,
     WorldMap,
     WorldState,
+    new_run_id,
 )
 from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 from spikinglab.options import Parser, at_least
@@ -190,7 +190,6 @@ class Trajectory:
                             x_min=self.world.params.x_min, y_min=self.world.params.y_min)
 
 
-RUN_ID = re.compile("[0-9a-f]{16}")  # as this service names its runs
 CHECKPOINT = "world.npz"  # in --checkpoint DIR: the world of one run, at its last checkpoint
 
 
@@ -222,9 +221,9 @@ def resume(args: argparse.Namespace, world: World, trajectory: Trajectory) -> st
                          f"({'; '.join(differ)}): resume it with those, or give another --checkpoint folder")
     if not RUN_ID.fullmatch(str(meta.get("run"))):
         raise ValueError(f"{path}: not a world checkpoint (no run id in it)")
-    world.restore({k[6:]: v for k, v in arrays.items() if k.startswith("world.")})
-    snapshots.copy_into(trajectory.arrays(), {k[11:]: v for k, v in arrays.items() if k.startswith("trajectory.")},
-                        str(path))
+    world.restore({k.removeprefix("world."): v for k, v in arrays.items() if k.startswith("world.")})
+    snapshots.copy_into(trajectory.arrays(), {k.removeprefix("trajectory."): v for k, v in arrays.items()
+                                              if k.startswith("trajectory.")}, str(path))
     return meta["run"]
 
 
@@ -247,7 +246,7 @@ def run(args: argparse.Namespace, session) -> int:
         state = bus.outbox(keys.world_state(args.group), lossy=True) if args.publish_state else None
         brain = bus.presence("brain")
         wait_for_subscriber(sensors, "a brain", brain)
-        run_id = resumed or secrets.token_hex(8)  # the brain answers for this run only; an end names it
+        run_id = resumed or new_run_id()  # the brain answers for this run only; an end names it
         if state is not None:
             wait_for_subscriber(state, "a recorder")
             bus.outbox(keys.world_map(args.group)).put(WorldMap(
