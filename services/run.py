@@ -4,7 +4,8 @@ Starts the world and the brain as two processes on an embedded local bus (no bro
 listens on a Unix socket, the brain listens on its own and connects to the world's), shows the
 world's progress, and writes
 runs/<id>/: metrics.json (the world's), weights.npz (the brain's), summary.json and
-collisions.png. Prints where they are.
+collisions.png. Prints where they are. World and brain keep checkpoints in runs/<id>/checkpoint/
+while the run lasts: an interrupted run goes on with `spikinglab run --resume runs/<id>`.
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ import datetime
 import json
 import logging
 import os
+import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -28,17 +31,20 @@ from spikinglab.brain.circuit import CircuitError, load_circuit
 from spikinglab.brain.engine import PARALLEL_FROM
 from spikinglab.brain.service import add_engine_args
 from spikinglab.cli import version
+from spikinglab import snapshots
 from spikinglab.launch import STOP_S, Launcher, Process, local_endpoints, options_for
 from spikinglab.learning import PAPER
-from spikinglab.options import Parser, agent_list, positive
+from spikinglab.options import Parser, agent_list, at_least, positive
 from spikinglab.recorder.screenshot import last_tick, repair, viewer_command
 from spikinglab.recorder.service import free_port, viewer_answers, web_viewer_url
-from spikinglab.world.service import add_world_args, world_from_args
+from spikinglab.world.service import CHECKPOINT, add_world_args, world_from_args
 from spikinglab.world.world import BIN, SENSORS, MapError
 
 log = logging.getLogger("spikinglab.run")
 LIVE_VIEW_WITHIN_S = 60.0  # the recorder's viewer servers are up well within this (a few seconds here)
 PAPER_TABLE_1 = {f"{a:.2f}": n for a, n in PAPER.items()}  # keyed as summary.json shows A
+STARTED_WITH = "command.json"  # in a run folder: the options the run was started with, for --resume
+RESUME_MAY_CHANGE = ("quiet", "no_record", "view")  # how a run is watched, not what it is
 
 
 def parser() -> argparse.ArgumentParser:
@@ -59,13 +65,52 @@ def parser() -> argparse.ArgumentParser:
                         "(its address is printed: open it in a browser)")
     p.add_argument("--detail", default="0", type=agent_list,
                    help="agents recorded in detail, e.g. 0,3: raster, potentials, ... (default 0)")
+    p.add_argument("--checkpoint-every", type=at_least(1), default=10_000, metavar="TICKS",
+                   help="ticks between the checkpoints world and brain keep in runs/<id>/checkpoint/ while the run "
+                        "lasts (default %(default)s)")
+    p.add_argument("--resume", type=Path, metavar="FOLDER",
+                   help="go on with the interrupted run in FOLDER (e.g. runs/<id>) from its last checkpoint, with "
+                        "the options it was started with (--quiet, --no-record and --view may differ)")
     return p
+
+
+def arguments(p: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:
+    """The run's options: those given, or with --resume those the run in that folder was started with."""
+    args = p.parse_args(argv)
+    if args.resume is None:
+        return args
+    folder = args.resume
+    try:
+        started = json.loads((folder / STARTED_WITH).read_text())["argv"]
+    except (OSError, ValueError, KeyError, TypeError):
+        p.error(f"argument --resume: {folder} is not a run folder of `spikinglab run` (no readable {STARTED_WITH})")
+    defaults = vars(p.parse_args([]))
+    given = {k for k, v in vars(args).items() if v != defaults[k]} - {"resume", *RESUME_MAY_CHANGE}
+    if given:
+        p.error(f"argument --resume: the run goes on with the options it was started with ({shlex.join(started)}); "
+                f"leave out {', '.join('--' + k.replace('_', '-') for k in sorted(given))}")
+    watching = [f"--{k.replace('_', '-')}" for k in RESUME_MAY_CHANGE if getattr(args, k)]
+    resumed = p.parse_args([*started, *watching])
+    resumed.runs, resumed.id, resumed.resume = folder.parent, folder.name, folder
+    return resumed
+
+
+def checkpoint_tick(folder: Path) -> int | None:
+    """The tick of the run's last checkpoint in `folder` (None: none kept, the run finished or never got to one)."""
+    path = folder / "checkpoint" / CHECKPOINT
+    if not path.exists():
+        return None
+    try:
+        return int(snapshots.read(path)[1]["tick"])
+    except (ValueError, KeyError, TypeError):
+        return None
 
 
 def main(argv=None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
     p = parser()
-    args = p.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
+    args = arguments(p, argv)
     if args.ticks < BIN:
         p.error(f"argument --ticks: must be at least one bin of collisions ({BIN:,} ticks), got {args.ticks:,}")
     if args.view and args.no_record:
@@ -84,16 +129,35 @@ def main(argv=None) -> int:
         return 2
     run_id = args.id or f"{datetime.datetime.now():%Y%m%d-%H%M%S}-seed{args.seed}"
     folder = args.runs / run_id
+    resume_at = checkpoint_tick(folder)
+    if args.resume and resume_at is None:
+        log.error("spikinglab run: nothing to resume in %s: no checkpoint (the run finished, or stopped before its "
+                  "first at tick %s)", folder, f"{args.checkpoint_every:,}")
+        return 2
+    if not args.resume and any((folder / name).exists() for name in (STARTED_WITH, "summary.json", "weights.npz")):
+        # never over the learning of another run
+        log.error("spikinglab run: %s holds a run already%s: choose another --id", folder,
+                  f" (interrupted; go on with it: spikinglab run --resume {folder})" if resume_at is not None else "")
+        return 2
     folder.mkdir(parents=True, exist_ok=True)
+    if args.resume:
+        (folder / "FAILED.txt").unlink(missing_ok=True)  # it said how to go on: this is it
+    else:
+        (folder / STARTED_WITH).write_text(json.dumps({"argv": argv}))
+    kept = folder / "checkpoint"
     (world_ep, brain_ep), sockets = local_endpoints("world", "brain")
 
     world = Process("world", "world", options_for("world", args), log=folder / "world.log" if args.quiet else None,
                     raw=True)
-    world.options.update(listen=world_ep, out=folder, progress=not args.quiet, publish_state=not args.no_record)
+    world.options.update(listen=world_ep, out=folder, progress=not args.quiet, publish_state=not args.no_record,
+                         checkpoint=kept, checkpoint_every=args.checkpoint_every)
     brain = Process("brain", "brain", options_for("brain", args), log=folder / "brain.log")
     brain.options.update(listen=brain_ep, connect=world_ep, once=True, save=folder / "weights.npz",
-                         stats=folder / "brain-stats.json", publish_state=not args.no_record)  # they wait for the recorder to listen
-    recorder = Process("recorder", "record", {"connect": [world_ep, brain_ep], "out": folder / "recording.rrd",
+                         stats=folder / "brain-stats.json", publish_state=not args.no_record,
+                         checkpoint=kept)  # they wait for the recorder to listen
+    # a resumed run's recording goes beside the first: the viewer shows the files as one recording
+    recording_file = folder / ("recording.rrd" if resume_at is None else f"recording-from-tick{resume_at}.rrd")
+    recorder = Process("recorder", "record", {"connect": [world_ep, brain_ep], "out": recording_file,
                                               "detail": ",".join(map(str, args.detail))}, log=folder / "recorder.log")
     native = args.view and bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) \
         and viewer_command() is not None
@@ -104,9 +168,9 @@ def main(argv=None) -> int:
     if args.agents < PARALLEL_FROM and len(os.sched_getaffinity(0)) >= 2:
         # lock-step latency: world and brain on a core each (a population keeps the brain's threads)
         world.options["cpu"], brain.options["cpu"] = sorted(os.sched_getaffinity(0))[:2]
-    log.info("run %s: %d ticks, seed %d, %d agent(s), A+ = A- = %s, world %s%s, %s semantics", run_id, args.ticks,
+    log.info("run %s: %d ticks, seed %d, %d agent(s), A+ = A- = %s, world %s%s, %s semantics%s", run_id, args.ticks,
              args.seed, args.agents, learning_rate(circuit), args.preset, f", map {args.map}" if args.map else "",
-             args.semantics)
+             args.semantics, f"; resumed at tick {resume_at:,}" if resume_at is not None else "")
     started = time.time()
     launcher = Launcher()
     signal.signal(signal.SIGTERM, signal.default_int_handler)  # SIGTERM ends the run as Ctrl-C does
@@ -140,8 +204,11 @@ def main(argv=None) -> int:
     if json.loads((folder / "metrics.json").read_text())["ticks"] == 0:  # stopped while the kernels compiled
         failed(folder, "interrupted before the first tick")
         return 130
-    recording = None if args.no_record else recording_status(launcher.children["recorder"].popen.returncode, folder)
+    recording = None if args.no_record else recording_status(launcher.children["recorder"].popen.returncode,
+                                                               recording_file)
     summary = summarise(folder, args, circuit, run_id, time.time() - started, recording)
+    if not summary["headline"]["partial"]:  # the run is whole: its learning is in weights.npz
+        shutil.rmtree(kept, ignore_errors=True)
     plot(folder, summary)
     plot_trajectory(folder, summary)
     report(folder, summary)
@@ -169,10 +236,9 @@ def show_live(launcher: Launcher, options: dict, native: bool) -> None:
         log.info("live view (no display here): open %s in a browser; it ends with the run, the recording stays", page)
 
 
-def recording_status(code: int | None, folder: Path) -> dict:
-    """Whether recording.rrd holds the whole run; if its recorder died, the file is given its footer
-    back (so that it opens) and the tick it reaches is said."""
-    path = folder / "recording.rrd"
+def recording_status(code: int | None, path: Path) -> dict:
+    """Whether the recording (of this process's part of the run) is whole; if its recorder died, the
+    file is given its footer back (so that it opens) and the tick it reaches is said."""
     if code == 0:
         return {"complete": True}
     status = {"complete": False, "why": f"the recorder stopped (exit {code})"}
@@ -190,8 +256,15 @@ def failed(folder: Path, why: str) -> None:
     kept = sorted(path.name for path in folder.glob("weights-*-tick*.npz"))  # the brain's learning when it stopped
     if kept:
         why += f"; the brain's weights when it stopped: {', '.join(kept)}"
+    why += resume_hint(folder)
     (folder / "FAILED.txt").write_text(f"this run has no result: {why}; the logs beside this file say more\n")
     log.error("no result in %s (%s); its logs are there", folder, why)
+
+
+def resume_hint(folder: Path) -> str:
+    """How an interrupted run goes on, when it kept a checkpoint."""
+    tick = checkpoint_tick(folder)
+    return "" if tick is None else f"; go on from its checkpoint at tick {tick:,}: spikinglab run --resume {folder}"
 
 
 def learning_rate(circuit, which: str = "a_plus") -> float | list[float]:
@@ -218,6 +291,7 @@ def summarise(folder: Path, args, circuit, run_id: str, wall_s: float,
             "collisions_last_quarter": round(float(bins[:, -q:].sum(axis=1).mean()), 1),
             "ticks_done": metrics["ticks"],
             "partial": metrics.get("partial", False),
+            "resumed_at": metrics.get("resumed_at"),  # the tick this part of the run went on from (None: from 0)
         },
         "initial_weights": {circuit.synapse_label(k): circuit.synapses[k].weight for k in plastic},
         "final_weights": {circuit.synapse_label(k): weights[:, k].round(4).tolist() for k in plastic},
@@ -320,7 +394,8 @@ def report(folder: Path, summary: dict) -> None:
     w = summary["final_weights"]
     mean = {k: float(np.mean(v)) for k, v in w.items()}
     if head["partial"]:
-        print(f"\nPARTIAL: interrupted after {head['ticks_done']:,} of {summary['parameters']['ticks']:,} ticks")
+        print(f"\nPARTIAL: interrupted after {head['ticks_done']:,} of {summary['parameters']['ticks']:,} ticks"
+              + resume_hint(folder))
     print(f"\ncollisions: {head['collisions_first_quarter']:.0f} in the first quarter, "
           f"{head['collisions_last_quarter']:.0f} in the last quarter "
           f"({head['ticks_done']:,} ticks, {summary['ticks_per_s']:,.0f} ticks/s)")
@@ -332,15 +407,16 @@ def report(folder: Path, summary: dict) -> None:
           + ", ".join("not reached" if t is None else f"tick {t:,}" for t in times[:8])
           + (f" (paper, A+ = A- = {p['a_plus']}: {paper:,}; docs/results.md compares)" if paper else ""))
     print("weights:", ", ".join(f"{k} {v:.2f}" for k, v in mean.items()))
-    files = "summary.json, collisions.png, trajectory.png, metrics.json, weights.npz"
-    if (folder / "recording.rrd").exists():
-        files += ", recording.rrd"
+    recordings = sorted(folder.glob("recording*.rrd"), key=lambda path: (len(path.name), path.name))  # the first part first
+    files = ", ".join(["summary.json, collisions.png, trajectory.png, metrics.json, weights.npz",
+                       *(path.name for path in recordings)])
     print(f"\nwritten to {folder}/: {files}")
     recording = summary.get("recording", {})
     if not recording.get("complete", True):
-        print(f"recording: PARTIAL, {recording['why']}; it holds ticks 0 to {recording.get('last_tick', 0):,}")
-    if (folder / "recording.rrd").exists():
-        print(f"replay it: .venv/bin/rerun {folder / 'recording.rrd'}")
+        print(f"recording: PARTIAL, {recording['why']}; it holds ticks {head['resumed_at'] or 0:,} to "
+              f"{recording.get('last_tick', 0):,}")
+    if recordings:  # the parts of a resumed run are one recording in the viewer
+        print(f"replay it: .venv/bin/rerun {' '.join(map(str, recordings))}")
 
 
 if __name__ == "__main__":

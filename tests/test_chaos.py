@@ -41,10 +41,10 @@ def pid_of(marker: str, module: str) -> int:
     return next(pid for pid, cmdline in running_with(marker).items() if module in cmdline)
 
 
-def training_run(tmp_path, ticks: int = 20000) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "spikinglab.cli", "run", "--ticks", str(ticks), "--quiet", "--runs",
-                             str(tmp_path / "runs"), "--id", "chaos"], cwd=tmp_path, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+def training_run(tmp_path, *options) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "spikinglab.cli", "run", "--ticks", "20000", "--quiet", "--runs",
+                             str(tmp_path / "runs"), "--id", "chaos", *map(str, options)], cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
 def kill_mid_run(tmp_path, module: str) -> float:
@@ -82,7 +82,8 @@ def test_kill_9_of_the_recorder_the_run_goes_on_and_its_file_opens(tmp_path):
 
 @pytest.mark.parametrize("victim, other", [("world", "brain"), ("brain", "world")])
 def test_kill_9_of_the_world_or_brain_ends_the_run_saying_where_it_stopped(tmp_path, victim, other):
-    run = training_run(tmp_path)
+    """... and how to go on, which then ends the run whole."""
+    run = training_run(tmp_path, "--checkpoint-every", 1000)
     killed_at = kill_mid_run(tmp_path, f"spikinglab.{victim}.service")
     out, err = run.communicate(timeout=240)
     assert run.returncode == 1, out + err
@@ -98,6 +99,14 @@ def test_kill_9_of_the_world_or_brain_ends_the_run_saying_where_it_stopped(tmp_p
         assert len(kept) == 1 and kept[0].name in failure and kept[0].name.endswith(f"-tick{tick}.npz")
     assert not (folder / "summary.json").exists()
     assert not running_with(str(tmp_path))
+    resume = f"spikinglab run --resume {folder}"
+    assert resume in failure
+    resumed = subprocess.run([sys.executable, "-m", "spikinglab.cli", *resume.split()[1:]], cwd=tmp_path,
+                             capture_output=True, text=True, timeout=240)
+    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+    head = json.loads((folder / "summary.json").read_text())["headline"]
+    assert head["ticks_done"] == 20000 and 0 < head["resumed_at"] <= tick and not (folder / "FAILED.txt").exists()
+    assert "recording-from-tick" in resumed.stdout  # the recording goes on beside the first part
 
 
 def test_kill_9_of_the_gateway_the_brain_says_so_and_goes_on(tmp_path):

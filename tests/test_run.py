@@ -129,3 +129,34 @@ def test_a_run_stopped_in_its_first_thousand_ticks_still_plots(tmp_path):
                "parameters": {"a_plus": 0.02, "seed": 0, "learned_after": 5000}}
     plot(tmp_path, summary)  # no finished bin yet: an empty plot, not a traceback after Ctrl-C
     assert (tmp_path / "collisions.png").stat().st_size > 0
+
+
+def test_an_interrupted_run_goes_on_with_resume_and_ends_as_an_uninterrupted_one(tmp_path):
+    """Ctrl-C after a checkpoint, then `spikinglab run --resume`: the run ends with exactly the
+    result of the same run never interrupted; a new run never takes the interrupted one's folder."""
+    options = ("--ticks", 12000, "--seed", 5, "--checkpoint-every", 4000, "--no-record")
+    whole = spikinglab("run", *options, "--runs", tmp_path / "whole", "--id", "r", "--quiet")
+    assert whole.returncode == 0, whole.stderr
+    assert not (tmp_path / "whole" / "r" / "checkpoint").exists()  # a whole run keeps no checkpoints
+    run = start_run(tmp_path, *options)
+    kept = tmp_path / "r" / "checkpoint" / "world.npz"
+    deadline = time.monotonic() + 120
+    while not kept.exists():
+        assert time.monotonic() < deadline and run.poll() is None, "no checkpoint was kept"
+        time.sleep(0.05)
+    run.send_signal(signal.SIGINT)
+    out, err = run.communicate(timeout=90)
+    assert run.returncode == 130, err
+    assert f"go on from its checkpoint at tick 4,000: spikinglab run --resume {tmp_path / 'r'}" in out
+    again = spikinglab("run", *options, "--runs", tmp_path, "--id", "r", "--quiet")
+    assert again.returncode == 2 and f"go on with it: spikinglab run --resume {tmp_path / 'r'}" in again.stderr
+    assert spikinglab("run", "--resume", tmp_path / "r", "--ticks", 50).returncode == 2  # only its own options
+    resumed = spikinglab("run", "--resume", tmp_path / "r", "--quiet")
+    assert resumed.returncode == 0, resumed.stderr
+    got, want = (json.loads((folder / "summary.json").read_text()) for folder in (tmp_path / "r", tmp_path / "whole" / "r"))
+    assert got["headline"]["resumed_at"] == 4000 and not got["headline"]["partial"]
+    for key in ("collisions_per_1000_ticks", "collisions", "food", "learning_time", "all_final_weights"):
+        assert got[key] == want[key], key
+    assert not (tmp_path / "r" / "checkpoint").exists() and not (tmp_path / "r" / "FAILED.txt").exists()
+    nothing = spikinglab("run", "--resume", tmp_path / "r")
+    assert nothing.returncode == 2 and "nothing to resume" in nothing.stderr

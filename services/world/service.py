@@ -191,6 +191,9 @@ class Trajectory:
 
 
 CHECKPOINT = "world.npz"  # in --checkpoint DIR: the world of one run, at its last checkpoint
+# a checkpoint becomes CHECKPOINT once the brain has answered its tick, so has kept its own there:
+# a world that dies in between leaves the previous pair, never a world without its brain
+PENDING = "world-pending.npz"
 
 
 def run_options(args: argparse.Namespace) -> dict:
@@ -203,7 +206,7 @@ def run_options(args: argparse.Namespace) -> dict:
 def keep_checkpoint(args: argparse.Namespace, world: World, trajectory: Trajectory, run_id: str) -> None:
     arrays = {**{f"world.{k}": v for k, v in world.snapshot().items()},
               **{f"trajectory.{k}": v for k, v in trajectory.arrays().items()}}
-    snapshots.write(args.checkpoint / CHECKPOINT, arrays, {"run": run_id, "tick": world.tick,
+    snapshots.write(args.checkpoint / PENDING, arrays, {"run": run_id, "tick": world.tick,
                                                            "options": run_options(args)})
 
 
@@ -232,6 +235,8 @@ def run(args: argparse.Namespace, session) -> int:
         world = world_from_args(args)
         trajectory = Trajectory(world, args.ticks)
         resumed = resume(args, world, trajectory) if args.checkpoint else None
+        if args.checkpoint:  # one the brain may not have answered: the run goes on from CHECKPOINT
+            (args.checkpoint / PENDING).unlink(missing_ok=True)
     except (MapError, ValueError) as e:
         log.error("%s", e)
         return 2
@@ -276,6 +281,7 @@ def run(args: argparse.Namespace, session) -> int:
                  result["ticks_per_s"], result["collisions"][:8], result["learning_time"][:8])
         if args.checkpoint and done == args.ticks:  # the run is whole: nothing left to resume
             (args.checkpoint / CHECKPOINT).unlink(missing_ok=True)
+            (args.checkpoint / PENDING).unlink(missing_ok=True)
         elif args.checkpoint and (args.checkpoint / CHECKPOINT).exists():
             log.info("the same command resumes this run from its last checkpoint (%s)", args.checkpoint / CHECKPOINT)
         if args.out:
@@ -315,6 +321,8 @@ def tick_loop(args, world, sensors, motor, brain, state, request, progress, traj
                                       f"world has {world.agents}"), f"(tick {answer.tick})")
             elif answer.tick == t:
                 actions = actions_from(answer, world.agents)
+        if request.checkpoint and args.checkpoint and (args.checkpoint / PENDING).exists():
+            (args.checkpoint / PENDING).replace(args.checkpoint / CHECKPOINT)  # the brain has kept this tick too
         world.act(actions)
         trajectory.keep(t)
         if state is not None:  # this tick's poses, events and changes, before the next sense()

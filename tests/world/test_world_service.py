@@ -22,7 +22,8 @@ def test_a_run_ended_before_its_first_tick_still_sends_a_final_state():
 
 
 def test_a_checkpoint_resumes_only_under_the_options_that_made_it(tmp_path):
-    from spikinglab.world.service import Trajectory, keep_checkpoint, parser, resume, world_from_args
+    from spikinglab.world.service import (
+        CHECKPOINT, PENDING, Trajectory, keep_checkpoint, parser, resume, world_from_args)
     made = parser().parse_args(["--seed", "4", "--ticks", "3000", "--checkpoint", str(tmp_path)])
     world = world_from_args(made)
     for _ in range(1200):
@@ -30,6 +31,8 @@ def test_a_checkpoint_resumes_only_under_the_options_that_made_it(tmp_path):
         world.act(np.array([[1, 1]], np.uint8))
     keep_checkpoint(made, world, Trajectory(world, made.ticks), "0123456789abcdef")
     again = world_from_args(made)
+    assert resume(made, again, Trajectory(again, made.ticks)) is None  # until the brain has answered its tick
+    (tmp_path / PENDING).replace(tmp_path / CHECKPOINT)
     assert resume(made, again, Trajectory(again, made.ticks)) == "0123456789abcdef"
     assert again.tick == 1200 and np.array_equal(again.pos, world.pos) and len(again.metrics.bins) == 1
     other = parser().parse_args(["--seed", "5", "--ticks", "3000", "--checkpoint", str(tmp_path)])
