@@ -24,7 +24,7 @@ import numpy as np
 
 from spikinglab import snapshots
 from spikinglab.bus import keys
-from spikinglab.bus.schemas import Array, BrainLayout, BrainState, BusError, Control, Motor, Sensors, TickBatch
+from spikinglab.bus.schemas import QUIET_S, Array, BrainLayout, BrainState, BusError, Control, Motor, Sensors, TickBatch
 from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 from spikinglab.options import Parser
 
@@ -37,8 +37,6 @@ log = logging.getLogger("spikinglab.brain")
 STATE_BATCH = 50  # ticks per BrainState message (one put per 50 ticks keeps recording off the loop's back)
 HEARTBEAT_S = 0.05  # free-running: a motor message (an empty one if nothing fired) at least this often
 CATCH_UP_S = 0.05  # free-running: a clock this far behind skips ahead instead of running the missed ticks
-QUIET_S = 2.0  # lock-step: another run may start only once the run served has been silent this long (its
-# world re-sends every second while it lives), so a message of another run cannot take over a live one
 
 
 def parser() -> argparse.ArgumentParser:

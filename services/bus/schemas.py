@@ -64,6 +64,8 @@ class Array(msgspec.Struct, frozen=True):
 
 RunId = Annotated[str, msgspec.Meta(max_length=64)]  # chosen by the world (or gateway) when its run starts
 RUN_ID = re.compile("[0-9a-f]{16}")  # what new_run_id() gives
+QUIET_S = 2.0  # another run may take over a brain or a recording only once the run served has been silent
+# this long (its world re-sends every second while it lives), so a message of another run cannot take a live one
 
 
 def new_run_id() -> str:

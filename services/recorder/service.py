@@ -3,7 +3,9 @@
 Reads:  spikinglab/<group>/state/** (the world's and the brain's state batches, the map, the
         brain's layout; one strict inbox), and the liveliness of the world and the brain
 Writes: a Rerun recording (.rrd) with its default layout; optionally also to a live viewer
-        (--viewer URL) or serves one (--serve); liveliness spikinglab/<group>/alive/recorder
+        (--viewer URL) or serves one (--serve); liveliness spikinglab/<group>/alive/recorder.
+        One file a run: a run that follows (after the one recorded went quiet for QUIET_S, because
+        it was cut short or with --forever) goes to <out>-<run id>.rrd
 
 It ends when the world and the brain have sent their final batches (or on Ctrl-C / SIGTERM),
 flushing what it has; a
@@ -25,7 +27,7 @@ from pathlib import Path
 import rerun as rr
 
 from spikinglab.bus import keys
-from spikinglab.bus.schemas import BrainLayout, BrainState, BusError, WorldMap, WorldState
+from spikinglab.bus.schemas import QUIET_S, RUN_ID, BrainLayout, BrainState, BusError, WorldMap, WorldState
 from spikinglab.bus.session import Bus, add_bus_args, service_main
 from spikinglab.options import Parser, agent_list, at_least, port
 
@@ -34,6 +36,7 @@ from .recorder import Recorder, blueprint
 log = logging.getLogger("spikinglab.recorder")
 END_GRACE = 5.0  # seconds to wait after the run's end for the brain's last messages
 FLUSH_S = 0.5  # written to the file at least this often: a killed recorder loses about this much of the run
+NEXT_RUN_HELD = 256  # messages of another run held while the run recorded may still go on (its map comes first)
 
 
 def parser() -> argparse.ArgumentParser:
@@ -108,13 +111,7 @@ def run(args: argparse.Namespace, session) -> int:
     out = args.out or Path("runs") / f"{datetime.datetime.now():%Y%m%d-%H%M%S}" / "recording.rrd"
     out.parent.mkdir(parents=True, exist_ok=True)
     detail = args.detail
-    rec = rr.RecordingStream("spikinglab", recording_id=f"{args.group}-{out.parent.name}")
-    sinks = [rr.FileSink(str(out))]
-    if args.viewer:
-        sinks.append(rr.GrpcSink(args.viewer))
-    if serve:  # beside the file: the recording is written whoever watches
-        sinks.append(rr.GrpcServerSink(port=args.grpc_port))
-    rec.set_sinks(*sinks, default_blueprint=blueprint(detail[0] if detail else 0))
+    rec = open_recording(args, out, f"{args.group}-{out.parent.name}", serving=serve)
     if serve:
         log.info("serving the run live: rerun rerun+http://127.0.0.1:%d/proxy", args.grpc_port)
     if args.web:
@@ -124,14 +121,18 @@ def run(args: argparse.Namespace, session) -> int:
     bus = Bus(session, args.group, "recorder")
     recorder = Recorder(rec, detail=detail, flush_every=args.flush_every)
     bus.watch_others(lambda: f" (recorded up to tick {recorder.last_tick})")
+    first_stream = rec  # serves the live view, if asked, for every run's recording
+    next_run: list = []  # messages of another run, held until the run recorded has gone quiet
     # only the state streams: the lock-step messages (sensors, motor) never come to the recorder
     inbox = bus.inbox(keys.state(args.group), (WorldMap, WorldState, BrainState, BrainLayout),
                       backlog_bytes=args.backlog_mb << 20)
     watched = {name: bus.presence(name) for name in ("world", "brain")}
     recorder.event(f"recorder started on group {args.group}, writing {out}")
     log.info("recording group %s to %s", args.group, out)
+    current = out  # the file of the run recorded now
     rejected, last_flush, ending = 0, time.monotonic(), None
     received, first_at = 0, time.monotonic()
+    heard_at = time.monotonic()  # when the run recorded last sent a message that was recorded
     try:
         while True:
             message = inbox.get(timeout=0.25)
@@ -148,10 +149,34 @@ def run(args: argparse.Namespace, session) -> int:
                 received += 1
                 try:
                     recorder.on(message)
+                    heard_at = time.monotonic()
                     if getattr(message, "final", False) and not args.forever and ending is None:
                         ending = time.monotonic() + END_GRACE
                 except BusError as e:  # it does not fit the recording: refused whole, counted
-                    inbox.refuse(e, f"({type(message).__name__} of tick {message.tick})")
+                    if recorder.run is not None and message.run != recorder.run and RUN_ID.fullmatch(message.run) \
+                            and len(next_run) < NEXT_RUN_HELD:
+                        next_run.append(message)  # perhaps the next run: it waits for this one to go quiet
+                    else:
+                        inbox.refuse(e, f"({type(message).__name__} of tick {message.tick})")
+            # the run recorded has gone quiet: the next one, if the run recorded was cut short or --forever
+            if next_run and time.monotonic() - heard_at > QUIET_S and (args.forever or not recorder.world_done):
+                recorder.close()
+                if rec is not first_stream:
+                    rec.flush()
+                    rec.disconnect()
+                run_id = next_run[0].run
+                path = out.with_name(f"{out.stem}-{run_id}{out.suffix}")
+                log.info("run %s: recorded to %s (ticks %s..%s); run %s starts: recording it to %s", recorder.run,
+                         current, recorder.first_tick, recorder.last_tick, run_id, path)
+                rec = open_recording(args, path, f"{args.group}-{run_id}", served_at=serve and args.grpc_port)
+                recorder, current, ending = Recorder(rec, detail=detail, flush_every=args.flush_every), path, None
+                recorder.event(f"recorder on group {args.group}: run {run_id} follows another run, writing {path}")
+                for held in next_run:
+                    try:
+                        recorder.on(held)
+                    except BusError as e:
+                        inbox.refuse(e, f"({type(held).__name__} of tick {held.tick})")
+                next_run, heard_at = [], time.monotonic()
             if inbox.rejected_total + inbox.dropped != rejected:
                 reasons = ", ".join(f"{n} x {r} on {k}" for (k, r), n in inbox.counts.items())
                 rejected = inbox.rejected_total + inbox.dropped
@@ -172,15 +197,35 @@ def run(args: argparse.Namespace, session) -> int:
                 recorder.flush()
                 last_flush = time.monotonic()
     finally:
+        for held in next_run:
+            inbox.refuse(BusError(f"another run: {held.run!r}, after the run recorded ended (--forever records "
+                                  "the runs that follow)"), f"({type(held).__name__} of tick {held.tick})")
         recorder.close()
-        rec.flush()
-        rec.disconnect()
+        for stream in [rec] if rec is first_stream else [rec, first_stream]:
+            stream.flush()
+            stream.disconnect()
         bus.close()
         took = max(time.monotonic() - first_at, 1e-9)
         log.info("recording written to %s (ticks %s..%s): %d messages in %.1f s, %.0f messages/s; ticks missing: %s; "
-                 "rejected: %s", out, recorder.first_tick, recorder.last_tick, received, took, received / took,
+                 "rejected: %s", current, recorder.first_tick, recorder.last_tick, received, took, received / took,
                  recorder.missing or "none", bus.rejections() or "none")
     return 0
+
+
+def open_recording(args: argparse.Namespace, path: Path, recording_id: str, serving: bool = False,
+                   served_at: int | None = None) -> rr.RecordingStream:
+    """A recording written to `path`, streamed to --viewer, and served live (`serving`: this
+    recording's stream serves at --grpc-port; `served_at`: sent to the one that serves there)."""
+    rec = rr.RecordingStream("spikinglab", recording_id=recording_id)
+    sinks = [rr.FileSink(str(path))]
+    if args.viewer:
+        sinks.append(rr.GrpcSink(args.viewer))
+    if serving:  # beside the file: the recording is written whoever watches
+        sinks.append(rr.GrpcServerSink(port=args.grpc_port))
+    elif served_at:
+        sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{served_at}/proxy"))
+    rec.set_sinks(*sinks, default_blueprint=blueprint(args.detail[0] if args.detail else 0))
+    return rec
 
 
 def main(argv=None) -> int:

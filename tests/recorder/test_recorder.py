@@ -4,6 +4,7 @@ import json
 import re
 import subprocess
 import sys
+import time
 from collections import defaultdict
 
 import numpy as np
@@ -175,3 +176,36 @@ def test_a_late_recorder_says_from_which_tick_it_has_data(tmp_path):
     start_tick = int(re.search(r"recording starts at tick (\d+)", late[0]).group(1))
     assert 1500 < start_tick < 30000
     assert data["/world/insects"]["tick"][0] >= start_tick  # no data before the tick it names
+
+
+def test_each_run_gets_its_own_recording(tmp_path):
+    """Two runs one after the other on one recorder (--forever) and one brain: the second goes to
+    a file of its own, named by its run id, with its map and every tick from 0 (held while the
+    first run could still go on); the first file holds only the first run."""
+    from ..processes import endpoint, free_port
+
+    world_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
+    recorder = start("record", "--connect", world_ep, "--connect", brain_ep, "--out", tmp_path / "rec.rrd",
+                     "--forever", log=tmp_path / "recorder.log")
+    brain = start("brain", "--listen", brain_ep, "--connect", world_ep, "--publish-state", log=tmp_path / "brain.log")
+    try:
+        for seed in (1, 2):
+            world = start("world", "--listen", world_ep, "--ticks", 2000, "--seed", seed, "--publish-state",
+                          log=tmp_path / f"world{seed}.log")
+            assert finish(world, 120, tmp_path / f"world{seed}.log") == 0
+        runs = re.findall(r"run ([0-9a-f]{16}): 2000 ticks", "".join((tmp_path / f"world{s}.log").read_text()
+                                                                      for s in (1, 2)))
+        second = tmp_path / f"rec-{runs[1]}.rrd"
+        wait_for(lambda: "run " + runs[1] + " starts" in (tmp_path / "recorder.log").read_text(), 30,
+                 "the recorder to take the second run")
+        time.sleep(2)  # its last batches
+        recorder.terminate()
+        assert finish(recorder, 30, tmp_path / "recorder.log") == 0
+    finally:
+        for p in (recorder, brain):
+            p.kill()
+    first, then = read(tmp_path / "rec.rrd"), read(second)
+    for data in (first, then):
+        assert data["/world/insects"]["tick"] == list(range(2000))
+        assert "/world/map" in data  # the second run's map came while the first could still go on
+    assert first["/world/insects"] != then["/world/insects"]  # another seed: another path
