@@ -27,6 +27,10 @@ EV3_TOUCH, EV3_COLOR, EV3_ULTRASONIC = 16, 29, 30
 PORT_BITS = {"A": 1, "B": 2, "C": 4, "D": 8}
 
 
+LINK_TIMEOUT_S = 0.5  # a brick that does not answer within this is lost (ev3-dc would wait forever on a
+# silent WiFi link, and the gateway with it, unable even to stop the motors or to say so)
+
+
 class RobotLinkError(ConnectionError):
     """The robot cannot be reached or stopped answering."""
 
@@ -85,6 +89,7 @@ class EV3Backend(Backend):
     def __init__(self, protocol: str = "WiFi", host: str | None = None, wiring: Wiring = Wiring()):
         self.protocol, self.host, self.wiring = protocol, host, wiring
         self._ev3 = None
+        self._link, self._lost = None, False  # the link's socket (WiFi, Bluetooth); whether it failed
         try:
             import ev3_dc
         except ImportError:
@@ -106,16 +111,20 @@ class EV3Backend(Backend):
         # ev3-dc leaves Nagle on: a motor command (no reply) sent while the previous small packet is
         # unacknowledged would wait for the brick's delayed ACK, about 40 ms
         link = getattr(getattr(self._ev3, "_physical_ev3", None), "_socket", None)
-        if isinstance(link, socket.socket) and link.family in (socket.AF_INET, socket.AF_INET6):
-            link.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        if isinstance(link, socket.socket):
+            link.settimeout(LINK_TIMEOUT_S)
+            if link.family in (socket.AF_INET, socket.AF_INET6):
+                link.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._link, self._lost = link, False
 
     def _send(self, ops: bytes, global_mem: int = 0) -> bytes:
-        if self._ev3 is None:
-            raise RobotLinkError("not connected")
+        if self._ev3 is None or self._lost:  # a failed call can leave ev3-dc's own lock held: never again
+            raise RobotLinkError("not connected" if self._ev3 is None else "EV3 link: lost, not yet linked again")
         try:
             return self._ev3.send_direct_cmd(ops, global_mem=global_mem)
-        except Exception as e:  # broken pipe, empty reply (struct.error), DirCmdError, ...
-            raise RobotLinkError(f"EV3 link: {type(e).__name__}: {e}") from None
+        except Exception as e:  # broken pipe, empty reply (struct.error), DirCmdError, a timeout, ...
+            self._lost = True
+            raise RobotLinkError(f"EV3 link: {type(e).__name__}: {e or 'no answer'}") from None
 
     def read(self) -> Reading:
         reply = self._send(self._read_ops, global_mem=12)
@@ -141,11 +150,17 @@ class EV3Backend(Backend):
 
     def close(self) -> None:
         if self._ev3 is not None:
+            if self._lost and isinstance(self._link, socket.socket):
+                # reset, not close: a command still in flight on a lost link must never reach the
+                # brick late, when the link comes back (a closed connection would still deliver it)
+                self._link.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
             try:
                 self._ev3.__exit__(None, None, None)  # frees the socket and ev3-dc's device registry
             except Exception:  # a link that is already gone
                 pass
-            self._ev3 = None
+            if isinstance(self._link, socket.socket):  # closed here too: ev3-dc closes only what it registered
+                self._link.close()
+            self._ev3, self._link = None, None
 
 
 class SimBackend(Backend):

@@ -14,6 +14,14 @@ the scripted sensors; opOutput_Time_Sync (0xB1) and opOutput_Stop (0xA3), which 
 their time. Anything else is answered with an error, as is a read of a port whose sensor type does
 not match. Parameters use the EV3's encodings (LC0/LC1/LC2/LC4 constants, LV/GV variables).
 Only one fake brick per machine at a time: the beacon port 3015 is fixed.
+
+When its link drops, a real brick goes on with what it was told: its motors run the last command
+to its end (a timed one ends by itself; opOutput_Time_Sync with 0 ms runs until stopped) and
+nothing else stops them. `disconnect()` is a link that closes (the client sees it at once);
+`drop_link(s)` is a radio that goes silent for s seconds (WiFi out of range): nothing is answered
+and, as over TCP, what the client sends meanwhile waits in flight; when the link comes back it is
+delivered late and executed, unless the client has reset the connection (a reset discards it),
+and a client that went away is replaced by a new one. `moving_at(t)` says whether the motors turn.
 """
 
 from __future__ import annotations
@@ -59,13 +67,14 @@ def parameter(ops: bytes, i: int) -> tuple[int, str, int]:
 
 @dataclass
 class MotorCommand:
-    at: float  # time.monotonic() when the brick got it
+    at: float  # time.monotonic() when the brick executed it
     kind: str  # "time_sync" or "stop"
     ports: int  # bit field A=1 B=2 C=4 D=8
     speed: int = 0
     turn: int = 0
     ms: int = 0
     brake: int = 0
+    link: int = 0  # the connection (1, 2, ...) that brought it
 
 
 @dataclass
@@ -89,6 +98,7 @@ class FakeBrick:
         self._stop = threading.Event()
         self._client: socket.socket | None = None
         self._lock = threading.Lock()
+        self._silent_until = 0.0  # drop_link(): no radio until then (time.monotonic())
 
     def set(self, **values) -> None:
         """Change sensor values (colour, distance_cm, touch) at once, and note when."""
@@ -136,6 +146,19 @@ class FakeBrick:
                 pass
             client.close()
 
+    def drop_link(self, seconds: float) -> None:
+        """The radio goes silent for `seconds`: nothing answered, nothing beaconed; the motors go on."""
+        self._silent_until = time.monotonic() + seconds
+
+    @property
+    def silent(self) -> bool:
+        return time.monotonic() < self._silent_until
+
+    def moving_at(self, t: float) -> bool:
+        """Whether the motors turn at time.monotonic() `t`, as the commands executed before it left them."""
+        last = next((c for c in reversed(self.commands) if c.at <= t), None)
+        return last is not None and last.kind == "time_sync" and (last.ms == 0 or t < last.at + last.ms / 1000)
+
     @property
     def connected(self) -> bool:
         return self._client is not None
@@ -152,7 +175,7 @@ class FakeBrick:
         text = (f"Serial-Number: {self.serial}\r\nPort: {self.port}\r\nName: {self.name}\r\n"
                 f"Protocol: EV3\r\n").encode()
         while not self._stop.wait(0.1):
-            if self._client is None:
+            if self._client is None and not self.silent:
                 udp.sendto(text, ("127.0.0.1", BEACON_PORT))
         udp.close()
 
@@ -178,26 +201,38 @@ class FakeBrick:
                 self._client = None
 
     def _handle(self, client: socket.socket) -> None:
-        buffer = b""
+        client.settimeout(0.01)
+        buffer, closed = b"", False
         while not self._stop.is_set():
-            try:
-                data = client.recv(65536)
-            except OSError:
+            if not closed:
+                try:
+                    data = client.recv(65536)
+                    closed = not data
+                    buffer += data
+                except socket.timeout:
+                    pass
+                except OSError:  # a reset: what was in flight is lost with the connection
+                    return
+            if self.silent:  # in flight until the radio is back
+                continue
+            buffer = self._execute_frames(buffer, client)
+            if buffer is None or closed:  # a closed connection's last frames were still delivered
                 return
-            if not data:
-                return
-            buffer += data
-            while len(buffer) >= 2:
-                size = struct.unpack("<H", buffer[:2])[0] + 2
-                if len(buffer) < size:
-                    break
-                frame, buffer = buffer[:size], buffer[size:]
-                reply = self.execute(frame)
-                if reply is not None:
-                    try:
-                        client.sendall(reply)
-                    except OSError:
-                        return
+
+    def _execute_frames(self, buffer: bytes, client: socket.socket) -> bytes | None:
+        """Execute the whole frames in `buffer`; the rest (None: the client cannot be answered)."""
+        while len(buffer) >= 2:
+            size = struct.unpack("<H", buffer[:2])[0] + 2
+            if len(buffer) < size:
+                break
+            frame, buffer = buffer[:size], buffer[size:]
+            reply = self.execute(frame)
+            if reply is not None:
+                try:
+                    client.sendall(reply)
+                except OSError:
+                    return None
+        return buffer
 
     # --- direct commands -------------------------------------------------------------------------
     def execute(self, frame: bytes) -> bytes | None:
@@ -227,10 +262,12 @@ class FakeBrick:
             elif op == OP_OUTPUT_TIME_SYNC:
                 args, i = self._params(ops, i, 6)
                 layer, ports, speed, turn, ms, brake = args
-                self.commands.append(MotorCommand(time.monotonic(), "time_sync", ports, speed, turn, ms, brake))
+                self.commands.append(MotorCommand(time.monotonic(), "time_sync", ports, speed, turn, ms, brake,
+                                                  self.connections))
             elif op == OP_OUTPUT_STOP:
                 args, i = self._params(ops, i, 3)
-                self.commands.append(MotorCommand(time.monotonic(), "stop", args[1], brake=args[2]))
+                self.commands.append(MotorCommand(time.monotonic(), "stop", args[1], brake=args[2],
+                                                  link=self.connections))
             else:
                 raise ProtocolError(f"opcode 0x{op:02X} is not supported by this brick")
 

@@ -104,6 +104,45 @@ def test_a_stalled_brain_stops_the_robot_and_sends_no_backlog_when_it_resumes(tm
     assert "no word from the brain for 200 ms" in (tmp_path / "gateway.log").read_text()
 
 
+def test_a_link_gone_silent_is_noticed_the_robot_stops_by_itself_and_nothing_arrives_late(tmp_path):
+    """WiFi out of range for 2 s (the brick answers nothing, its motors go on with what they were
+    told): the gateway says the link is lost within a second (before, it waited on the brick for
+    as long as the silence lasted, unable to stop the motors or to say so), the robot stops by
+    itself at the end of its last timed command, and nothing sent into the dead link is executed
+    late when the radio comes back (the gateway resets it); then the gateway links again."""
+    gateway_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
+    with FakeBrick() as brick:
+        gateway = start("gateway", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json",
+                        log=tmp_path / "gateway.log")
+        brain = start("brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", 1000,
+                      log=tmp_path / "brain.log")
+        log = tmp_path / "gateway.log"
+        try:
+            wait_for(lambda: sum(c.kind == "time_sync" for c in brick.commands) > 10, 60, "the insect walking")
+            dropped_at = time.monotonic()
+            brick.drop_link(2.0)
+            wait_for(lambda: "robot link lost" in log.read_text(), 5, "the gateway to notice")
+            noticed_s = time.monotonic() - dropped_at
+            last = [c for c in brick.commands if c.at <= dropped_at][-1]
+            still_at = last.at + last.ms / 1000 if last.kind == "time_sync" else last.at
+            assert last.ms > 0 and not brick.moving_at(still_at + 0.001)  # timed: it ends by itself
+            wait_for(lambda: "robot linked again" in log.read_text(), 10, "the link back")
+            polls = brick.reads
+            wait_for(lambda: brick.reads > polls + 100, 10, "polls on the new link")
+            print(f"link silent -> gateway says so in {noticed_s * 1000:.0f} ms; the motors stood still "
+                  f"{(still_at - dropped_at) * 1000:.0f} ms after the drop")
+            assert noticed_s < 1.5 and brick.connections == 2
+            late = [c for c in brick.commands if c.link == 1 and c.at > dropped_at]
+            assert not late, late  # what was in flight on the lost link never reached the motors
+            assert any(c.link == 2 for c in brick.commands)  # the insect walks on over the new link
+            gateway.send_signal(signal.SIGTERM)
+            assert finish(gateway, 30, log) == 0
+        finally:
+            brain.kill()
+            gateway.kill()
+    assert json.loads((tmp_path / "gateway.json").read_text())["link_losses"] == 1
+
+
 def test_commands_answering_old_or_unpublished_readings_are_dropped(tmp_path):
     gateway_ep = endpoint(free_port())
     with FakeBrick() as brick:
