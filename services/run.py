@@ -25,13 +25,13 @@ from pathlib import Path
 
 import numpy as np
 
+from spikinglab import snapshots
 from spikinglab.brain.brain import check_sensors
 from spikinglab.brain.checkpoint import load_weights
 from spikinglab.brain.circuit import CircuitError, load_circuit
 from spikinglab.brain.engine import PARALLEL_FROM
 from spikinglab.brain.service import add_engine_args
 from spikinglab.cli import version
-from spikinglab import snapshots
 from spikinglab.launch import STOP_S, Launcher, Process, local_endpoints, options_for
 from spikinglab.learning import PAPER
 from spikinglab.options import Parser, agent_list, at_least, positive
@@ -407,7 +407,8 @@ def report(folder: Path, summary: dict) -> None:
           + ", ".join("not reached" if t is None else f"tick {t:,}" for t in times[:8])
           + (f" (paper, A+ = A- = {p['a_plus']}: {paper:,}; docs/results.md compares)" if paper else ""))
     print("weights:", ", ".join(f"{k} {v:.2f}" for k, v in mean.items()))
-    recordings = sorted(folder.glob("recording*.rrd"), key=lambda path: (len(path.name), path.name))  # the first part first
+    # the first part first: recording.rrd, then recording-from-tickN.rrd by N
+    recordings = sorted(folder.glob("recording*.rrd"), key=lambda path: (len(path.name), path.name))
     files = ", ".join(["summary.json, collisions.png, trajectory.png, metrics.json, weights.npz",
                        *(path.name for path in recordings)])
     print(f"\nwritten to {folder}/: {files}")

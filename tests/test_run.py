@@ -153,7 +153,8 @@ def test_an_interrupted_run_goes_on_with_resume_and_ends_as_an_uninterrupted_one
     assert spikinglab("run", "--resume", tmp_path / "r", "--ticks", 50).returncode == 2  # only its own options
     resumed = spikinglab("run", "--resume", tmp_path / "r", "--quiet")
     assert resumed.returncode == 0, resumed.stderr
-    got, want = (json.loads((folder / "summary.json").read_text()) for folder in (tmp_path / "r", tmp_path / "whole" / "r"))
+    got, want = (json.loads((folder / "summary.json").read_text())
+                 for folder in (tmp_path / "r", tmp_path / "whole" / "r"))
     assert got["headline"]["resumed_at"] == 4000 and not got["headline"]["partial"]
     for key in ("collisions_per_1000_ticks", "collisions", "food", "learning_time", "all_final_weights"):
         assert got[key] == want[key], key

@@ -207,7 +207,7 @@ def keep_checkpoint(args: argparse.Namespace, world: World, trajectory: Trajecto
     arrays = {**{f"world.{k}": v for k, v in world.snapshot().items()},
               **{f"trajectory.{k}": v for k, v in trajectory.arrays().items()}}
     snapshots.write(args.checkpoint / PENDING, arrays, {"run": run_id, "tick": world.tick,
-                                                           "options": run_options(args)})
+                                                        "options": run_options(args)})
 
 
 def resume(args: argparse.Namespace, world: World, trajectory: Trajectory) -> str | None:

@@ -67,13 +67,18 @@ def test_robot_chain_senses_moves_survives_a_lost_link_and_stops_without_a_brain
     assert spikes["RED"] > 50 and spikes["BLACK"] == spikes["GREEN"] == 0  # red reached the RED afferent
 
 
-def test_a_stalled_brain_stops_the_robot_and_sends_no_backlog_when_it_resumes(tmp_path):
+def gateway_and_brain(tmp_path):
+    """The gateway (ev3 backend: the fake brick) and a free-running brain driving it, as processes."""
     gateway_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
+    gateway = start("gateway", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json",
+                    log=tmp_path / "gateway.log")
+    brain = start("brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", 1000, log=tmp_path / "brain.log")
+    return gateway, brain
+
+
+def test_a_stalled_brain_stops_the_robot_and_sends_no_backlog_when_it_resumes(tmp_path):
     with FakeBrick() as brick:
-        gateway = start("gateway", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json",
-                        log=tmp_path / "gateway.log")
-        brain = start("brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", 1000,
-                      log=tmp_path / "brain.log")
+        gateway, brain = gateway_and_brain(tmp_path)
         try:
             wait_for(lambda: sum(c.kind == "time_sync" for c in brick.commands) > 10, 60, "the insect walking")
             time.sleep(1.0)
@@ -110,12 +115,8 @@ def test_a_link_gone_silent_is_noticed_the_robot_stops_by_itself_and_nothing_arr
     as long as the silence lasted, unable to stop the motors or to say so), the robot stops by
     itself at the end of its last timed command, and nothing sent into the dead link is executed
     late when the radio comes back (the gateway resets it); then the gateway links again."""
-    gateway_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
     with FakeBrick() as brick:
-        gateway = start("gateway", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json",
-                        log=tmp_path / "gateway.log")
-        brain = start("brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", 1000,
-                      log=tmp_path / "brain.log")
+        gateway, brain = gateway_and_brain(tmp_path)
         log = tmp_path / "gateway.log"
         try:
             wait_for(lambda: sum(c.kind == "time_sync" for c in brick.commands) > 10, 60, "the insect walking")

@@ -23,7 +23,14 @@ def test_a_run_ended_before_its_first_tick_still_sends_a_final_state():
 
 def test_a_checkpoint_resumes_only_under_the_options_that_made_it(tmp_path):
     from spikinglab.world.service import (
-        CHECKPOINT, PENDING, Trajectory, keep_checkpoint, parser, resume, world_from_args)
+        CHECKPOINT,
+        PENDING,
+        Trajectory,
+        keep_checkpoint,
+        parser,
+        resume,
+        world_from_args,
+    )
     made = parser().parse_args(["--seed", "4", "--ticks", "3000", "--checkpoint", str(tmp_path)])
     world = world_from_args(made)
     for _ in range(1200):
