@@ -26,6 +26,8 @@ API = {  # name -> module
     "Engine": "spikinglab.brain.engine",
     "brain_for": "spikinglab.loop",
     "closed_loop": "spikinglab.loop",
+    "evaluate": "spikinglab.loop",
+    "AGENT_PARAMS": "spikinglab.params",
     "world_actions": "spikinglab.world.world",
     "noxious_ticks": "spikinglab.learning",
     "learning_time": "spikinglab.learning",

@@ -1,28 +1,121 @@
 """The closed loop in one process: world and brain stepped in lock-step, no bus in between.
 
-Used by tests, benchmarks and sweeps; the same World.sense/act and Brain.step run here as in the
-two services, so a run gives the same trajectories, spikes and weights either way.
+Used by tests, benchmarks, sweeps and `evaluate`; the same world and engine kernels run here as in
+the two services, so a run gives the same trajectories, spikes and weights either way. Without a
+per-tick callback, and for populations the engine steps on one thread, a whole stretch of ticks
+(up to the next collision bin) runs as one compiled call: sense, brain and act fused, no Python
+between ticks.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+
+import numpy as np
+from numba import njit
 
 from spikinglab.brain.brain import Brain
-from spikinglab.brain.circuit import Circuit
-from spikinglab.world.world import SENSORS, World, world_actions
+from spikinglab.brain.circuit import Circuit, load_circuit
+from spikinglab.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, _netlogo_serial, _step_serial
+from spikinglab.params import AGENT_PARAMS, agent_columns, setting_count
+from spikinglab.world.world import ACTIONS, BIN, SENSORS, World, _act, _sense, _touch, params_for, world_actions
 
 
-def brain_for(world: World, circuit: Circuit, **engine_options) -> Brain:
-    """A brain for the world's agents; the netlogo order is drawn from the world's seed (agent a: seed + a)."""
+def brain_for(world: World, circuit: Circuit, params: Mapping | None = None, **engine_options) -> Brain:
+    """A brain for the world's agents; agent a's netlogo order is drawn from the world's seed +
+    numbers[a] (as its arena). `params`: the brain's per-agent columns (spikinglab.params)."""
     return Brain(circuit, SENSORS, tuple(circuit.actuators), agents=world.agents, training=world.training,
-                 seed=world.seed, **engine_options)
+                 seed=world.seed + world.numbers, params=params, **engine_options)
 
 
 def closed_loop(world: World, brain: Brain, ticks: int, on_tick: Callable[[int], None] | None = None) -> None:
     """Run `ticks` ticks: sense -> brain -> act. `on_tick(t)` is called after each tick."""
+    if on_tick is None and brain.agents < PARALLEL_FROM:
+        fused_loop(world, brain, ticks)
+        return
     names = brain.action_names
     for t in range(ticks):
         world.act(world_actions(names, brain.step(world.sense())))
         if on_tick is not None:
             on_tick(t)
+
+
+def fused_loop(world: World, brain: Brain, ticks: int) -> None:
+    """`ticks` ticks of the closed loop as compiled calls, one per stretch up to a bin's end."""
+    engine, m = brain.engine, world.metrics
+    # the brain's sensor columns -> its input neurons; its actuators -> the world's action columns
+    bound = [(brain.action_names[c], int(n)) for c, n in zip(brain._action_cols, brain._actuators)]
+    world_cols = np.array([ACTIONS.index(name) for name, _ in bound if name in ACTIONS], np.int64)
+    actuators = np.array([n for name, n in bound if name in ACTIONS], np.int64)
+    actions = np.zeros((world.agents, len(ACTIONS)), np.uint8)
+    done = 0
+    while done < ticks:
+        n = min(ticks - done, BIN - world.tick % BIN)
+        _fused(n, engine.semantics == "netlogo", world.tick, world.training, world.grid, world.arena_of, world.pos,
+               world.heading, world.fpar, world.steps, world.kind, world.sensors, world.last_patch, world.events,
+               world.eaten, m.collisions, m.collisions_by_colour, m.food, m.distance, m.last_collision,
+               m.last_noxious, m.learned_at, world._bin, m.resets, actions, brain._sensor_cols, brain._input_cols,
+               world_cols, actuators, brain.feed, *engine.serial_args)
+        world.tick += n
+        done += n
+        if world.tick % BIN == 0:
+            world.metrics.bins.append(world._bin.copy())
+            world._bin[:] = 0
+    brain.actions[:, brain._action_cols] = engine.spiked[:, brain._actuators]
+
+
+@njit(cache=True)
+def _fused(ticks, netlogo, t0, world_training, grid, arena_of, pos, heading, fpar, steps, kind, sensors, last_patch,
+           events, eaten, collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins,
+           resets, actions, sensor_cols, input_cols, world_cols, actuators, feed, clock, syn, npar, lrn, inpar, v, w,
+           state, last_spike, hist, ring, spiked, out_start, out_syn, order_key, rules):
+    for k in range(ticks):
+        _sense(grid, arena_of, pos, heading, fpar, kind, sensors)
+        for a in range(feed.shape[0]):
+            for j in range(sensor_cols.shape[0]):
+                feed[a, input_cols[j]] = sensors[a, sensor_cols[j]]
+        if netlogo:
+            _netlogo_serial(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
+                            out_start, out_syn, order_key, rules)
+        else:
+            _step_serial(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
+                         out_start, out_syn, order_key, rules)
+        for a in range(feed.shape[0]):
+            for j in range(world_cols.shape[0]):
+                actions[a, world_cols[j]] = spiked[actuators[j], a]
+        _touch(grid, arena_of, pos, heading, fpar, kind, world_training, t0 + k, last_patch, events, eaten,
+               collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins)
+        _act(grid.shape[1], grid.shape[2], pos, heading, fpar, steps, actions, events, distance, resets)
+
+
+def evaluate(params: Mapping, ticks: int, seeds=range(4), *, circuit: str | Circuit = "insect",
+             preset: str = "paper", learned_after: int = 5000, semantics: str = DEFAULT_SEMANTICS,
+             order: str = "random") -> dict[str, np.ndarray]:
+    """Train every parameter setting on every seed for `ticks` ticks, all as one population.
+
+    `params`: per-agent parameters (spikinglab.params.AGENT_PARAMS, e.g. {"a_plus": [0.01, 0.02],
+    "w_max": [15, 10]}), each a number or one value per setting. `seeds`: insect numbers in the
+    world of seed 0 (its arenas, headings and netlogo orders; seed s is agent s of `spikinglab run
+    --agents`, and the sweep's seed s). Returns arrays [settings, seeds]: "learning_time" (the last
+    tick on a noxious patch before `learned_after` ticks off them; -1: not within `ticks`),
+    "collisions", "food", and "collisions_last_quarter" (of the run's collision bins)."""
+    unknown = sorted(set(params) - set(AGENT_PARAMS))
+    if unknown:
+        raise ValueError(f"unknown per-agent parameters {unknown} (known: {', '.join(AGENT_PARAMS)})")
+    seeds = np.asarray(list(seeds), np.int64)
+    n = setting_count(params)
+    columns = agent_columns(n, params)
+    agents = n * len(seeds)
+    per_agent = {k: np.repeat(v, len(seeds)) for k, v in columns.items()}  # setting-major: its seeds together
+    side = {s: {k: v for k, v in per_agent.items() if AGENT_PARAMS[k].side == s} for s in ("world", "brain")}
+    world = World(params_for(preset, learned_after=learned_after), agents=agents, seed=0,
+                  numbers=np.tile(seeds, n), agent_params=side["world"])
+    brain = brain_for(world, load_circuit(circuit) if not isinstance(circuit, Circuit) else circuit,
+                      params=side["brain"], semantics=semantics, order=order)
+    closed_loop(world, brain, ticks)
+    m = world.metrics
+    bins = np.array(m.bins, np.int64).reshape(-1, agents)
+    last_quarter = bins[-max(len(bins) // 4, 1):].sum(axis=0) if len(bins) else np.zeros(agents, np.int64)
+    shape = (n, len(seeds))
+    return {"learning_time": m.learned_at.reshape(shape), "collisions": m.collisions.reshape(shape),
+            "food": m.food.reshape(shape), "collisions_last_quarter": last_quarter.reshape(shape)}

@@ -1,8 +1,8 @@
 """`spikinglab sweep`: the paper's Table 1 — learning time for symmetric A+ = A- over several seeds.
 
-All seeds of one A+ value run as one population (one arena each) in one process, so a sweep takes
-seconds. Writes runs/<id>/table.md, table.json and learning.png, and prints the table beside the
-paper's numbers.
+All values and seeds run as one population in one process (one arena each; each A+ value is a
+per-agent parameter), so a sweep takes seconds. Writes runs/<id>/table.md, table.json and
+learning.png, and prints the table beside the paper's numbers.
 """
 
 from __future__ import annotations
@@ -23,24 +23,34 @@ from spikinglab.options import Parser, at_least, positive
 from spikinglab.world.world import BIN, PRESETS, World, params_for
 
 
-def sweep_one(a_plus: float, seeds: int, ticks: int, preset: str, learned_after: int, progress=None,
-              semantics: str = DEFAULT_SEMANTICS, order: str = "random") -> dict:
-    world = World(params_for(preset, learned_after=learned_after), agents=seeds, seed=0)
-    brain = brain_for(world, load_circuit("insect").with_learning_rate(a_plus), semantics=semantics, order=order)
+def sweep(a_values: list[float], seeds: int, ticks: int, preset: str, learned_after: int, progress=None,
+          semantics: str = DEFAULT_SEMANTICS, order: str = "random") -> list[dict]:
+    """Every A+ = A- value on seeds 0..N-1, all as one population (agent = value-major, then seed);
+    a row per value."""
+    numbers = np.tile(np.arange(seeds), len(a_values))  # seed s of every value is the same insect
+    rate = np.repeat(np.asarray(a_values, dtype=np.float64), seeds)
+    world = World(params_for(preset, learned_after=learned_after), agents=len(numbers), seed=0, numbers=numbers)
+    brain = brain_for(world, load_circuit("insect"), params={"a_plus": rate, "a_minus": rate},
+                      semantics=semantics, order=order)
     noxious = noxious_ticks(world, brain, ticks, (lambda t: progress.update(1)) if progress else None)
-    bins = np.array(world.metrics.bins).T  # [seeds, ticks / 1000]
-    q = bins.shape[1] // 4
-    definitions = all_definitions(noxious, ticks)
-    times = [int(t) if t >= 0 else None for t in world.metrics.learned_at]  # the world's own counter
-    main = {"times": times, **stats(times, ticks)}
-    return {
-        "name": f"{semantics} semantics, {preset} steps", "a": a_plus, "a_plus": a_plus, "seeds": seeds,
-        "ticks": ticks, "learning_time": main["times"], "reached": main["reached"], "median": main["median"],
-        "quartiles": [main["q1"], main["q3"]], "definitions": {**definitions, "project": main},
-        "collisions_first_quarter": bins[:, :q].sum(axis=1).tolist(),
-        "collisions_last_quarter": bins[:, -q:].sum(axis=1).tolist(),
-        "collisions_per_1000_ticks_mean": bins.mean(axis=0).round(2).tolist(),
-    }
+    all_bins = np.array(world.metrics.bins).T  # [agents, ticks / 1000]
+    rows = []
+    for k, a_plus in enumerate(a_values):
+        mine = slice(k * seeds, (k + 1) * seeds)
+        bins = all_bins[mine]
+        q = bins.shape[1] // 4
+        definitions = all_definitions(noxious[mine], ticks)
+        times = [int(t) if t >= 0 else None for t in world.metrics.learned_at[mine]]  # the world's own counter
+        main = {"times": times, **stats(times, ticks)}
+        rows.append({
+            "name": f"{semantics} semantics, {preset} steps", "a": a_plus, "a_plus": a_plus, "seeds": seeds,
+            "ticks": ticks, "learning_time": main["times"], "reached": main["reached"], "median": main["median"],
+            "quartiles": [main["q1"], main["q3"]], "definitions": {**definitions, "project": main},
+            "collisions_first_quarter": bins[:, :q].sum(axis=1).tolist(),
+            "collisions_last_quarter": bins[:, -q:].sum(axis=1).tolist(),
+            "collisions_per_1000_ticks_mean": bins.mean(axis=0).round(2).tolist(),
+        })
+    return rows
 
 
 def table(rows: list[dict], learned_after: int) -> str:
@@ -101,12 +111,10 @@ def main(argv=None) -> int:
 
     folder = args.runs / (args.id or f"sweep-{datetime.datetime.now():%Y%m%d-%H%M%S}")
     folder.mkdir(parents=True, exist_ok=True)
-    rows = []
-    with tqdm(total=args.ticks * len(args.a_plus), unit="tick", unit_scale=True, mininterval=1) as bar:
-        for a in args.a_plus:
-            bar.set_postfix_str(f"A+ = A- = {a}")
-            rows.append(sweep_one(a, args.seeds, args.ticks, args.preset, args.learned_after, bar,
-                                  args.semantics, args.order))
+    with tqdm(total=args.ticks, unit="tick", unit_scale=True, mininterval=1) as bar:
+        bar.set_postfix_str(f"{len(args.a_plus) * args.seeds} insects: A+ = A- in {args.a_plus} x {args.seeds} seeds")
+        rows = sweep(args.a_plus, args.seeds, args.ticks, args.preset, args.learned_after, bar, args.semantics,
+                     args.order)
     text = table(rows, args.learned_after)
     (folder / "table.md").write_text(text + "\n")
     (folder / "table.json").write_text(json.dumps(rows, indent=1))

@@ -25,11 +25,13 @@ are stepped alone or together: the only randomness (the netlogo order) is a pure
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 from numba import get_num_threads, njit, prange
 
+from spikinglab.params import LEARNING_FIELDS, agent_columns
 from spikinglab.snapshots import copy_into
 
 from .circuit import Circuit
@@ -51,9 +53,12 @@ NETLOGO_RULES = {
 }
 
 # npar columns: per neuron, these fields of its type (circuit.NeuronType), then the offset of dt = 0
-# in W(dt), then the table W(dt) (stdp.py)
+# in W(dt)
 NEURON_COLUMNS = ("rest", "threshold", "decay", "refractory_potential", "refractory_period", "floor", "w_min", "w_max")
-REST, THRESHOLD, DECAY, REFR_V, REFR_PERIOD, FLOOR, W_MIN, W_MAX, STDP_OFFSET, STDP = range(len(NEURON_COLUMNS) + 2)
+REST, THRESHOLD, DECAY, REFR_V, REFR_PERIOD, FLOOR, W_MIN, W_MAX, STDP_OFFSET = range(len(NEURON_COLUMNS) + 1)
+# learning: stdp[group, profile] holds w_min, w_max, then the table W(dt) (stdp.py), for the agents of
+# one group of per-agent parameters (group[a]) and the neurons of one profile (profile[n])
+LO, HI, TABLE = 0, 1, 2
 # syn columns; flags bits
 PRE, POST, DELAY, FLAGS = 0, 1, 2, 3
 INHIBITORY, PLASTIC = 1, 2
@@ -68,11 +73,13 @@ TICK, TRAINING = 0, 1
 
 
 @njit(cache=True, inline="always")
-def _learn(w, s, a, post, dt, npar):
-    """STDP: w[s, a] += W(dt) from the post neuron's table, clipped to [w_min, w_max]."""
+def _learn(w, s, a, post, dt, npar, lrn):
+    """STDP: w[s, a] += W(dt) from the table of the post neuron and agent, clipped to [w_min, w_max]."""
+    stdp, group, profile = lrn
     k = dt + int(npar[post, STDP_OFFSET])
-    if 0 <= k < npar.shape[1] - STDP:
-        w[s, a] = min(max(w[s, a] + npar[post, STDP + k], npar[post, W_MIN]), npar[post, W_MAX])
+    if 0 <= k < stdp.shape[2] - TABLE:
+        g, p = group[a], profile[post]
+        w[s, a] = min(max(w[s, a] + stdp[g, p, TABLE + k], stdp[g, p, LO]), stdp[g, p, HI])
 
 
 # Each phase is a loop across agents lo..hi with unsigned indices (numba then emits no
@@ -110,7 +117,7 @@ def _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, state, ring, spiked
 
 
 @njit(cache=True, inline="always")
-def _deliver(lo, hi, t, training, syn, npar, v, w, state, last_spike, hist, ring):
+def _deliver(lo, hi, t, training, syn, npar, lrn, v, w, state, last_spike, hist, ring):
     """Phase 3: pulses due now. A REFRACTORY post ignores them (w * r * open is exactly 0 or w),
     but they still count for learning: depression now, and a place in the post's history."""
     slot = t & (ring.shape[0] - 1)
@@ -130,7 +137,7 @@ def _deliver(lo, hi, t, training, syn, npar, v, w, state, last_spike, hist, ring
                     continue
                 last = last_spike[post, a]
                 if training and last != NEVER:  # once per pulse, against the latest post spike
-                    _learn(w, s, a, post, t - last, npar)
+                    _learn(w, s, a, post, t - last, npar, lrn)
                 n = state[HIST_LEN, post, a]
                 if n == HISTORY:  # drop the oldest
                     for h in range(HISTORY - 1):
@@ -143,7 +150,7 @@ def _deliver(lo, hi, t, training, syn, npar, v, w, state, last_spike, hist, ring
 
 
 @njit(cache=True, inline="always")
-def _fire(lo, hi, t, training, npar, v, w, state, last_spike, hist, spiked):
+def _fire(lo, hi, t, training, npar, lrn, v, w, state, last_spike, hist, spiked):
     """Phase 4: refractory clamp, fire at threshold (STDP potentiation), or decay toward rest."""
     for n in range(v.shape[0]):
         threshold, rest, decay = npar[n, THRESHOLD], npar[n, REST], npar[n, DECAY]
@@ -161,7 +168,7 @@ def _fire(lo, hi, t, training, npar, v, w, state, last_spike, hist, spiked):
                 if training:  # every remembered arrival is paired with this spike
                     for h in range(state[HIST_LEN, n, a]):
                         entry = hist[a, n, h]
-                        _learn(w, entry & SYN_MASK, a, n, (entry >> SYN_BITS) - t, npar)
+                        _learn(w, entry & SYN_MASK, a, n, (entry >> SYN_BITS) - t, npar, lrn)
                 state[HIST_LEN, n, a] = 0
 
 
@@ -178,30 +185,32 @@ def _emit(lo, hi, t, syn, n_inputs, ring, spiked):
 
 
 @njit(cache=True, inline="always")
-def _step_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked):
+def _step_range(lo, hi, feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked):
     """One tick for agents lo..hi-1 (unsigned). Arrays have the agent axis last, so each phase is
     a loop across agents; only events (plastic arrivals, spikes of learning neurons) branch."""
     t = clock[TICK]
     training = clock[TRAINING] != 0
     _feed_and_inputs(lo, hi, t, feed, inpar, syn, v.shape[0], state, ring, spiked)
-    _deliver(lo, hi, t, training, syn, npar, v, w, state, last_spike, hist, ring)
-    _fire(lo, hi, t, training, npar, v, w, state, last_spike, hist, spiked)
+    _deliver(lo, hi, t, training, syn, npar, lrn, v, w, state, last_spike, hist, ring)
+    _fire(lo, hi, t, training, npar, lrn, v, w, state, last_spike, hist, spiked)
     _emit(lo, hi, t, syn, feed.shape[1], ring, spiked)
 
 
 @njit(cache=True)
-def _step_serial(feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked):
-    _step_range(np.uint64(0), np.uint64(v.shape[1]), feed, clock, syn, npar, inpar, v, w, state,
+def _step_serial(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
+                 out_start, out_syn, order_key, rules):
+    _step_range(np.uint64(0), np.uint64(v.shape[1]), feed, clock, syn, npar, lrn, inpar, v, w, state,
                 last_spike, hist, ring, spiked)
     clock[TICK] += 1
 
 
 @njit(cache=True, parallel=True)
-def _step_parallel(feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked, chunks):
+def _step_parallel(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
+                   out_start, out_syn, order_key, rules, chunks):
     agents = v.shape[1]
     for c in prange(chunks):  # one contiguous block of agents per thread
         lo, hi = np.uint64(c * agents // chunks), np.uint64((c + 1) * agents // chunks)
-        _step_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked)
+        _step_range(lo, hi, feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked)
     clock[TICK] += 1
 
 
@@ -223,7 +232,7 @@ def _mix(x):
 
 
 @njit(cache=True, inline="always")
-def _netlogo_receive(a, t, s, training, rules, syn, npar, v, w, state, last_spike, hist):
+def _netlogo_receive(a, t, s, training, rules, syn, npar, lrn, v, w, state, last_spike, hist):
     """NetLogo receive-pulse: potential change unless REFRACTORY; a plastic arrival in training is
     remembered and the STDP rule runs over the whole history since the post's last spike.
 
@@ -253,15 +262,15 @@ def _netlogo_receive(a, t, s, training, rules, syn, npar, v, w, state, last_spik
                 entry = hist[a, post, h]
                 if (entry >> SYN_BITS) != last:
                     break
-                _learn(w, entry & SYN_MASK, a, post, 0, npar)
+                _learn(w, entry & SYN_MASK, a, post, 0, npar, lrn)
             if t > last:  # the new arrival's one depression
-                _learn(w, s, a, post, t - last, npar)
+                _learn(w, s, a, post, t - last, npar, lrn)
         else:  # the new arrival alone: potentiation at dt = 0, else its one depression
-            _learn(w, s, a, post, t - last, npar)
+            _learn(w, s, a, post, t - last, npar, lrn)
 
 
 @njit(cache=True, inline="always")
-def _netlogo_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked,
+def _netlogo_range(lo, hi, feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
                    out_start, out_syn, order_key, rules):
     """One NetLogo tick for agents lo..hi-1: each agent is a sequence of turns (no vector loop)."""
     t = clock[TICK]
@@ -301,7 +310,7 @@ def _netlogo_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spik
                         last_spike[n, a] = t
                         for h in range(state[HIST_LEN, n, a]):
                             entry = hist[a, n, h]
-                            _learn(w, entry & SYN_MASK, a, n, (entry >> SYN_BITS) - t, npar)
+                            _learn(w, entry & SYN_MASK, a, n, (entry >> SYN_BITS) - t, npar, lrn)
                         state[HIST_LEN, n, a] = 0
                         for q in range(out_start[n], out_start[n + 1]):
                             s = out_syn[q]
@@ -320,24 +329,24 @@ def _netlogo_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spik
                 s = out_syn[q]
                 if ring[now, s, a]:
                     ring[now, s, a] = 0
-                    _netlogo_receive(a, t, s, training, rules, syn, npar, v, w, state, last_spike, hist)
+                    _netlogo_receive(a, t, s, training, rules, syn, npar, lrn, v, w, state, last_spike, hist)
 
 
 @njit(cache=True)
-def _netlogo_serial(feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked,
+def _netlogo_serial(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
                     out_start, out_syn, order_key, rules):
-    _netlogo_range(np.uint64(0), np.uint64(v.shape[1]), feed, clock, syn, npar, inpar, v, w, state,
+    _netlogo_range(np.uint64(0), np.uint64(v.shape[1]), feed, clock, syn, npar, lrn, inpar, v, w, state,
                    last_spike, hist, ring, spiked, out_start, out_syn, order_key, rules)
     clock[TICK] += 1
 
 
 @njit(cache=True, parallel=True)
-def _netlogo_parallel(feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked,
+def _netlogo_parallel(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
                       out_start, out_syn, order_key, rules, chunks):
     agents = v.shape[1]
     for c in prange(chunks):
         lo, hi = np.uint64(c * agents // chunks), np.uint64((c + 1) * agents // chunks)
-        _netlogo_range(lo, hi, feed, clock, syn, npar, inpar, v, w, state, last_spike, hist, ring, spiked,
+        _netlogo_range(lo, hi, feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
                        out_start, out_syn, order_key, rules)
     clock[TICK] += 1
 
@@ -355,11 +364,16 @@ class Engine:
     `semantics`: "phased" (five phases, a delay of d is exactly d) or "netlogo" (the original
     engine's turns, docs/tick.md). With "netlogo", `order` is "random" (agent a's order at tick t
     is drawn from seed + a and t) or "file" (circuit file order every tick), and `without` names
-    NetLogo rules to switch off one at a time (NETLOGO_RULES; for ablations, not for use).
+    NetLogo rules to switch off one at a time (NETLOGO_RULES; for ablations, not for use). `seed`
+    may also be one seed per agent (an array [A]; agents taken from a larger population).
+
+    `params`: per-agent parameters (spikinglab.params, the brain's columns: A+, A-, tau+/-, w_max,
+    initial weight, input gain), each a number or one value per agent; agents with the same
+    values share one STDP table.
     """
 
     def __init__(self, circuit: Circuit, agents: int = 1, training: bool = True, semantics: str = DEFAULT_SEMANTICS,
-                 order: str = "random", seed: int = 0, without: tuple[str, ...] = ()):
+                 order: str = "random", seed=0, without: tuple[str, ...] = (), params=None):
         if agents < 1:
             raise ValueError(f"agents must be >= 1, got {agents}")
         if semantics not in SEMANTICS:
@@ -372,23 +386,29 @@ class Engine:
         if unknown or (without and semantics != "netlogo"):
             raise ValueError(f"without: NetLogo rules are {', '.join(NETLOGO_RULES)} (netlogo semantics only), "
                              f"got {', '.join(without)}")
-        self.semantics, self.order, self.seed, self.without = semantics, order, int(seed), tuple(without)
+        self.semantics, self.order, self.without = semantics, order, tuple(without)
+        self.seeds = seed + np.arange(agents, dtype=np.int64) if np.ndim(seed) == 0 else np.asarray(seed, np.int64)
+        if self.seeds.shape != (agents,):
+            raise ValueError(f"seed: one number, or one per agent ({agents}), got {self.seeds.shape[0]}")
+        self.seed = int(self.seeds[0])
         c = circuit
         self.n_neurons, self.n_inputs, self.n_synapses = len(c.neuron_names), len(c.inputs), len(c.synapses)
         self.syn = np.array(
             [[s.pre, s.post, s.delay, INHIBITORY * s.inhibitory | PLASTIC * s.plastic] for s in c.synapses],
             dtype=np.int64,
         ).reshape(self.n_synapses, 4)
-        table, offset = stdp_table(c.neuron_types)
-        self.npar = np.hstack([
-            np.array([[getattr(t, name) for name in NEURON_COLUMNS] + [offset] for t in c.neuron_types],
-                     dtype=np.float64),
-            table,
-        ])
+        _, offset = stdp_table(c.neuron_types)
+        self.npar = np.array([[getattr(t, name) for name in NEURON_COLUMNS] + [offset] for t in c.neuron_types],
+                             dtype=np.float64)
         self.inpar = np.array(
             [[i.pulses, np.nan if i.at_start is None else i.at_start] for i in c.inputs], dtype=np.float64
         ).reshape(self.n_inputs, 2)
-        self.initial_weights = np.array([s.weight for s in c.synapses], dtype=np.float64)
+        self.params = agent_columns(agents, params, "brain")
+        unknown = sorted(set(params or {}) - set(self.params))
+        if unknown:
+            raise ValueError(f"per-agent parameters {unknown} are the world's, not the brain's")
+        self.lrn = learning_tables(c, self.params, agents)
+        self.initial_weights = initial_weights(c, self.params, agents)
         max_delay = max((sy.delay for sy in c.synapses), default=1)
         ring_len = 1 << int(max_delay).bit_length()  # > max delay, a power of two for masking
         if self.n_synapses >= 1 << SYN_BITS:
@@ -408,7 +428,7 @@ class Engine:
         self.v = self._v.T  # [A, neurons] membrane potentials
         self.w = self._w.T  # [A, synapses] weights
         self.spiked = self._spiked.view(np.bool_).T  # [A, nodes] who spiked in the last tick
-        self._args = (self.clock, self.syn, self.npar, self.inpar, self._v, self._w,
+        self._args = (self.clock, self.syn, self.npar, self.lrn, self.inpar, self._v, self._w,
                       self.state, self.last_spike, self.hist, self.ring, self._spiked)
         serial, parallel = _step_serial, _step_parallel
         if semantics == "netlogo":  # each neuron's outgoing synapses, for its turn
@@ -416,10 +436,13 @@ class Engine:
             self.out_syn = np.argsort(pre, kind="stable").astype(np.uint64)
             self.out_start = np.searchsorted(pre[self.out_syn], np.arange(N + 1)).astype(np.uint64)
             # agent a's order key: the hash of seed + a, once here rather than in every tick
-            self.order_key = _mix((np.int64(self.seed) + np.arange(A, dtype=np.int64)).view(np.uint64))
+            self.order_key = _mix(self.seeds.view(np.uint64))
             rules = SHUFFLE * (order == "random") | sum(f for k, f in NETLOGO_RULES.items() if k not in without)
             self._args += (self.out_start, self.out_syn, self.order_key, rules)
             serial, parallel = _netlogo_serial, _netlogo_parallel
+        else:  # the same arguments for both (a fused loop calls either): the phased engine ignores them
+            self._args += (np.zeros(N + 1, np.uint64), np.zeros(0, np.uint64), np.zeros(A, np.uint64), 0)
+        self.serial_args = self._args  # a serial tick's arguments after the feed (spikinglab.loop fuses it)
         if agents >= PARALLEL_FROM:
             self._call, self._args = parallel, self._args + (get_num_threads(),)
         else:
@@ -496,13 +519,16 @@ class Engine:
             raise ValueError(f"weights must have shape {self.w.shape} or ({self.n_synapses},), got {weights.shape}")
         if not np.all(np.isfinite(weights)) or np.any(weights <= 0):
             raise ValueError("weights must be finite and > 0")
+        stdp, group, profile = self.lrn
         post = self.syn[:, POST]
         plastic = (self.syn[:, FLAGS] & PLASTIC) != 0
-        lo, hi = self.npar[post, W_MIN], self.npar[post, W_MAX]
-        bad = plastic & ((weights < lo) | (weights > hi)).any(axis=0)
+        limits = stdp[group[:, None], profile[post][None, :]]  # [A, S, LO..HI]
+        lo, hi = limits[..., LO], limits[..., HI]
+        bad = plastic & ((weights < lo) | (weights > hi))
         if bad.any():
-            k = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"weight of plastic synapse {self.circuit.synapse_label(k)} outside [{lo[k]}, {hi[k]}]")
+            a, k = (int(i[0]) for i in np.nonzero(bad))
+            raise ValueError(f"weight of plastic synapse {self.circuit.synapse_label(k)} of agent {a} outside "
+                             f"[{lo[a, k]}, {hi[a, k]}]")
         self.w[:] = weights
 
     def run(self, feeds: np.ndarray) -> np.ndarray:
@@ -511,3 +537,48 @@ class Engine:
         for k in range(len(feeds)):
             out[k] = self.step(feeds[k])
         return out
+
+
+def _variant(circuit: Circuit, values: dict) -> Circuit:
+    """The circuit with one agent's learning values: initial weight first (the w_max check is on it)."""
+    if "initial_weight" in values:
+        w = values["initial_weight"]
+        circuit = dataclasses.replace(circuit, synapses=tuple(
+            dataclasses.replace(s, weight=w) if s.plastic else s for s in circuit.synapses))
+    fields = {k: v for k, v in values.items() if k in LEARNING_FIELDS}
+    return circuit.with_learning_params(**fields) if fields else circuit
+
+
+def learning_tables(circuit: Circuit, params: dict, agents: int) -> tuple:
+    """(stdp [groups, profiles, LO, HI, W(dt)...], group [A], profile [N]): one group per distinct
+    row of the learning columns; a profile per (neuron type, learns or not), as the columns set the
+    learning neurons only."""
+    names = [k for k in params if k in LEARNING_FIELDS or k == "initial_weight"]
+    rows = np.column_stack([params[k] for k in names]) if names else np.zeros((agents, 0))
+    settings, group = np.unique(rows, axis=0, return_inverse=True)
+    learning = {circuit.synapses[k].post for k in circuit.plastic_synapses}
+    keys = [(t, n in learning) for n, t in enumerate(circuit.neuron_types)]
+    kinds = list(dict.fromkeys(keys))
+    profile = np.array([kinds.index(k) for k in keys], dtype=np.int64)
+    first = [keys.index(k) for k in kinds]  # a neuron of each profile
+    tables = []
+    for row in settings:
+        types = _variant(circuit, {k: float(v) for k, v in zip(names, row)}).neuron_types
+        table, _ = stdp_table(types)
+        tables.append(np.column_stack([[types[n].w_min for n in first], [types[n].w_max for n in first],
+                                       table[first]]))
+    return np.ascontiguousarray(np.stack(tables)), group.reshape(agents).astype(np.int64), profile
+
+
+def initial_weights(circuit: Circuit, params: dict, agents: int) -> np.ndarray:
+    """[A, synapses]: the circuit's weights, the plastic ones at each agent's initial weight, those of
+    the input neurons a sensor feeds times each agent's input gain."""
+    w = np.tile(np.array([s.weight for s in circuit.synapses], dtype=np.float64), (agents, 1))
+    if "initial_weight" in params:
+        plastic = circuit.plastic_synapses
+        w[:, plastic] = params["initial_weight"][:, None]
+    if "input_gain" in params:
+        n_net = len(circuit.synapses) - len(circuit.inputs)  # an input neuron's synapse: n_net + its index
+        sensed = [n_net + k for k in circuit.sensors.values()]
+        w[:, sensed] *= params["input_gain"][:, None]
+    return w

@@ -33,6 +33,7 @@ from spikinglab.bus.schemas import (
     INSECT_SENSORS,
     RED,
 )
+from spikinglab.params import agent_columns
 from spikinglab.snapshots import copy_into
 
 # Sensor columns the world publishes and action columns it takes (the bus's names; the circuit
@@ -96,10 +97,11 @@ class WorldParams:
 
 
 # fpar columns: the WorldParams the kernels read, in this order
-WORLD_COLUMNS = ("x_min", "y_min", "view_distance", "ray_step", "rotation_step", "move_step", "push", "start_x",
-                 "start_y", "learned_after", "pain_value", "reward_value")
-X_MIN, Y_MIN, VIEW, RAY_STEP, ROT_STEP, MOVE_STEP, PUSH, START_X, START_Y, LEARNED_AFTER, PAIN_VALUE, \
-    REWARD_VALUE = range(len(WORLD_COLUMNS))
+# (the rotation and move steps are per agent: World.steps)
+WORLD_COLUMNS = ("x_min", "y_min", "view_distance", "ray_step", "push", "start_x", "start_y", "learned_after",
+                 "pain_value", "reward_value")
+X_MIN, Y_MIN, VIEW, RAY_STEP, PUSH, START_X, START_Y, LEARNED_AFTER, PAIN_VALUE, REWARD_VALUE = \
+    range(len(WORLD_COLUMNS))
 
 # The paper's steps are the default: with the NetLogo demo's smaller steps the insect creeps up to
 # walls and does not learn avoidance in 40,000 ticks (docs/world.md).
@@ -206,17 +208,35 @@ class Metrics:
 
 
 class World:
-    """A insects in their arenas. `sense()` then `act(actions)` per tick."""
+    """A insects in their arenas. `sense()` then `act(actions)` per tick.
+
+    Agent a is agent `numbers[a]` (default a) of the world of `seed`: its arena, its heading and its
+    brain's netlogo order come from seed + numbers[a], so a population can hold the same insect
+    several times (one per parameter setting). `agent_params`: the world's per-agent columns
+    (spikinglab.params: rotation and move steps), each a number or one value per agent."""
 
     def __init__(self, params: WorldParams | None = None, agents: int = 1, seed: int = 0,
-                 shared: bool = False, grid: np.ndarray | None = None, training: bool = True):
+                 shared: bool = False, grid: np.ndarray | None = None, training: bool = True,
+                 numbers=None, agent_params=None):
         self.params = p = params or WorldParams()
         self.agents, self.seed, self.shared = agents, seed, shared
+        self.numbers = np.arange(agents, dtype=np.int64) if numbers is None else np.asarray(numbers, np.int64)
+        if self.numbers.shape != (agents,) or (self.numbers < 0).any():
+            raise ValueError(f"numbers: one agent number >= 0 per agent ({agents}), got {list(self.numbers)[:8]}")
+        columns = agent_columns(agents, agent_params, "world")
+        unknown = sorted(set(agent_params or {}) - set(columns))
+        if unknown:
+            raise ValueError(f"per-agent parameters {unknown} are the brain's, not the world's")
+        # per agent: degrees per ROTATE spike, patches per MOVE spike
+        self.steps = np.column_stack([columns.get("rotation_step", np.full(agents, p.rotation_step)),
+                                      columns.get("move_step", np.full(agents, p.move_step))])
         self.training = training
         self._custom_grid = grid
         if grid is not None:
             if grid.shape != (p.width, p.height):
                 raise ValueError(f"grid shape {grid.shape} does not match the params' arena {(p.width, p.height)}")
+        if shared and numbers is not None:
+            raise ValueError("numbers: agents of a shared arena are its agents 0..A-1")
         n_arenas = 1 if shared else agents
         self.grid = np.zeros((n_arenas, p.width, p.height), dtype=np.uint8)
         self.pos = np.zeros((agents, 2))
@@ -236,9 +256,10 @@ class World:
         """Fresh arenas and insects from the seed (agent a's arena and heading use seed + a)."""
         p = self.params
         for g in range(self.grid.shape[0]):
-            self.grid[g] = self._custom_grid if self._custom_grid is not None else generate_map(p, self.seed + g)
+            self.grid[g] = self._custom_grid if self._custom_grid is not None else \
+                generate_map(p, self.seed + int(self.numbers[g]))
         self.pos[:] = p.start
-        self.heading[:] = [np.random.default_rng((self.seed, a, 1)).uniform(0, 360) for a in range(self.agents)]
+        self.heading[:] = [np.random.default_rng((self.seed, int(k), 1)).uniform(0, 360) for k in self.numbers]
         self.tick = 0
         self.last_patch[:] = -1
         A = self.agents
@@ -271,7 +292,7 @@ class World:
         _touch(self.grid, self.arena_of, self.pos, self.heading, self.fpar, self.kind, self.training, self.tick,
                self.last_patch, self.events, self.eaten, m.collisions, m.collisions_by_colour, m.food, m.distance,
                m.last_collision, m.last_noxious, m.learned_at, self._bin)
-        _act(self.grid.shape[1], self.grid.shape[2], self.pos, self.heading, self.fpar,
+        _act(self.grid.shape[1], self.grid.shape[2], self.pos, self.heading, self.fpar, self.steps,
              np.ascontiguousarray(actions, dtype=np.uint8), self.events, self.metrics.distance,
              self.metrics.resets)
         self.tick += 1
@@ -391,15 +412,15 @@ def _touch(grid, arena_of, pos, heading, fpar, kind, training, t, last_patch, ev
 
 
 @njit(cache=True)
-def _act(width, height, pos, heading, fpar, actions, events, distance, resets):
+def _act(width, height, pos, heading, fpar, steps, actions, events, distance, resets):
     for a in range(pos.shape[0]):
         if actions[a, ROTATE]:
-            heading[a] = (heading[a] + fpar[ROT_STEP]) % 360.0
+            heading[a] = (heading[a] + steps[a, 0]) % 360.0
         if actions[a, MOVE]:
             h = math.radians(heading[a])
-            pos[a, 0] += fpar[MOVE_STEP] * math.sin(h)
-            pos[a, 1] += fpar[MOVE_STEP] * math.cos(h)
-            distance[a] += fpar[MOVE_STEP]
+            pos[a, 0] += steps[a, 1] * math.sin(h)
+            pos[a, 1] += steps[a, 1] * math.cos(h)
+            distance[a] += steps[a, 1]
         # boundary: leaving the arena (past the centre line of its border) puts the insect back
         # at its start, as NetLogo's check-boundaries does
         x = pos[a, 0] - fpar[X_MIN]

@@ -93,7 +93,7 @@ def test_history_only_fills_in_training():
     feeds = random_feeds(3, 2000, 1, len(c.inputs))
     e = Engine(c, training=False, semantics="netlogo")
     e.run(feeds)
-    np.testing.assert_array_equal(e.w, e.initial_weights[None, :])
+    np.testing.assert_array_equal(e.w, e.initial_weights)
     assert (e.state[1] == 0).all()  # no arrival was remembered
 
 

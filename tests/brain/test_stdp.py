@@ -101,10 +101,10 @@ def test_training_off_freezes_weights():
     feeds = np.where(rng.random((5000, 1, 2)) < 0.05, rng.random((5000, 1, 2)) * 3, np.nan)
     spikes = e.run(feeds)
     assert spikes[:, 0, 2].sum() > 20  # M fired, so STDP would have acted
-    np.testing.assert_array_equal(e.w, e.initial_weights[None])
+    np.testing.assert_array_equal(e.w, e.initial_weights)
     e.training = True
     e.run(feeds)
-    assert not np.array_equal(e.w, e.initial_weights[None])
+    assert not np.array_equal(e.w, e.initial_weights)
 
 
 def test_learning_rate_override_reaches_plastic_targets_only():

@@ -1,0 +1,79 @@
+"""Per-agent parameters: what a study varies across the insects of one population.
+
+Each is one column, a value per agent, declared here once: the engine reads the brain's, the
+world the world's. A column that is not given keeps the circuit's (or the world's) own value for
+every agent. Agents with the same brain values share one STDP table, so a population of a few
+settings costs no more than one setting.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class AgentParam:
+    name: str
+    side: str  # "brain" or "world": who reads it
+    what: str
+    positive: bool = True  # > 0 (else >= 0)
+
+
+AGENT_PARAMS = {p.name: p for p in (
+    AgentParam("a_plus", "brain", "A+: potentiation of the learning neurons' plastic synapses", positive=False),
+    AgentParam("a_minus", "brain", "A-: depression of the learning neurons' plastic synapses", positive=False),
+    AgentParam("tau_plus", "brain", "tau+: the potentiation window's time constant, ticks"),
+    AgentParam("tau_minus", "brain", "tau-: the depression window's time constant, ticks"),
+    AgentParam("w_max", "brain", "the largest weight of a plastic synapse"),
+    AgentParam("initial_weight", "brain", "the weight every plastic synapse starts with"),
+    AgentParam("input_gain", "brain", "factor on the weight of every sensor-fed input neuron's synapse: "
+                                      "how hard a sensed value drives its neuron"),
+    AgentParam("rotation_step", "world", "degrees turned per ROTATE spike"),
+    AgentParam("move_step", "world", "patches moved per MOVE spike"),
+)}
+# the NeuronType fields the learning columns set, on every neuron a plastic synapse targets
+LEARNING_FIELDS = ("a_plus", "a_minus", "tau_plus", "tau_minus", "w_max")
+
+
+def agent_columns(agents: int, params: Mapping | None, side: str | None = None) -> dict[str, np.ndarray]:
+    """The given columns as float arrays [agents] (a number: the same for all), checked.
+
+    `side`: keep only that side's columns (the others are someone else's). ValueError names an
+    unknown column, a column of the wrong length, or a value out of range."""
+    out = {}
+    for name, values in (params or {}).items():
+        if name not in AGENT_PARAMS:
+            raise ValueError(f"unknown per-agent parameter {name!r} (known: {', '.join(AGENT_PARAMS)})")
+        p = AGENT_PARAMS[name]
+        if side is not None and p.side != side:
+            continue
+        try:
+            column = np.broadcast_to(np.asarray(values, dtype=np.float64), (agents,)).copy()
+        except ValueError:
+            raise ValueError(f"per-agent parameter {name}: {np.shape(values)} values for {agents} agents "
+                             f"(give one, or one per agent)") from None
+        bad = ~np.isfinite(column) | ((column <= 0) if p.positive else (column < 0))
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"per-agent parameter {name}: agent {k} has {column[k]}, it must be a finite number "
+                             f"{'>' if p.positive else '>='} 0")
+        out[name] = column
+    return out
+
+
+def grid(**values) -> dict[str, np.ndarray]:
+    """Every combination of the values given per parameter, as columns (the first varies slowest):
+    grid(a_plus=[0.01, 0.02], w_max=[10, 15]) -> 4 settings."""
+    mesh = np.meshgrid(*[np.atleast_1d(np.asarray(v, dtype=np.float64)) for v in values.values()], indexing="ij")
+    return {name: m.ravel() for name, m in zip(values, mesh)}
+
+
+def setting_count(params: Mapping) -> int:
+    """How many settings the columns give: their common length (1 if all are single numbers)."""
+    lengths = {len(np.atleast_1d(v)) for v in params.values()} - {1}
+    if len(lengths) > 1:
+        raise ValueError(f"parameter columns of different lengths: {sorted(lengths)}")
+    return lengths.pop() if lengths else 1
