@@ -1,9 +1,13 @@
-"""Closed-loop benchmark: lock-step ticks/s of world + brain.
+"""Closed-loop benchmark: lock-step ticks/s of world + brain, and the bounds it is measured against.
 
-inprocess: one agent, world and brain in this process (no bus).
-bus:       one agent, world and brain as two processes on a local Zenoh bus (Unix sockets, one
-           CPU each, as `spikinglab run` places them).
-batch:     A = 1000 agents in one message per tick, across the same two processes.
+All figures in one run, on this machine:
+  zenoh:      a bare Zenoh ping-pong between two processes placed as world and brain are (the
+              lock-step loop's bound: one round trip per tick)
+  inprocess:  world and brain in this process, 1 agent (the fused loop) and A = 1000
+  engine:     the engine alone at A = 1000 on random feeds (the in-process loop's bound)
+  bus:        world and brain as two processes on a local Zenoh bus (Unix sockets, one CPU each,
+              as `spikinglab run` places them), 1 agent, A = 1000 and A = 16000
+  recording:  the 1-agent lock-step loop with both publishing state to a recorder
 All with the default engine semantics, or `--semantics phased|netlogo`.
 The last line printed is JSON. Run: `spikinglab bench loop` or `python -m spikinglab.bench.loop`.
 """
@@ -13,27 +17,59 @@ from __future__ import annotations
 import json
 import os
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from spikinglab.bench.engine import best_rate, random_feeds
+from spikinglab.bench.recorder import one_run
 from spikinglab.brain.circuit import load_circuit
-from spikinglab.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, SEMANTICS
+from spikinglab.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, SEMANTICS, Engine
 from spikinglab.launch import local_endpoints, spawn
 from spikinglab.loop import brain_for, closed_loop
 from spikinglab.options import Parser
 from spikinglab.world.world import World
 
 
-def inprocess(ticks: int, semantics: str) -> float:
-    world = World(seed=1)
+def inprocess(ticks: int, semantics: str, agents: int = 1) -> float:
+    """Agent-ticks/s of the closed loop in this process."""
+    world = World(seed=1, agents=agents)
     brain = brain_for(world, load_circuit("insect"), semantics=semantics)
     closed_loop(world, brain, 200)  # compile and warm up
     started = time.perf_counter()
     closed_loop(world, brain, ticks)
-    return ticks / (time.perf_counter() - started)
+    return ticks * agents / (time.perf_counter() - started)
+
+
+def engine_alone(ticks: int, semantics: str, agents: int) -> float:
+    """Agent-ticks/s of the engine alone on random feeds (best of 3 passes)."""
+    circuit = load_circuit("insect")
+    engine = Engine(circuit, agents=agents, semantics=semantics)
+    return best_rate(engine, random_feeds(np.random.default_rng(0), circuit, ticks, agents), 3, agents)
+
+
+def zenoh_roundtrips(count: int) -> float:
+    """Round trips/s of a bare Zenoh ping-pong, the two processes placed as world and brain."""
+    (ping_ep, pong_ep), sockets = local_endpoints("ping", "pong")
+    with sockets:
+        pin = [["--cpu", "0"], ["--cpu", "1"]] if os.cpu_count() >= 2 else [[], []]
+        pong = spawn("spikinglab.bus.pingpong", ["pong", "--listen", pong_ep] + pin[1], subprocess.DEVNULL)
+        try:
+            ping = subprocess.run([*spawn_argv("spikinglab.bus.pingpong"), "ping", "--connect", pong_ep, "--count",
+                                   str(count)] + pin[0], capture_output=True, text=True, timeout=300)
+        finally:
+            pong.kill()
+            pong.wait()
+    if ping.returncode != 0:
+        raise SystemExit(f"the ping-pong failed: {ping.stderr[-500:]}")
+    return json.loads(ping.stdout.strip().splitlines()[-1])["roundtrips_per_s"]
+
+
+def spawn_argv(module: str) -> list[str]:
+    return [sys.executable, "-m", module]
 
 
 def over_the_bus(ticks: int, agents: int, semantics: str) -> float:
@@ -50,31 +86,53 @@ def over_the_bus(ticks: int, agents: int, semantics: str) -> float:
         return json.loads((Path(tmp) / "metrics.json").read_text())["ticks_per_s"]
 
 
+def median_of(runs: list[float]) -> tuple[float, str]:
+    runs = sorted(runs)
+    return float(np.median(runs)), ", ".join(f"{r:,.0f}" for r in runs)
+
+
 def main(argv=None) -> dict:
     p = Parser(prog="spikinglab bench loop", description=__doc__.splitlines()[0])
-    p.add_argument("--ticks", type=int, default=20_000, help="ticks of the one-agent runs")
+    p.add_argument("--ticks", type=int, default=20_000, help="ticks of the one-agent bus runs")
     p.add_argument("--agents", type=int, default=1000)
     p.add_argument("--batch-ticks", type=int, default=2000)
+    p.add_argument("--large-agents", type=int, default=16_000)
+    p.add_argument("--large-ticks", type=int, default=300)
     p.add_argument("--repeats", type=int, default=3, help="runs of each bus case (default 3; the median is reported)")
     p.add_argument("--semantics", choices=SEMANTICS, default=DEFAULT_SEMANTICS, help="the brain's engine semantics")
     args = p.parse_args(argv)
-    print(f"engine semantics: {args.semantics}")
-    rate = inprocess(args.ticks * 5, args.semantics)
-    print(f"in one process, 1 agent: {rate:,.0f} ticks/s")
-    # this shared 2-core machine varies by 10-20 % from run to run: three runs, their median
-    runs = sorted(over_the_bus(args.ticks, 1, args.semantics) for _ in range(args.repeats))
-    bus = float(np.median(runs))
+    A, big = args.agents, args.large_agents
+    print(f"engine semantics: {args.semantics}; {os.cpu_count()} cores")
+    # this shared machine varies by 10-20 % from run to run: each bus case three times, the median
+    pings, text = median_of([zenoh_roundtrips(args.ticks) for _ in range(args.repeats)])
+    print(f"bare Zenoh ping-pong, two processes on one CPU each: {pings:,.0f} round trips/s median (runs: {text})")
+    rate = inprocess(args.ticks * 10, args.semantics)
+    print(f"in one process, 1 agent (fused loop): {rate:,.0f} ticks/s")
+    engine = engine_alone(args.batch_ticks // 4, args.semantics, A)
+    batch_in = inprocess(args.batch_ticks // 4, args.semantics, A)
+    print(f"A = {A}: engine alone {engine:,.0f} agent-ticks/s, the loop in one process {batch_in:,.0f} "
+          f"({batch_in / engine:.0%} of the engine)")
+    bus, text = median_of([over_the_bus(args.ticks, 1, args.semantics) for _ in range(args.repeats)])
     print(f"two processes on the bus, 1 agent: {bus:,.0f} ticks/s median ({1e6 / bus:.0f} us per lock-step "
-          f"round trip; runs: {', '.join(f'{r:,.0f}' for r in runs)})")
-    runs = sorted(over_the_bus(args.batch_ticks, args.agents, args.semantics) * args.agents for _ in range(args.repeats))
-    batch = float(np.median(runs))
-    print(f"two processes on the bus, {args.agents} agents: {batch:,.0f} agent-ticks/s median "
-          f"(runs: {', '.join(f'{r:,.0f}' for r in runs)})")
-    result = {"inprocess_ticks_per_s": round(rate), "bus_ticks_per_s": round(bus),
-              f"bus_batch{args.agents}_agent_ticks_per_s": round(batch)}
+          f"round trip, {bus / pings:.0%} of the bare ping-pong; runs: {text})")
+    batch, text = median_of([over_the_bus(args.batch_ticks, A, args.semantics) * A for _ in range(args.repeats)])
+    print(f"two processes on the bus, A = {A}: {batch:,.0f} agent-ticks/s median ({batch / batch_in:.0%} of the loop "
+          f"in one process; runs: {text})")
+    large_in = inprocess(args.large_ticks, args.semantics, big)
+    large, text = median_of([over_the_bus(args.large_ticks, big, args.semantics) * big for _ in range(args.repeats)])
+    print(f"A = {big}: in one process {large_in:,.0f} agent-ticks/s, two processes on the bus {large:,.0f} median "
+          f"({large / large_in:.0%}; runs: {text})")
+    with tempfile.TemporaryDirectory() as tmp:
+        recorded = one_run(args.ticks, True, Path(tmp))["ticks_per_s"]
+    print(f"two processes on the bus, 1 agent, recorded: {recorded:,.0f} ticks/s ({1 - recorded / bus:.0%} below "
+          f"the loop unrecorded)")
+    result = {"zenoh_roundtrips_per_s": round(pings), "inprocess_ticks_per_s": round(rate),
+              "bus_ticks_per_s": round(bus), f"engine_batch{A}_agent_ticks_per_s": round(engine),
+              f"inprocess_batch{A}_agent_ticks_per_s": round(batch_in), f"bus_batch{A}_agent_ticks_per_s": round(batch),
+              f"inprocess_batch{big}_agent_ticks_per_s": round(large_in),
+              f"bus_batch{big}_agent_ticks_per_s": round(large), "recording_ticks_per_s": round(recorded)}
     print(json.dumps(result))
     return result
-
 
 if __name__ == "__main__":
     main()

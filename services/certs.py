@@ -32,7 +32,7 @@ log = logging.getLogger("spikinglab.certs")
 # role -> the keys (below spikinglab/<group>/) its process may put
 PUTS = {
     "router": (),
-    "world": ("sensors", "control", "state/world", "state/map"),
+    "world": ("sensors", "sensors/*", "control", "state/world", "state/map"),  # sensors/*: a sharded brain's slices
     "gateway": ("sensors", "control"),
     "brain": ("motor", "state/brain"),
     "recorder": (),

@@ -17,11 +17,13 @@ COMMANDS = {
     "certs": ("spikinglab.certs", "certificates and configs for a bus with mutual TLS and access control"),
     "sweep": ("spikinglab.sweep", "the paper's Table 1: learning time for A+ = A- over seeds"),
     "conditioning": ("spikinglab.brain.conditioning", "classical conditioning demo on fig. 2 and fig. 4"),
-    "bench": (None, "benchmarks and experiments: bench engine | loop | recorder | gateway | table1 | robot | fuzz | soak"),
+    "bench": (None, "benchmarks and experiments: bench engine | loop | scale | recorder | gateway | table1 | robot | "
+                    "fuzz | soak"),
 }
 BENCHMARKS = {
     "engine": "spikinglab.bench.engine",
     "loop": "spikinglab.bench.loop",
+    "scale": "spikinglab.bench.scale",
     "recorder": "spikinglab.bench.recorder",
     "gateway": "spikinglab.bench.gateway",
     "table1": "spikinglab.bench.table1",

@@ -73,3 +73,15 @@ def agent_list(text: str) -> tuple[int, ...]:
     if any(a < 0 for a in agents):
         raise argparse.ArgumentTypeError(f"agent numbers start at 0, got {text!r}")
     return agents
+
+
+def shard(text: str) -> tuple[int, int]:
+    """"I/N": shard I of N (1 <= I <= N)."""
+    i, slash, n = text.partition("/")
+    try:
+        i, n = int(i), int(n)
+    except ValueError:
+        i = n = 0
+    if not slash or not 1 <= i <= n:
+        raise argparse.ArgumentTypeError(f"must be I/N with 1 <= I <= N (e.g. 2/3), got {text!r}")
+    return i, n

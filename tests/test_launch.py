@@ -8,6 +8,8 @@ import subprocess
 import sys
 import time
 
+import numpy as np
+
 from spikinglab.launch import shipped
 
 from .processes import free_port, running_with, wait_for
@@ -64,6 +66,21 @@ def test_remote_brain_joins_the_world_through_the_router(tmp_path):
     assert brain_side.returncode == 0, brain_out + brain_err
     assert "weights saved" in brain_out
     assert json.loads((tmp_path / "runs" / "launch-remote" / "metrics.json").read_text())["ticks"] == 3000
+    assert not running_with(str(tmp_path))
+
+
+def test_sharded_simulation_runs_three_brain_shards_each_with_its_slice(tmp_path):
+    run = launch(tmp_path, launch_file("sharded-simulation", tmp_path, **{"ticks = 20000": "ticks = 2000",
+                                                                          "agents = 3000": "agents = 30"}))
+    out, err = run.communicate(timeout=180)
+    assert run.returncode == 0, out + err
+    result = tmp_path / "runs" / "launch-sharded"
+    assert json.loads((result / "metrics.json").read_text())["agents"] == 30
+    for i in (1, 2, 3):
+        assert any(line.strip().startswith(f"brain-{i} |") and f"shard {i} of 3" in line
+                   for line in out.splitlines()), out
+        with np.load(result / f"weights-{i}of3.npz") as saved:
+            assert saved["weights"].shape[0] == 10
     assert not running_with(str(tmp_path))
 
 

@@ -26,7 +26,7 @@ from spikinglab import snapshots
 from spikinglab.bus import keys
 from spikinglab.bus.schemas import QUIET_S, Array, BrainLayout, BrainState, BusError, Control, Motor, Sensors, TickBatch
 from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
-from spikinglab.options import Parser
+from spikinglab.options import Parser, shard
 
 from .brain import Brain, check_sensors
 from .checkpoint import load_weights, save_weights
@@ -51,6 +51,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--load", type=Path, help="start from the weights in this checkpoint (.npz)")
     p.add_argument("--save", type=Path, help="write the final weights here (.npz) when the run ends")
     p.add_argument("--once", action="store_true", help="exit after one run ends (default: serve the next run)")
+    p.add_argument("--shard", type=shard, default=(1, 1), metavar="I/N",
+                   help="serve shard I of N of the population (the world, started with --shards N, sends each its "
+                        "slice of the agents; default 1/1: all of them)")
     p.add_argument("--checkpoint", type=Path, metavar="DIR",
                    help="keep the brain's whole state here whenever the world keeps a checkpoint (world "
                         "--checkpoint), the last two per run: a resumed run goes back to them tick for tick")
@@ -88,8 +91,11 @@ class BrainNode:
     """The lock-step logic, without the transport: a Sensors message in, a Motor message out."""
 
     def __init__(self, circuit, training: bool = True, weights: np.ndarray | None = None,
-                 checkpoints: Path | None = None, quiet_s: float = QUIET_S, **engine_options):
+                 checkpoints: Path | None = None, quiet_s: float = QUIET_S, shard: tuple[int, int] = (1, 1),
+                 **engine_options):
         self.circuit, self.training, self.initial_weights = circuit, training, weights
+        self.shard = shard  # (i, n): this brain serves the i-th of n slices of the population
+        self.first = 0  # the population's index of this brain's first agent (its sensors say it)
         self.checkpoints = checkpoints  # the folder of this brain's whole-state checkpoints (None: none kept)
         self.engine_options = engine_options  # semantics, order, seed
         self.brain: Brain | None = None
@@ -107,6 +113,8 @@ class BrainNode:
         options = dict(self.engine_options)
         if options.get("seed") is None:
             options["seed"] = message.seed
+        self.first = message.first
+        options["seed"] += message.first  # agent k of a slice is agent first + k of the population
         self.brain = Brain(self.circuit, message.names, tuple(self.circuit.actuators), agents=agents,
                            training=self.training, **options)
         if self.initial_weights is not None:  # one agent's weights are given to every agent
@@ -145,6 +153,8 @@ class BrainNode:
             raise BusError(f"another run: sensors of run {message.run!r} at tick {message.tick}, the brain serves "
                            f"run {self.run!r}")
         self.heard_at = time.monotonic()
+        if message.first != self.first:
+            raise BusError(f"another slice: agents from {message.first}, this brain serves agents from {self.first}")
         if message.names != self.brain.sensor_names or values.shape[0] != self.brain.agents:
             raise BusError(f"does not fit the run: {values.shape[0]} agents with sensors {list(message.names)}, this "
                            f"brain serves {self.brain.agents} with {list(self.brain.sensor_names)}")
@@ -161,11 +171,15 @@ class BrainNode:
         actions = self.brain.step(values)
         self.last_tick, self.stepped = message.tick, True
         self.last_answer = Motor(tick=message.tick, names=self.brain.action_names, actions=Array.of(actions),
-                                 run=self.run)
+                                 run=self.run, first=self.first)
         return self.last_answer
 
+    def checkpoint_name(self) -> str:
+        """brain-<run>, or brain-<run>-<i>of<n> for a shard: the shards of one run share a folder."""
+        return f"brain-{self.run}" + (f"-{keys.shard_name(self.shard)}" if self.shard[1] > 1 else "")
+
     def checkpoint_path(self, tick: int) -> Path:
-        return self.checkpoints / f"brain-{self.run}-tick{tick}.npz"
+        return self.checkpoints / f"{self.checkpoint_name()}-tick{tick}.npz"
 
     def keep_checkpoint(self, tick: int) -> None:
         """The whole brain at the start of `tick`, where the world keeps its own; the last two of the run."""
@@ -179,7 +193,7 @@ class BrainNode:
         if not path.exists():  # a repeat of the tick: already kept
             snapshots.write(path, self.brain.engine.snapshot(), {"run": self.run, "tick": tick,
                                                                  "circuit": self.circuit.name})
-        kept = sorted(self.checkpoints.glob(f"brain-{self.run}-tick*.npz"),
+        kept = sorted(self.checkpoints.glob(f"{self.checkpoint_name()}-tick*.npz"),
                       key=lambda p: int(p.stem.rsplit("tick", 1)[1]))
         for old in kept[:-2]:
             old.unlink(missing_ok=True)
@@ -246,11 +260,16 @@ def run(args: argparse.Namespace, session) -> int:
     except (CircuitError, ValueError, OSError) as e:
         log.error("%s", e)
         return 2
+    if args.shard[1] > 1 and (args.publish_state or args.clock):
+        log.error("--shard %d/%d: a sharded brain serves a world in lock-step and does not publish its state (the "
+                  "recorder takes one brain's; record the world, or run one brain): drop %s", *args.shard,
+                  "--publish-state" if args.publish_state else "--clock")
+        return 2
     def new_node() -> BrainNode:  # one per run the brain serves
         return BrainNode(circuit, training=not args.no_training, weights=weights, checkpoints=args.checkpoint,
-                         seed=args.seed, semantics=args.semantics, order=args.order)
+                         shard=args.shard, seed=args.seed, semantics=args.semantics, order=args.order)
     node = new_node()
-    bus = Bus(session, args.group, "brain")
+    bus = Bus(session, args.group, keys.brain_service(args.shard))
     bus.watch_others(lambda: f" at tick {node.last_tick + 1} of run {node.run}" if node.run else "")
     if args.clock:
         try:
@@ -258,12 +277,13 @@ def run(args: argparse.Namespace, session) -> int:
         finally:
             bus.close()
     try:
-        sensors = bus.inbox(keys.sensors(args.group), Sensors)
+        sensors = bus.inbox(keys.sensors(args.group, args.shard), Sensors)
         control = bus.inbox(keys.control(args.group), Control)
         motor = bus.outbox(keys.motor(args.group))
         state = bus.outbox(keys.brain_state(args.group), lossy=True) if args.publish_state else None
         world = bus.presence("world")
-        log.info("brain ready on group %s (%s)", args.group, bus.sender)
+        log.info("brain ready on group %s (%s)%s", args.group, bus.sender,
+                 f", shard {args.shard[0]} of {args.shard[1]}" if args.shard[1] > 1 else "")
         kept = None  # (run, tick) whose learning was saved when the run stopped without its end
         while True:
             message = sensors.get(timeout=0.25)

@@ -14,9 +14,17 @@ def _check(group: str) -> str:
     return group
 
 
-def sensors(group: str) -> str:
-    """World (or robot gateway) -> brain: sensor values for one tick."""
-    return f"{PREFIX}/{_check(group)}/sensors"
+def sensors(group: str, shard: tuple[int, int] | None = None) -> str:
+    """World (or robot gateway) -> brain: sensor values for one tick; to shard (i, n) of a sharded
+    brain (n > 1), its slice of the agents."""
+    if shard is None or shard[1] == 1:
+        return f"{PREFIX}/{_check(group)}/sensors"
+    return f"{PREFIX}/{_check(group)}/sensors/{shard_name(shard)}"
+
+
+def shard_name(shard: tuple[int, int]) -> str:
+    """Shard i of n (1-based), as keys and liveliness tokens name it: "2of3"."""
+    return f"{shard[0]}of{shard[1]}"
 
 
 def motor(group: str) -> str:
@@ -52,3 +60,8 @@ def state(group: str) -> str:
 def alive(group: str, service: str) -> str:
     """Liveliness token of a service (brain, world, gateway, recorder) of a group; "*": any."""
     return f"{PREFIX}/{_check(group)}/alive/{service if service == '*' else _check(service)}"
+
+
+def brain_service(shard: tuple[int, int]) -> str:
+    """The name a brain is alive under: "brain", or "brain-2of3" for shard 2 of 3."""
+    return "brain" if shard[1] == 1 else f"brain-{shard_name(shard)}"

@@ -75,6 +75,7 @@ def new_run_id() -> str:
 
 Tick = Annotated[int, msgspec.Meta(ge=0, lt=2**62)]  # a run's ticks; rerun and numpy take them as int64
 Coordinate = Annotated[int, msgspec.Meta(ge=-(2**31), lt=2**31)]
+AgentIndex = Annotated[int, msgspec.Meta(ge=0, lt=2**31)]
 SENSED_MAX = 2.0**31  # a sensor value is a number of ticks for the input neuron to wait (int32 counters)
 
 
@@ -94,6 +95,7 @@ class Sensors(Message, tag="sensors", kw_only=True):
     run: RunId = ""
     seed: Annotated[int, msgspec.Meta(ge=0, lt=2**62)] = 0  # the world's: the brain's netlogo order uses seed + a
     checkpoint: bool = False  # the world kept its state at the start of this tick: the brain keeps its own too
+    first: AgentIndex = 0  # a shard's slice: the population's index of its first agent (netlogo order: seed + index)
 
     def check(self):
         values = self.values.numpy("values", "<f8", 2)
@@ -113,6 +115,7 @@ class Motor(Message, tag="motor", kw_only=True):
     actions: Array
     run: RunId = ""
     reading: Annotated[int, msgspec.Meta(ge=-1, lt=2**62)] = -1  # the tick of the reading answered; -1: not said
+    first: AgentIndex = 0  # a shard's answer: the index of its first agent, as its sensors said
 
     def check(self):
         actions = self.actions.numpy("actions", "|u1", 2)

@@ -52,6 +52,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, help="write metrics.json (collisions over time, learning time, ...) here")
     p.add_argument("--publish-state", action="store_true", help="publish poses and events every tick (recorder)")
     p.add_argument("--progress", action="store_true", help="show a progress bar")
+    p.add_argument("--shards", type=at_least(1), default=1, metavar="N",
+                   help="the brain runs as N shards (brain --shard I/N): each is sent its slice of the agents and the "
+                        "world waits for all of them every tick (default 1)")
     p.add_argument("--checkpoint", type=Path, metavar="DIR",
                    help="keep the whole world here every --checkpoint-every ticks, and resume the run kept here "
                         "(with the same options) if there is one; the brain keeps its own (brain --checkpoint)")
@@ -79,6 +82,8 @@ def world_from_args(args: argparse.Namespace) -> World:
     """The World the options describe (MapError / ValueError on a bad map or option)."""
     if args.ticks < 1 or args.agents < 1:
         raise ValueError("--ticks and --agents must be >= 1")
+    if getattr(args, "shards", 1) > args.agents:
+        raise ValueError(f"--shards {args.shards}: more brain shards than agents ({args.agents})")
     params = params_for(args.preset, learned_after=args.learned_after)
     grid = None
     if args.map:
@@ -91,6 +96,64 @@ def actions_from(message: Motor, agents: int) -> np.ndarray | None:
     """The Motor's actions as [agents, len(ACTIONS)] in the world's order; None if it does not fit."""
     got = message.actions.numpy("actions", "|u1", 2)
     return world_actions(message.names, got) if got.shape[0] == agents else None
+
+
+class Brains:
+    """The brain, or the N shards of a sharded brain, as the world sees them: shard i gets agents
+    slices[i] of the population on its own sensors key and answers on the one motor key."""
+
+    def __init__(self, bus: Bus, group: str, agents: int, shards: int):
+        self.shards = [(i + 1, shards) for i in range(shards)]
+        self.slices = [(agents * i // shards, agents * (i + 1) // shards) for i in range(shards)]
+        self.names = ["brain" if shards == 1 else f"brain shard {i}/{n}" for i, n in self.shards]
+        self.sensors = [bus.outbox(keys.sensors(group, s)) for s in self.shards]
+        self.presences = [bus.presence(keys.brain_service(s)) for s in self.shards]
+        self.motor = bus.inbox(keys.motor(group), Motor)
+        self.index = {lo: k for k, (lo, _) in enumerate(self.slices)}  # a slice by its first agent
+
+    def wait(self) -> None:
+        for outbox, name, presence in zip(self.sensors, self.names, self.presences):
+            wait_for_subscriber(outbox, f"a {name}" if name == "brain" else name, presence)
+
+    def send(self, world: World, tick: int, run_id: str, checkpoint: bool = False) -> list[Sensors]:
+        """What the world's insects sense for `tick`, each shard's slice sent to it (the seed: the
+        brain's netlogo order follows it; `checkpoint`: the world kept its state at the start of
+        this tick, the brain keeps its own)."""
+        values = world.sense()
+        requests = [Sensors(tick=tick, names=SENSORS, values=Array.of(values[lo:hi]), run=run_id, seed=world.seed,
+                            checkpoint=checkpoint, first=lo) for lo, hi in self.slices]
+        for outbox, request in zip(self.sensors, requests):
+            outbox.put(request)
+        return requests
+
+    def collect(self, world: World, requests: list[Sensors]) -> np.ndarray:
+        """Every shard's answer to `requests` (its tick): the actions of all agents. A shard that
+        is silent for RESEND_AFTER is asked again, and one that left the bus is named and waited for."""
+        t, run_id = requests[0].tick, requests[0].run
+        answers = [None] * len(self.shards)
+        while any(a is None for a in answers):
+            answer = self.motor.get(timeout=RESEND_AFTER)
+            if answer is None:
+                for k in (k for k, a in enumerate(answers) if a is None):
+                    if not self.presences[k].alive:
+                        log.warning("%s lost at tick %d: waiting for it to come back", self.names[k], t)
+                        wait_for_subscriber(self.sensors[k], self.names[k], self.presences[k])
+                        log.info("%s back: continuing at tick %d", self.names[k], t)
+                    self.sensors[k].put(requests[k])
+                continue
+            k = self.index.get(answer.first)
+            size = None if k is None else self.slices[k][1] - self.slices[k][0]
+            if answer.run != run_id:
+                self.motor.refuse(BusError(f"another run: motor for run {answer.run!r}, this is {run_id!r}"),
+                                  f"(tick {answer.tick})")
+            elif answer.actions.shape[0] != size:
+                self.motor.refuse(BusError(f"does not fit the run: {answer.actions.shape[0]} agents from agent "
+                                           f"{answer.first}, the world has {world.agents}" +
+                                           (f" in shards from {[lo for lo, _ in self.slices]}"
+                                            if len(self.slices) > 1 else "")), f"(tick {answer.tick})")
+            elif answer.tick == t:
+                answers[k] = actions_from(answer, size)
+        return answers[0] if len(answers) == 1 else np.concatenate(answers)
 
 
 class Progress:
@@ -244,13 +307,11 @@ def run(args: argparse.Namespace, session) -> int:
     bus = Bus(session, args.group, "world")
     bus.watch_others(lambda: f" at tick {world.tick}")
     try:
-        sensors = bus.outbox(keys.sensors(args.group))
-        motor = bus.inbox(keys.motor(args.group), Motor)
+        brains = Brains(bus, args.group, world.agents, args.shards)
         control = bus.outbox(keys.control(args.group))
         # lossy: a recorder that falls behind or freezes must not hold the run back (it counts the gap)
         state = bus.outbox(keys.world_state(args.group), lossy=True) if args.publish_state else None
-        brain = bus.presence("brain")
-        wait_for_subscriber(sensors, "a brain", brain)
+        brains.wait()
         run_id = resumed or new_run_id()  # the brain answers for this run only; an end names it
         if state is not None:
             wait_for_subscriber(state, "a recorder")
@@ -263,9 +324,8 @@ def run(args: argparse.Namespace, session) -> int:
         started = time.perf_counter()
         progress = Progress(world, args.ticks, args.progress)  # from here on, Ctrl-C ends the run with a result
         try:
-            request = sensing(world, start, run_id, checkpoint=bool(resumed))  # the brain goes back to it too
-            sensors.put(request)
-            tick_loop(args, world, sensors, motor, brain, state, request, progress, trajectory, batch, changes)
+            requests = brains.send(world, start, run_id, checkpoint=bool(resumed))  # the brain goes back to it too
+            tick_loop(args, world, brains, state, requests, progress, trajectory, batch, changes)
         except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the ticks done are a result too, marked partial
             log.warning("interrupted at tick %d of %d: ending the run there", world.tick, args.ticks)
             if state is not None:
@@ -294,34 +354,11 @@ def run(args: argparse.Namespace, session) -> int:
         bus.close()
 
 
-def sensing(world: World, tick: int, run_id: str, checkpoint: bool = False) -> Sensors:
-    """What the world's insects sense for `tick` (the seed: the brain's netlogo order follows it;
-    `checkpoint`: the world kept its state at the start of this tick, the brain keeps its own)."""
-    return Sensors(tick=tick, names=SENSORS, values=Array.of(world.sense()), run=run_id, seed=world.seed,
-                   checkpoint=checkpoint)
-
-
-def tick_loop(args, world, sensors, motor, brain, state, request, progress, trajectory, batch, changes) -> None:
-    """The lock-step ticks: each waits for the brain's answer to the last sensors sent."""
+def tick_loop(args, world, brains, state, requests, progress, trajectory, batch, changes) -> None:
+    """The lock-step ticks: each waits for the brain's answer (every shard's) to the last sensors sent."""
     for t in range(world.tick, args.ticks):
-        actions = None
-        while actions is None:
-            answer = motor.get(timeout=RESEND_AFTER)
-            if answer is None:
-                if not brain.alive:
-                    log.warning("brain lost at tick %d: waiting for it to come back", t)
-                    wait_for_subscriber(sensors, "a brain", brain)
-                    log.info("brain back: continuing at tick %d", t)
-                sensors.put(request)
-            elif answer.run != request.run:
-                motor.refuse(BusError(f"another run: motor for run {answer.run!r}, this is "
-                                      f"{request.run!r}"), f"(tick {answer.tick})")
-            elif answer.actions.shape[0] != world.agents:
-                motor.refuse(BusError(f"does not fit the run: {answer.actions.shape[0]} agents, the "
-                                      f"world has {world.agents}"), f"(tick {answer.tick})")
-            elif answer.tick == t:
-                actions = actions_from(answer, world.agents)
-        if request.checkpoint and args.checkpoint and (args.checkpoint / PENDING).exists():
+        actions = brains.collect(world, requests)
+        if requests[0].checkpoint and args.checkpoint and (args.checkpoint / PENDING).exists():
             (args.checkpoint / PENDING).replace(args.checkpoint / CHECKPOINT)  # the brain has kept this tick too
         world.act(actions)
         trajectory.keep(t)
@@ -330,11 +367,10 @@ def tick_loop(args, world, sensors, motor, brain, state, request, progress, traj
         if t + 1 < args.ticks:  # the brain's next tick first: the recorder can wait
             keep = args.checkpoint is not None and (t + 1) % args.checkpoint_every == 0
             if keep:
-                keep_checkpoint(args, world, trajectory, request.run)
-            request = sensing(world, t + 1, request.run, keep)
-            sensors.put(request)
+                keep_checkpoint(args, world, trajectory, requests[0].run)
+            requests = brains.send(world, t + 1, requests[0].run, keep)
         if state is not None and (batch.full or t + 1 == args.ticks):
-            state.put(state_message(batch, changes, t + 1 == args.ticks, world, request.run))
+            state.put(state_message(batch, changes, t + 1 == args.ticks, world, requests[0].run))
         progress.update(t + 1)
 
 

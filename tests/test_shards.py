@@ -1,0 +1,104 @@
+"""A sharded brain: N brain processes each serve a slice of the population, as one brain would."""
+
+import json
+import re
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+from spikinglab.brain.checkpoint import load_weights
+from spikinglab.brain.circuit import load_circuit
+from spikinglab.bus import keys
+from spikinglab.loop import brain_for, closed_loop
+from spikinglab.world.world import World, params_for
+
+from .processes import Watcher, endpoint, finish, free_port, start, ticks_in, wait_for
+
+TICKS, SEED, AGENTS = 3000, 3, 7  # 7 agents in 3 shards: slices of 2, 2 and 3
+
+
+def test_three_shards_run_bit_for_bit_as_one_brain(tmp_path):
+    world_port = free_port()
+    world = start("world", "--group", "sh", "--listen", endpoint(world_port), "--ticks", TICKS, "--seed", SEED,
+                  "--agents", AGENTS, "--shards", 3, "--out", tmp_path, log=tmp_path / "world.log")
+    shards = [start("brain", "--group", "sh", "--connect", endpoint(world_port), "--shard", f"{i}/3", "--once",
+                    "--a-plus", 0.04, "--save", tmp_path / f"weights{i}.npz", log=tmp_path / f"brain{i}.log")
+              for i in (1, 2, 3)]
+    try:
+        assert finish(world, 120, tmp_path / "world.log") == 0
+        for i, shard in enumerate(shards, 1):
+            assert finish(shard, 30, tmp_path / f"brain{i}.log") == 0
+    finally:
+        for process in (world, *shards):
+            process.kill()
+    circuit = load_circuit("insect").with_learning_rate(0.04)
+    alone = World(params_for("paper"), agents=AGENTS, seed=SEED)
+    brain = brain_for(alone, circuit)
+    closed_loop(alone, brain, TICKS)
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["ticks"] == TICKS and sum(metrics["collisions"]) > 0
+    assert metrics["collisions"] == alone.metrics.collisions.tolist()
+    assert metrics["food"] == alone.metrics.food.tolist()
+    assert metrics["distance"] == np.round(alone.metrics.distance, 3).tolist()
+    weights = [load_weights(tmp_path / f"weights{i}.npz", circuit) for i in (1, 2, 3)]
+    assert [len(w) for w in weights] == [2, 2, 3]
+    np.testing.assert_array_equal(np.concatenate(weights), brain.engine.get_weights())  # bit for bit
+    for i in (1, 2, 3):
+        assert f"shard {i} of 3" in (tmp_path / f"brain{i}.log").read_text()
+
+
+def test_a_dead_shard_is_named_and_waited_for(tmp_path):
+    world_port = free_port()
+    watcher = Watcher([endpoint(world_port)], [keys.world_state("sd")])
+    world = start("world", "--group", "sd", "--listen", endpoint(world_port), "--ticks", 6000, "--agents", 4,
+                  "--shards", 2, "--publish-state", "--out", tmp_path, log=tmp_path / "world.log")
+    shard = ("--group", "sd", "--connect", endpoint(world_port), "--once")
+    first = start("brain", *shard, "--shard", "1/2", log=tmp_path / "brain1.log")
+    second = start("brain", *shard, "--shard", "2/2", log=tmp_path / "brain2.log")
+    try:
+        states = watcher.messages[keys.world_state("sd")]
+        wait_for(lambda: len(ticks_in(states)) > 1000, 60, "the run to pass tick 1000")
+        second.kill()
+        second.wait()
+        wait_for(lambda: "brain shard 2/2 lost at tick" in (tmp_path / "world.log").read_text(), 10,
+                 "the world to name the dead shard")
+        stalled_at = len(ticks_in(states))
+        time.sleep(1.5)
+        assert len(ticks_in(states)) == stalled_at  # no tick without every shard
+        assert first.poll() is None  # the live shard waits with the world
+        second = start("brain", *shard, "--shard", "2/2", log=tmp_path / "brain2-again.log")
+        assert finish(world, 120, tmp_path / "world.log") == 0
+        assert finish(first, 30, tmp_path / "brain1.log") == 0
+        assert finish(second, 30, tmp_path / "brain2-again.log") == 0
+    finally:
+        for process in (world, first, second):
+            process.kill()
+        watcher.close()
+    log = (tmp_path / "world.log").read_text()
+    lost = int(re.search(r"brain shard 2/2 lost at tick (\d+)", log).group(1))
+    assert 1000 <= lost < 6000 and f"brain shard 2/2 back: continuing at tick {lost}" in log
+    assert "brain shard 1/2 lost" not in log
+    assert ticks_in(states) == list(range(6000))
+    assert json.loads((tmp_path / "metrics.json").read_text())["ticks"] == 6000
+
+
+def test_the_scale_and_loop_benchmarks_print_their_figures():
+    done = subprocess.run([sys.executable, "-m", "spikinglab.cli", "bench", "scale", "--agents", "40", "--shards", "1",
+                           "2", "--ticks", "100"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    figures = json.loads(done.stdout.strip().splitlines()[-1])
+    assert figures["agents"] == 40 and set(figures["shards"]) == {"1", "2"}
+    assert all(v > 0 for v in figures["shards"].values())
+    done = subprocess.run([sys.executable, "-m", "spikinglab.cli", "bench", "loop", *map(str, (
+                           "--ticks", 300, "--agents", 300, "--batch-ticks", 80, "--large-agents", 600,
+                           "--large-ticks", 20, "--repeats", 1))],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    figures = json.loads(done.stdout.strip().splitlines()[-1])
+    assert set(figures) == {"zenoh_roundtrips_per_s", "inprocess_ticks_per_s", "bus_ticks_per_s",
+                            "engine_batch300_agent_ticks_per_s", "inprocess_batch300_agent_ticks_per_s",
+                            "bus_batch300_agent_ticks_per_s", "inprocess_batch600_agent_ticks_per_s",
+                            "bus_batch600_agent_ticks_per_s", "recording_ticks_per_s"}
+    assert all(v > 0 for v in figures.values())
