@@ -34,6 +34,7 @@ AGENT_PARAMS = {p.name: p for p in (
     AgentParam("rotation_step", "world", "degrees turned per ROTATE spike"),
     AgentParam("move_step", "world", "patches moved per MOVE spike"),
 )}
+PARALLEL_FROM = 256  # agents; from here, engine and world kernels run across cores (below, thread start-up costs more)
 # the NeuronType fields the learning columns set, on every neuron a plastic synapse targets
 LEARNING_FIELDS = ("a_plus", "a_minus", "tau_plus", "tau_minus", "w_max")
 

@@ -10,7 +10,7 @@ import pytest
 
 from spikinglab.brain.circuit import load_circuit
 from spikinglab.loop import brain_for, closed_loop, evaluate
-from spikinglab.params import AGENT_PARAMS, grid
+from spikinglab.params import AGENT_PARAMS, PARALLEL_FROM, grid
 from spikinglab.world.world import World, params_for
 
 from .processes import ROOT
@@ -140,3 +140,19 @@ def test_the_optimiser_example_runs_and_prints_the_best():
     found = re.fullmatch(r"best: A\+ = A- = ([0-9.]+), w_max = ([0-9.]+), cost [0-9,]+, learning times .*", best[0])
     assert found, best[0]
     assert 0.005 <= float(found[1]) <= 0.08 and 5 <= float(found[2]) <= 30  # inside the search space
+
+
+def test_a_large_population_on_every_core_runs_its_insects_as_a_small_one():
+    """From PARALLEL_FROM agents on, engine and world kernels run across cores: the same ticks."""
+    runs = []
+    for agents in (PARALLEL_FROM + 44, 3):
+        world = World(params_for("paper"), agents=agents, seed=2)
+        brain = brain_for(world, load_circuit("insect").with_learning_rate(0.04))
+        closed_loop(world, brain, 3000)
+        runs.append((world, brain))
+    (large, large_brain), (small, small_brain) = runs
+    assert large.world_kernels_parallel and not small.world_kernels_parallel
+    np.testing.assert_array_equal(large.pos[:3], small.pos)
+    np.testing.assert_array_equal(large.metrics.collisions[:3], small.metrics.collisions)
+    np.testing.assert_array_equal(large.grid[:3], small.grid)
+    np.testing.assert_array_equal(large_brain.engine.get_weights()[:3], small_brain.engine.get_weights())

@@ -31,7 +31,7 @@ import math
 import numpy as np
 from numba import get_num_threads, njit, prange
 
-from spikinglab.params import LEARNING_FIELDS, agent_columns
+from spikinglab.params import LEARNING_FIELDS, PARALLEL_FROM, agent_columns
 from spikinglab.snapshots import copy_into
 
 from .circuit import Circuit
@@ -351,7 +351,6 @@ def _netlogo_parallel(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spik
     clock[TICK] += 1
 
 
-PARALLEL_FROM = 256  # agents; below this, thread start-up costs more than it saves
 
 
 class Engine:

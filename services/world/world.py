@@ -18,7 +18,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from spikinglab.bus.schemas import (
     BLACK,
@@ -33,7 +33,7 @@ from spikinglab.bus.schemas import (
     INSECT_SENSORS,
     RED,
 )
-from spikinglab.params import agent_columns
+from spikinglab.params import PARALLEL_FROM, agent_columns
 from spikinglab.snapshots import copy_into
 
 # Sensor columns the world publishes and action columns it takes (the bus's names; the circuit
@@ -245,6 +245,12 @@ class World:
         self.last_patch = np.zeros(agents, dtype=np.int64)
         self.arena_of = np.zeros(agents, dtype=np.int64) if shared else np.arange(agents)
         self.fpar = np.array([getattr(p, name) for name in WORLD_COLUMNS], dtype=np.float64)
+        # large populations: each kernel a loop across agents on every core (numba's threads); the
+        # same result, as agents are independent (but for food in a shared arena: first come)
+        large = self.world_kernels_parallel = agents >= PARALLEL_FROM
+        self._sense = _sense_parallel if large else _sense
+        self._touch = _touch_parallel if large and not shared else _touch
+        self._act = _act_parallel if large else _act
         self.kind = np.zeros(4, dtype=np.uint8)  # per colour: 1 noxious, 2 rewarding
         for c in p.noxious:
             self.kind[c] = 1
@@ -277,7 +283,7 @@ class World:
         """Vision then touch for tick self.tick: the sensors [A, len(SENSORS)] (NaN: nothing).
 
         Reads the world and changes nothing in it; what touching a patch does comes in act()."""
-        _sense(self.grid, self.arena_of, self.pos, self.heading, self.fpar, self.kind, self.sensors)
+        self._sense(self.grid, self.arena_of, self.pos, self.heading, self.fpar, self.kind, self.sensors)
         return self.sensors
 
     def changes(self) -> np.ndarray:
@@ -289,10 +295,10 @@ class World:
         """End tick self.tick: the patch touched (collision, push, food, learning time), then the
         actions [A, len(ACTIONS)] (nonzero: that actuator spiked), then the boundary check."""
         m = self.metrics
-        _touch(self.grid, self.arena_of, self.pos, self.heading, self.fpar, self.kind, self.training, self.tick,
+        self._touch(self.grid, self.arena_of, self.pos, self.heading, self.fpar, self.kind, self.training, self.tick,
                self.last_patch, self.events, self.eaten, m.collisions, m.collisions_by_colour, m.food, m.distance,
                m.last_collision, m.last_noxious, m.learned_at, self._bin)
-        _act(self.grid.shape[1], self.grid.shape[2], self.pos, self.heading, self.fpar, self.steps,
+        self._act(self.grid.shape[1], self.grid.shape[2], self.pos, self.heading, self.fpar, self.steps,
              np.ascontiguousarray(actions, dtype=np.uint8), self.events, self.metrics.distance,
              self.metrics.resets)
         self.tick += 1
@@ -342,36 +348,83 @@ def _colour_at(grid, g, x, y, fpar):
     return grid[g, ix, iy], ix * grid.shape[2] + iy
 
 
+@njit(cache=True, inline="always")
+def _sense_one(a, grid, arena_of, pos, heading, fpar, kind, sensors, steps):
+    g = arena_of[a]
+    for k in range(sensors.shape[1]):
+        sensors[a, k] = np.nan
+    h = math.radians(heading[a])
+    dx, dy = math.sin(h), math.cos(h)
+    # vision: the first non-empty patch along the heading, sampled every ray_step. The
+    # distance is a running sum, as NetLogo's `set itemcount itemcount + 0.2`: its 10th
+    # sample is 1.9999999999999998, so a patch seen there fires its smell one tick sooner.
+    d = 0.0
+    for k in range(1, steps + 1):
+        d += fpar[RAY_STEP]
+        colour, _ = _colour_at(grid, g, pos[a, 0] + d * dx, pos[a, 1] + d * dy, fpar)
+        if colour != EMPTY:
+            if colour == BLACK:
+                sensors[a, 0] = d
+            elif colour == RED:
+                sensors[a, 1] = d
+            elif colour == GREEN:
+                sensors[a, 2] = d
+            break
+    # touch: the patch under the insect
+    colour, _ = _colour_at(grid, g, pos[a, 0], pos[a, 1], fpar)
+    if kind[colour] == 1:
+        sensors[a, PAIN] = fpar[PAIN_VALUE]
+    elif kind[colour] == 2:
+        sensors[a, REWARD] = fpar[REWARD_VALUE]
+
+
 @njit(cache=True)
 def _sense(grid, arena_of, pos, heading, fpar, kind, sensors):
     steps = int(round(fpar[VIEW] / fpar[RAY_STEP]))
     for a in range(pos.shape[0]):
-        g = arena_of[a]
-        for k in range(sensors.shape[1]):
-            sensors[a, k] = np.nan
-        h = math.radians(heading[a])
-        dx, dy = math.sin(h), math.cos(h)
-        # vision: the first non-empty patch along the heading, sampled every ray_step. The
-        # distance is a running sum, as NetLogo's `set itemcount itemcount + 0.2`: its 10th
-        # sample is 1.9999999999999998, so a patch seen there fires its smell one tick sooner.
-        d = 0.0
-        for k in range(1, steps + 1):
-            d += fpar[RAY_STEP]
-            colour, _ = _colour_at(grid, g, pos[a, 0] + d * dx, pos[a, 1] + d * dy, fpar)
-            if colour != EMPTY:
-                if colour == BLACK:
-                    sensors[a, 0] = d
-                elif colour == RED:
-                    sensors[a, 1] = d
-                elif colour == GREEN:
-                    sensors[a, 2] = d
-                break
-        # touch: the patch under the insect
-        colour, _ = _colour_at(grid, g, pos[a, 0], pos[a, 1], fpar)
-        if kind[colour] == 1:
-            sensors[a, PAIN] = fpar[PAIN_VALUE]
-        elif kind[colour] == 2:
-            sensors[a, REWARD] = fpar[REWARD_VALUE]
+        _sense_one(a, grid, arena_of, pos, heading, fpar, kind, sensors, steps)
+
+
+@njit(cache=True, parallel=True)
+def _sense_parallel(grid, arena_of, pos, heading, fpar, kind, sensors):
+    steps = int(round(fpar[VIEW] / fpar[RAY_STEP]))
+    for a in prange(pos.shape[0]):  # reads only: agents are independent, in a shared arena too
+        _sense_one(a, grid, arena_of, pos, heading, fpar, kind, sensors, steps)
+
+
+@njit(cache=True, inline="always")
+def _touch_one(a, grid, arena_of, pos, heading, fpar, kind, training, t, last_patch, events, eaten,
+               collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins):
+    g = arena_of[a]
+    for k in range(events.shape[1]):
+        events[a, k] = 0
+    eaten[a, 0] = eaten[a, 1] = -1
+    colour, patch = _colour_at(grid, g, pos[a, 0], pos[a, 1], fpar)
+    if kind[colour] == 1:  # noxious
+        last_noxious[a] = t
+        if patch != last_patch[a]:  # entering it: a collision event
+            collisions[a] += 1
+            by_colour[a, colour] += 1
+            bins[a] += 1
+            last_collision[a] = t
+            events[a, EV_COLLISION] = colour
+        if training:  # pushed on, so it cannot spin on the spot forever
+            h = math.radians(heading[a])
+            pos[a, 0] += fpar[PUSH] * math.sin(h)
+            pos[a, 1] += fpar[PUSH] * math.cos(h)
+            distance[a] += fpar[PUSH]
+    elif kind[colour] == 2:  # rewarding: eaten (in a shared arena, by the first insect on it)
+        ix, iy = patch // grid.shape[2], patch % grid.shape[2]
+        grid[g, ix, iy] = EMPTY
+        eaten[a, 0], eaten[a, 1] = ix, iy
+        food[a] += 1
+        events[a, EV_ATE] = 1
+    last_patch[a] = patch
+    # learning time: the last tick on a noxious patch before the first W ticks off them (NetLogo
+    # resets its error_free_counter in every tick on one: staying on a wall is no progress)
+    if learned_at[a] < 0 and t - max(last_noxious[a], 0) >= fpar[LEARNED_AFTER]:
+        learned_at[a] = max(last_noxious[a], 0)
+        events[a, EV_LEARNED] = 1
 
 
 @njit(cache=True)
@@ -379,54 +432,46 @@ def _touch(grid, arena_of, pos, heading, fpar, kind, training, t, last_patch, ev
            collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins):
     """What touching the patch under each insect does in tick t: count, push, eat, learn."""
     for a in range(pos.shape[0]):
-        g = arena_of[a]
-        for k in range(events.shape[1]):
-            events[a, k] = 0
-        eaten[a, 0] = eaten[a, 1] = -1
-        colour, patch = _colour_at(grid, g, pos[a, 0], pos[a, 1], fpar)
-        if kind[colour] == 1:  # noxious
-            last_noxious[a] = t
-            if patch != last_patch[a]:  # entering it: a collision event
-                collisions[a] += 1
-                by_colour[a, colour] += 1
-                bins[a] += 1
-                last_collision[a] = t
-                events[a, EV_COLLISION] = colour
-            if training:  # pushed on, so it cannot spin on the spot forever
-                h = math.radians(heading[a])
-                pos[a, 0] += fpar[PUSH] * math.sin(h)
-                pos[a, 1] += fpar[PUSH] * math.cos(h)
-                distance[a] += fpar[PUSH]
-        elif kind[colour] == 2:  # rewarding: eaten (in a shared arena, by the first insect on it)
-            ix, iy = patch // grid.shape[2], patch % grid.shape[2]
-            grid[g, ix, iy] = EMPTY
-            eaten[a, 0], eaten[a, 1] = ix, iy
-            food[a] += 1
-            events[a, EV_ATE] = 1
-        last_patch[a] = patch
-        # learning time: the last tick on a noxious patch before the first W ticks off them (NetLogo
-        # resets its error_free_counter in every tick on one: staying on a wall is no progress)
-        if learned_at[a] < 0 and t - max(last_noxious[a], 0) >= fpar[LEARNED_AFTER]:
-            learned_at[a] = max(last_noxious[a], 0)
-            events[a, EV_LEARNED] = 1
+        _touch_one(a, grid, arena_of, pos, heading, fpar, kind, training, t, last_patch, events, eaten,
+                   collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins)
+
+
+@njit(cache=True, parallel=True)
+def _touch_parallel(grid, arena_of, pos, heading, fpar, kind, training, t, last_patch, events, eaten,
+                    collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins):
+    """_touch for agents each in an arena of its own (in a shared one, the first on a food patch eats it)."""
+    for a in prange(pos.shape[0]):
+        _touch_one(a, grid, arena_of, pos, heading, fpar, kind, training, t, last_patch, events, eaten,
+                   collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins)
+
+
+@njit(cache=True, inline="always")
+def _act_one(a, width, height, pos, heading, fpar, steps, actions, events, distance, resets):
+    if actions[a, ROTATE]:
+        heading[a] = (heading[a] + steps[a, 0]) % 360.0
+    if actions[a, MOVE]:
+        h = math.radians(heading[a])
+        pos[a, 0] += steps[a, 1] * math.sin(h)
+        pos[a, 1] += steps[a, 1] * math.cos(h)
+        distance[a] += steps[a, 1]
+    # boundary: leaving the arena (past the centre line of its border) puts the insect back
+    # at its start, as NetLogo's check-boundaries does
+    x = pos[a, 0] - fpar[X_MIN]
+    y = pos[a, 1] - fpar[Y_MIN]
+    if x < 0.0 or y < 0.0 or x > width - 1 or y > height - 1:
+        pos[a, 0] = fpar[START_X]
+        pos[a, 1] = fpar[START_Y]
+        resets[a] += 1
+        events[a, EV_RESET] = 1
 
 
 @njit(cache=True)
 def _act(width, height, pos, heading, fpar, steps, actions, events, distance, resets):
     for a in range(pos.shape[0]):
-        if actions[a, ROTATE]:
-            heading[a] = (heading[a] + steps[a, 0]) % 360.0
-        if actions[a, MOVE]:
-            h = math.radians(heading[a])
-            pos[a, 0] += steps[a, 1] * math.sin(h)
-            pos[a, 1] += steps[a, 1] * math.cos(h)
-            distance[a] += steps[a, 1]
-        # boundary: leaving the arena (past the centre line of its border) puts the insect back
-        # at its start, as NetLogo's check-boundaries does
-        x = pos[a, 0] - fpar[X_MIN]
-        y = pos[a, 1] - fpar[Y_MIN]
-        if x < 0.0 or y < 0.0 or x > width - 1 or y > height - 1:
-            pos[a, 0] = fpar[START_X]
-            pos[a, 1] = fpar[START_Y]
-            resets[a] += 1
-            events[a, EV_RESET] = 1
+        _act_one(a, width, height, pos, heading, fpar, steps, actions, events, distance, resets)
+
+
+@njit(cache=True, parallel=True)
+def _act_parallel(width, height, pos, heading, fpar, steps, actions, events, distance, resets):
+    for a in prange(pos.shape[0]):
+        _act_one(a, width, height, pos, heading, fpar, steps, actions, events, distance, resets)
