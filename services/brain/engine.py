@@ -29,7 +29,7 @@ import dataclasses
 import math
 
 import numpy as np
-from numba import get_num_threads, njit, prange
+from numba import get_num_threads, njit, prange, typeof
 
 from spikinglab.params import LEARNING_FIELDS, PARALLEL_FROM, agent_columns
 from spikinglab.snapshots import copy_into
@@ -446,6 +446,7 @@ class Engine:
             self._call, self._args = parallel, self._args + (get_num_threads(),)
         else:
             self._call = serial
+        self._compiled = None  # the kernel's compiled entry point, once the first step has resolved it
         self.training = training
         self.reset()
 
@@ -482,13 +483,17 @@ class Engine:
         if feed is None:
             feed = self.no_feed
         elif (type(feed) is not np.ndarray or feed.dtype != np.float64 or feed.shape != self.no_feed.shape
-              or not feed.flags.c_contiguous):
+              or not feed.flags.c_contiguous or not feed.flags.writeable):
             feed = self._checked_feed(feed)
-        self._call(feed, *self._args)
+        if self._compiled is None:  # the first step compiles (or loads) the kernel for these argument types
+            self._call(feed, *self._args)
+            self._compiled = self._call.overloads[tuple(typeof(x) for x in (feed, *self._args))].entry_point
+        else:  # the compiled kernel itself: numba's dispatcher would type-check all 17 arguments every tick
+            self._compiled(feed, *self._args)
         return self.spiked
 
     def _checked_feed(self, feed) -> np.ndarray:
-        feed = np.ascontiguousarray(feed, dtype=np.float64)
+        feed = np.array(feed, dtype=np.float64, order="C")  # a copy: writeable, as the kernel's type says
         if feed.shape != self.no_feed.shape:
             raise ValueError(f"feed must have shape {self.no_feed.shape} (agents, inputs), got {feed.shape}")
         return feed
