@@ -99,9 +99,6 @@ def evaluate(params: Mapping, ticks: int, seeds=range(4), *, circuit: str | Circ
     --agents`, and the sweep's seed s). Returns arrays [settings, seeds]: "learning_time" (the last
     tick on a noxious patch before `learned_after` ticks off them; -1: not within `ticks`),
     "collisions", "food", and "collisions_last_quarter" (of the run's collision bins)."""
-    unknown = sorted(set(params) - set(AGENT_PARAMS))
-    if unknown:
-        raise ValueError(f"unknown per-agent parameters {unknown} (known: {', '.join(AGENT_PARAMS)})")
     seeds = np.asarray(list(seeds), np.int64)
     n = setting_count(params)
     columns = agent_columns(n, params)

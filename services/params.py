@@ -42,15 +42,15 @@ LEARNING_FIELDS = ("a_plus", "a_minus", "tau_plus", "tau_minus", "w_max")
 def agent_columns(agents: int, params: Mapping | None, side: str | None = None) -> dict[str, np.ndarray]:
     """The given columns as float arrays [agents] (a number: the same for all), checked.
 
-    `side`: keep only that side's columns (the others are someone else's). ValueError names an
-    unknown column, a column of the wrong length, or a value out of range."""
+    `side`: the columns are for that side only ("brain" or "world"). ValueError names an unknown
+    column, one of the other side, a column of the wrong length, or a value out of range."""
     out = {}
     for name, values in (params or {}).items():
         if name not in AGENT_PARAMS:
             raise ValueError(f"unknown per-agent parameter {name!r} (known: {', '.join(AGENT_PARAMS)})")
         p = AGENT_PARAMS[name]
         if side is not None and p.side != side:
-            continue
+            raise ValueError(f"per-agent parameter {name} is the {p.side}'s, not the {side}'s")
         try:
             column = np.broadcast_to(np.asarray(values, dtype=np.float64), (agents,)).copy()
         except ValueError:

@@ -114,7 +114,7 @@ def test_evaluate_gives_metrics_per_setting_and_seed_as_the_insects_alone():
     ({"tau_plus": [11.0, 0.0]}, "tau_plus: agent 1 has 0.0, it must be a finite number > 0"),
     ({"a_plus": [0.02, np.nan]}, "a_plus: agent 1 has nan"),
     ({"w_max": [15.0, 4.0]}, "out of range [1.0, 4.0]"),  # below the circuit's initial plastic weights
-    ({"move_step": 0.5}, "are the world's, not the brain's"),
+    ({"move_step": 0.5}, "per-agent parameter move_step is the world's, not the brain's"),
 ])
 def test_a_wrong_column_is_refused_naming_it(params, problem):
     world = World(agents=2)

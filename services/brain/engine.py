@@ -389,7 +389,6 @@ class Engine:
         self.seeds = seed + np.arange(agents, dtype=np.int64) if np.ndim(seed) == 0 else np.asarray(seed, np.int64)
         if self.seeds.shape != (agents,):
             raise ValueError(f"seed: one number, or one per agent ({agents}), got {self.seeds.shape[0]}")
-        self.seed = int(self.seeds[0])
         c = circuit
         self.n_neurons, self.n_inputs, self.n_synapses = len(c.neuron_names), len(c.inputs), len(c.synapses)
         self.syn = np.array(
@@ -403,9 +402,6 @@ class Engine:
             [[i.pulses, np.nan if i.at_start is None else i.at_start] for i in c.inputs], dtype=np.float64
         ).reshape(self.n_inputs, 2)
         self.params = agent_columns(agents, params, "brain")
-        unknown = sorted(set(params or {}) - set(self.params))
-        if unknown:
-            raise ValueError(f"per-agent parameters {unknown} are the world's, not the brain's")
         self.lrn = learning_tables(c, self.params, agents)
         self.initial_weights = initial_weights(c, self.params, agents)
         max_delay = max((sy.delay for sy in c.synapses), default=1)

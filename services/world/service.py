@@ -106,14 +106,15 @@ class Brains:
         self.shards = [(i + 1, shards) for i in range(shards)]
         self.slices = [(agents * i // shards, agents * (i + 1) // shards) for i in range(shards)]
         self.names = ["brain" if shards == 1 else f"brain shard {i}/{n}" for i, n in self.shards]
+        self.waited_for = ["a brain" if shards == 1 else name for name in self.names]  # "waiting for ... to subscribe"
         self.sensors = [bus.outbox(keys.sensors(group, s)) for s in self.shards]
         self.presences = [bus.presence(keys.brain_service(s)) for s in self.shards]
         self.motor = bus.inbox(keys.motor(group), Motor)
         self.index = {lo: k for k, (lo, _) in enumerate(self.slices)}  # a slice by its first agent
 
     def wait(self) -> None:
-        for outbox, name, presence in zip(self.sensors, self.names, self.presences):
-            wait_for_subscriber(outbox, f"a {name}" if name == "brain" else name, presence)
+        for outbox, what, presence in zip(self.sensors, self.waited_for, self.presences):
+            wait_for_subscriber(outbox, what, presence)
 
     def send(self, world: World, tick: int, run_id: str, checkpoint: bool = False) -> list[Sensors]:
         """What the world's insects sense for `tick`, each shard's slice sent to it (the seed: the
@@ -137,7 +138,7 @@ class Brains:
                 for k in (k for k, a in enumerate(answers) if a is None):
                     if not self.presences[k].alive:
                         log.warning("%s lost at tick %d: waiting for it to come back", self.names[k], t)
-                        wait_for_subscriber(self.sensors[k], self.names[k], self.presences[k])
+                        wait_for_subscriber(self.sensors[k], self.waited_for[k], self.presences[k])
                         log.info("%s back: continuing at tick %d", self.names[k], t)
                     self.sensors[k].put(requests[k])
                 continue

@@ -224,9 +224,6 @@ class World:
         if self.numbers.shape != (agents,) or (self.numbers < 0).any():
             raise ValueError(f"numbers: one agent number >= 0 per agent ({agents}), got {list(self.numbers)[:8]}")
         columns = agent_columns(agents, agent_params, "world")
-        unknown = sorted(set(agent_params or {}) - set(columns))
-        if unknown:
-            raise ValueError(f"per-agent parameters {unknown} are the brain's, not the world's")
         # per agent: degrees per ROTATE spike, patches per MOVE spike
         self.steps = np.column_stack([columns.get("rotation_step", np.full(agents, p.rotation_step)),
                                       columns.get("move_step", np.full(agents, p.move_step))])
