@@ -14,7 +14,7 @@ from collections.abc import Callable, Mapping
 import numpy as np
 from numba import njit
 
-from spikinglab.brain.brain import Brain
+from spikinglab.brain.brain import Brain, bind
 from spikinglab.brain.circuit import Circuit, load_circuit
 from spikinglab.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, _netlogo_serial, _step_serial
 from spikinglab.params import AGENT_PARAMS, agent_columns, setting_count
@@ -61,7 +61,7 @@ def fused_loop(world: World, brain: Brain, ticks: int) -> None:
         if world.tick % BIN == 0:
             world.metrics.bins.append(world._bin.copy())
             world._bin[:] = 0
-    brain.actions[:, brain._action_cols] = engine.spiked[:, brain._actuators]
+    bind(engine.spiked, brain._actuators, brain._action_cols, brain.actions)
 
 
 @njit(cache=True)

@@ -29,8 +29,9 @@ import dataclasses
 import math
 
 import numpy as np
-from numba import get_num_threads, njit, prange, typeof
+from numba import get_num_threads, njit, prange
 
+from spikinglab.kernels import Kernel
 from spikinglab.params import LEARNING_FIELDS, PARALLEL_FROM, agent_columns
 from spikinglab.snapshots import copy_into
 
@@ -439,10 +440,9 @@ class Engine:
             self._args += (np.zeros(N + 1, np.uint64), np.zeros(0, np.uint64), np.zeros(A, np.uint64), 0)
         self.serial_args = self._args  # a serial tick's arguments after the feed (spikinglab.loop fuses it)
         if agents >= PARALLEL_FROM:
-            self._call, self._args = parallel, self._args + (get_num_threads(),)
+            self._call, self._args = Kernel(parallel), self._args + (get_num_threads(),)
         else:
-            self._call = serial
-        self._compiled = None  # the kernel's compiled entry point, once the first step has resolved it
+            self._call = Kernel(serial)
         self.training = training
         self.reset()
 
@@ -481,11 +481,7 @@ class Engine:
         elif (type(feed) is not np.ndarray or feed.dtype != np.float64 or feed.shape != self.no_feed.shape
               or not feed.flags.c_contiguous or not feed.flags.writeable):
             feed = self._checked_feed(feed)
-        if self._compiled is None:  # the first step compiles (or loads) the kernel for these argument types
-            self._call(feed, *self._args)
-            self._compiled = self._call.overloads[tuple(typeof(x) for x in (feed, *self._args))].entry_point
-        else:  # the compiled kernel itself: numba's dispatcher would type-check all 17 arguments every tick
-            self._compiled(feed, *self._args)
+        self._call(feed, *self._args)
         return self.spiked
 
     def _checked_feed(self, feed) -> np.ndarray:

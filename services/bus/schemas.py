@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import re
 import secrets
+import struct
 from typing import Annotated
 
 import msgspec
@@ -32,6 +33,7 @@ EMPTY, BLACK, RED, GREEN = 0, 1, 2, 3
 EVENT_COLUMNS = ("collision", "ate", "reset", "learned")
 EV_COLLISION, EV_ATE, EV_RESET, EV_LEARNED = range(len(EVENT_COLUMNS))
 _MAX_ELEMENTS = 1 << 26
+_ITEMSIZE = {"<f8": 8, "<f4": 4, "<i8": 8, "|u1": 1}  # the dtypes messages carry
 
 
 class BusError(ValueError):
@@ -50,15 +52,20 @@ class Array(msgspec.Struct, frozen=True):
             a = a.astype(a.dtype.newbyteorder("<"))
         return cls(a.dtype.str, tuple(a.shape), a.tobytes())
 
-    def numpy(self, field: str, dtype: str, ndim: int) -> np.ndarray:
-        """The array, checked: dtype, number of dimensions, and byte length agree."""
+    def check(self, field: str, dtype: str, ndim: int) -> None:
+        """BusError unless dtype, number of dimensions, and byte length agree. Plain Python, no
+        array made: on the lock-step path every numpy call costs ~5 us with cold caches."""
         if self.dtype != dtype:
             raise BusError(f"{field}: dtype {self.dtype!r}, expected {dtype!r}")
         if len(self.shape) != ndim or any(n < 0 for n in self.shape):
             raise BusError(f"{field}: shape {list(self.shape)}, expected {ndim} non-negative dimensions")
         count = math.prod(self.shape)
-        if count > _MAX_ELEMENTS or count * np.dtype(dtype).itemsize != len(self.data):
+        if count > _MAX_ELEMENTS or count * _ITEMSIZE[dtype] != len(self.data):
             raise BusError(f"{field}: {len(self.data)} bytes do not hold shape {list(self.shape)} of {dtype}")
+
+    def numpy(self, field: str, dtype: str, ndim: int) -> np.ndarray:
+        """The array (read-only), checked as by check()."""
+        self.check(field, dtype, ndim)
         return np.frombuffer(self.data, dtype=dtype).reshape(self.shape)
 
 
@@ -77,6 +84,16 @@ Tick = Annotated[int, msgspec.Meta(ge=0, lt=2**62)]  # a run's ticks; rerun and 
 Coordinate = Annotated[int, msgspec.Meta(ge=-(2**31), lt=2**31)]
 AgentIndex = Annotated[int, msgspec.Meta(ge=0, lt=2**31)]
 SENSED_MAX = 2.0**31  # a sensor value is a number of ticks for the input neuron to wait (int32 counters)
+
+
+def _sensed_in_range(values: Array) -> bool:
+    """Whether every sensed value (not NaN) is in [0, SENSED_MAX): in plain Python for a few
+    agents' readings (a lock-step tick's, where numpy's calls cost more than the work), numpy for more."""
+    if len(values.data) <= 8 * 64:
+        return all(0 <= x < SENSED_MAX for x in struct.unpack(f"<{len(values.data) // 8}d", values.data) if x == x)
+    sensed = values.numpy("values", "<f8", 2)
+    sensed = sensed[~np.isnan(sensed)]
+    return bool(((sensed >= 0) & (sensed < SENSED_MAX)).all())
 
 
 class Message(msgspec.Struct, tag_field="kind", frozen=True, kw_only=True):
@@ -98,13 +115,13 @@ class Sensors(Message, tag="sensors", kw_only=True):
     first: AgentIndex = 0  # a shard's slice: the population's index of its first agent (netlogo order: seed + index)
 
     def check(self):
-        values = self.values.numpy("values", "<f8", 2)
-        if values.shape[1] != len(self.names):
-            raise BusError(f"values has {values.shape[1]} columns for {len(self.names)} sensor names")
-        if values.shape[0] == 0:
+        self.values.check("values", "<f8", 2)
+        agents, columns = self.values.shape
+        if columns != len(self.names):
+            raise BusError(f"values has {columns} columns for {len(self.names)} sensor names")
+        if agents == 0:
             raise BusError("values for no agent")
-        sensed = values[~np.isnan(values)]
-        if not ((sensed >= 0) & (sensed < SENSED_MAX)).all():
+        if not _sensed_in_range(self.values):
             raise BusError("values: a sensor value outside [0, 2**31) (NaN: nothing sensed)")
 
 
@@ -118,9 +135,9 @@ class Motor(Message, tag="motor", kw_only=True):
     first: AgentIndex = 0  # a shard's answer: the index of its first agent, as its sensors said
 
     def check(self):
-        actions = self.actions.numpy("actions", "|u1", 2)
-        if actions.shape[1] != len(self.names):
-            raise BusError(f"actions has {actions.shape[1]} columns for {len(self.names)} action names")
+        self.actions.check("actions", "|u1", 2)
+        if self.actions.shape[1] != len(self.names):
+            raise BusError(f"actions has {self.actions.shape[1]} columns for {len(self.names)} action names")
 
 
 class Control(Message, tag="control", kw_only=True):
@@ -221,27 +238,34 @@ class WorldMap(Message, tag="world_map", kw_only=True):
 
 
 class TickBatch:
-    """Arrays of consecutive ticks, collected until there are `size` of them; `take()` gives the
-    first tick and each array stacked on a leading tick axis (for BrainState and WorldState)."""
+    """Arrays of consecutive ticks, kept until there are `size` of them; `take()` gives the first
+    tick and each array with a leading tick axis (for BrainState and WorldState). The buffers are
+    made at the first add(), each [size, ...] of that array's shape and dtype, so a tick costs one
+    copy per array (the recorded lock-step loop adds every tick)."""
 
     def __init__(self, size: int):
-        self.size, self.first = size, None
-        self.rows: dict[str, list] = {}
+        self.size, self.first, self.count = size, None, 0
+        self.rows: dict[str, np.ndarray] = {}
 
     def add(self, tick: int, **arrays) -> None:
         if self.first is None:
             self.first = tick
         for name, value in arrays.items():
-            self.rows.setdefault(name, []).append(np.array(value, copy=True))
+            rows = self.rows.get(name)
+            if rows is None:
+                value = np.asarray(value)
+                rows = self.rows[name] = np.empty((self.size, *value.shape), value.dtype)
+            rows[self.count] = value
+        self.count += 1
 
     @property
     def full(self) -> bool:
-        return self.first is not None and len(next(iter(self.rows.values()))) >= self.size
+        return self.count >= self.size
 
     def take(self) -> tuple[int, dict[str, np.ndarray]]:
-        first, rows = self.first, self.rows
-        self.first, self.rows = None, {}
-        return first, {name: np.stack(values) for name, values in rows.items()}
+        first, count = self.first, self.count
+        self.first, self.count = None, 0
+        return first, {name: rows[:count].copy() for name, rows in self.rows.items()}
 
 
 KINDS = (Sensors, Motor, Control, BrainState, BrainLayout, WorldState, WorldMap)

@@ -33,6 +33,7 @@ from spikinglab.bus.schemas import (
     INSECT_SENSORS,
     RED,
 )
+from spikinglab.kernels import Kernel
 from spikinglab.params import PARALLEL_FROM, agent_columns
 from spikinglab.snapshots import copy_into
 
@@ -42,6 +43,8 @@ SENSORS, ACTIONS = INSECT_SENSORS, INSECT_ACTIONS
 PAIN, REWARD = SENSORS.index("pain"), SENSORS.index("reward")
 BIN = 1000  # ticks per bin of the collision counts (metrics.bins)
 ROTATE, MOVE = ACTIONS.index("rotate"), ACTIONS.index("move")
+_NO_CHANGES = np.zeros((0, 4), np.int64)
+_NO_CHANGES.flags.writeable = False
 
 
 def world_actions(names, actions: np.ndarray) -> np.ndarray:
@@ -245,9 +248,10 @@ class World:
         # large populations: each kernel a loop across agents on every core (numba's threads); the
         # same result, as agents are independent (but for food in a shared arena: first come)
         large = self.world_kernels_parallel = agents >= PARALLEL_FROM
-        self._sense = _sense_parallel if large else _sense
-        self._touch = _touch_parallel if large and not shared else _touch
-        self._act = _act_parallel if large else _act
+        self._sense = Kernel(_sense_parallel if large else _sense)
+        self._touch = Kernel(_touch_parallel if large and not shared else _touch)
+        self._act = Kernel(_act_parallel if large else _act)
+        self._actions = np.zeros((agents, len(ACTIONS)), np.uint8)  # act()'s, in the type its kernel was compiled for
         self.kind = np.zeros(4, dtype=np.uint8)  # per colour: 1 noxious, 2 rewarding
         for c in p.noxious:
             self.kind[c] = 1
@@ -286,17 +290,22 @@ class World:
     def changes(self) -> np.ndarray:
         """The patches that changed in this tick's act(): rows (arena, x index, y index, colour)."""
         who = np.flatnonzero(self.eaten[:, 0] >= 0)
+        if len(who) == 0:  # most ticks (the recorded loop asks every tick)
+            return _NO_CHANGES
         return np.column_stack([self.arena_of[who], self.eaten[who], np.full(len(who), EMPTY)]).astype(np.int64)
 
     def act(self, actions: np.ndarray) -> None:
         """End tick self.tick: the patch touched (collision, push, food, learning time), then the
         actions [A, len(ACTIONS)] (nonzero: that actuator spiked), then the boundary check."""
+        if actions.shape != self._actions.shape:
+            raise ValueError(f"actions of shape {actions.shape}, expected {self._actions.shape} (agents, actions)")
+        self._actions[:] = actions
         m = self.metrics
         self._touch(self.grid, self.arena_of, self.pos, self.heading, self.fpar, self.kind, self.training, self.tick,
                self.last_patch, self.events, self.eaten, m.collisions, m.collisions_by_colour, m.food, m.distance,
                m.last_collision, m.last_noxious, m.learned_at, self._bin)
         self._act(self.grid.shape[1], self.grid.shape[2], self.pos, self.heading, self.fpar, self.steps,
-             np.ascontiguousarray(actions, dtype=np.uint8), self.events, self.metrics.distance,
+             self._actions, self.events, self.metrics.distance,
              self.metrics.resets)
         self.tick += 1
         if self.tick % BIN == 0:

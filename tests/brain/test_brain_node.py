@@ -97,3 +97,22 @@ def test_tick_zero_of_another_run_is_a_new_run_once_the_run_served_is_quiet():
 
 def initial_weights():
     return Brain(CIRCUIT, INSECT_SENSORS, tuple(CIRCUIT.actuators), agents=AGENTS).engine.get_weights()
+
+
+def test_sensors_and_actions_are_bound_by_name_in_any_order():
+    """The world's columns in another order, and an action the circuit does not drive, give the
+    same spikes; a reading of another shape is refused before the compiled binding reads it."""
+    feeds = [sensors(t).values.numpy("values", "<f8", 2) for t in range(300)]
+    order = [4, 2, 0, 3, 1]
+    plain = Brain(CIRCUIT, INSECT_SENSORS, INSECT_ACTIONS, agents=AGENTS, seed=5)
+    shuffled = Brain(CIRCUIT, tuple(INSECT_SENSORS[k] for k in order), ("jump",) + INSECT_ACTIONS[::-1],
+                     agents=AGENTS, seed=5)
+    fired = 0
+    for feed in feeds:
+        expected = plain.step(feed)
+        got = shuffled.step(np.ascontiguousarray(feed[:, order]))
+        np.testing.assert_array_equal(got, np.c_[np.zeros(AGENTS, np.uint8), expected[:, ::-1]])
+        fired += int(expected.sum())
+    assert fired > 0
+    with pytest.raises(ValueError, match=r"sensors of shape \(1, 5\), expected \(3, 5\)"):
+        plain.step(feeds[0][:1])

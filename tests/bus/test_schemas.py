@@ -3,6 +3,7 @@
 import msgspec
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from spikinglab.bus import keys
 from spikinglab.bus.schemas import (
@@ -79,3 +80,21 @@ def test_keys():
     for bad in ("a/b", "*", "", "x y"):
         with pytest.raises(ValueError, match="one key segment"):
             keys.motor(bad)
+
+
+SENSED = st.one_of(st.just(np.nan), st.floats(allow_nan=False), st.sampled_from([0.0, -0.0, 2.0**31, 2.0**31 - 1]))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(SENSED, min_size=5, max_size=5), st.integers(1, 3))
+def test_sensor_values_are_checked_alike_for_few_agents_and_many(row, agents):
+    """A reading of a few agents is range-checked in plain Python, one of many with numpy (the
+    lock-step tick's reading is small): both take exactly the values in [0, 2**31) or NaN."""
+    ok = all(np.isnan(x) or 0 <= x < 2**31 for x in row)
+    for n in (agents, 100 * agents):  # below and above the plain-Python path's size
+        message = Sensors(tick=1, names=tuple("abcde"), values=Array.of(np.array([row] * n)))
+        if ok:
+            assert decode(encode(message), Sensors) == message
+        else:
+            with pytest.raises(BusError, match="a sensor value outside"):
+                decode(encode(message), Sensors)

@@ -214,3 +214,13 @@ def test_wrong_map_files_say_where(tmp_path, text, problem):
         load_map(path)
     with pytest.raises(MapError, match="cannot read map file"):
         load_map(tmp_path / "missing.txt")
+
+
+def test_actions_of_another_shape_are_refused_and_other_integer_types_taken():
+    w, same = World(params_for("paper"), agents=2, seed=3), World(params_for("paper"), agents=2, seed=3)
+    with pytest.raises(ValueError, match=r"actions of shape \(1, 2\), expected \(2, 2\)"):
+        w.act(np.array([[0, 1]], np.uint8))  # would have moved every agent by broadcasting
+    assert w.tick == 0 and (w.pos == same.pos).all()
+    w.act(np.array([[1, 1], [0, 1]], np.int64))
+    same.act(np.array([[1, 1], [0, 1]], np.uint8))
+    assert (w.pos == same.pos).all() and (w.heading == same.heading).all() and w.heading[0] != w.heading[1]
