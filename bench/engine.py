@@ -1,6 +1,8 @@
 """Engine benchmark: the insect circuit, random sensor input, training on.
 
-single: ticks/s of one agent through Engine.step(feed), the per-tick call a closed loop makes.
+single: ticks/s of one agent through Engine.step(feed), the per-tick call a closed loop makes,
+        and through Engine.run(feeds), all ticks in one compiled call (as Brian2's standalone mode
+        runs a whole simulation in C++).
 batch:  agent-ticks/s of A = 1000 agents stepped together.
 Both for each semantics (phased, netlogo with its random order), on the same feeds.
 The last line printed is JSON. Run: `spikinglab bench engine` or `python -m spikinglab.bench.engine`.
@@ -42,6 +44,16 @@ def best_rate(engine, feeds, repeats, agents=1):
     return max(rates[1:])
 
 
+def best_run_rate(engine, feeds, repeats):
+    """Best of `repeats` run() calls over all of `feeds`, one agent, in ticks per second."""
+    rates = []
+    for _ in range(repeats + 1):  # the first compiles or loads the runner
+        t0 = time.perf_counter()
+        engine.run(feeds)
+        rates.append(len(feeds) / (time.perf_counter() - t0))
+    return max(rates[1:])
+
+
 def main(argv=None) -> dict:
     parser = Parser(prog="spikinglab bench engine", description=__doc__.splitlines()[0])
     parser.add_argument("--ticks", type=int, default=200_000, help="ticks per pass for one agent")
@@ -65,6 +77,8 @@ def main(argv=None) -> dict:
         feeds = random_feeds(rng, circuit, args.ticks, 1)
         single_rate = best_rate(single, feeds, args.repeats)
         print(f"{semantics}: single agent {single_rate:,.0f} ticks/s ({1e6 / single_rate:.2f} us per step)")
+        run_rate = best_run_rate(single, feeds, args.repeats)
+        print(f"{semantics}: single agent, {args.ticks:,} ticks in one run() call: {run_rate:,.0f} ticks/s")
 
         feeds = random_feeds(rng, circuit, args.batch_ticks, args.agents)
         batch_rate = best_rate(batch, feeds, args.repeats, agents=args.agents)
@@ -73,6 +87,7 @@ def main(argv=None) -> dict:
               f"({spikes / args.agents / 100:.2f} spikes per agent per tick; training on)")
         prefix = "" if semantics == "phased" else f"{semantics}_"
         result[f"{prefix}single_ticks_per_s"] = round(single_rate)
+        result[f"{prefix}single_run_ticks_per_s"] = round(run_rate)
         result[f"{prefix}batch{args.agents}_agent_ticks_per_s"] = round(batch_rate)
         batches[semantics] = (batch, feeds)
     ratio = result[f"netlogo_batch{args.agents}_agent_ticks_per_s"] / result[f"batch{args.agents}_agent_ticks_per_s"]

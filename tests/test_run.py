@@ -71,7 +71,8 @@ def test_benchmarks_run_and_end_with_json():
     done = spikinglab("bench", "engine", "--ticks", 2000, "--batch-ticks", 20, "--repeats", 1, "--rounds", 2)
     assert done.returncode == 0, done.stderr
     figures = json.loads(done.stdout.strip().splitlines()[-1])
-    assert set(figures) == {"single_ticks_per_s", "batch1000_agent_ticks_per_s", "netlogo_single_ticks_per_s",
+    assert set(figures) == {"single_ticks_per_s", "single_run_ticks_per_s", "batch1000_agent_ticks_per_s",
+                            "netlogo_single_ticks_per_s", "netlogo_single_run_ticks_per_s",
                             "netlogo_batch1000_agent_ticks_per_s", "netlogo_over_phased_batch1000_median"}
     assert all(v > 0 for v in figures.values())
     assert spikinglab("bench", "nothing").returncode != 0

@@ -354,6 +354,22 @@ def _netlogo_parallel(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spik
 
 
 
+@njit(cache=True)
+def _run_serial(feeds, netlogo, out, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
+                out_start, out_syn, order_key, rules):
+    """Engine.run's ticks in one call: feeds [T, A, inputs] -> out [T, A, nodes]."""
+    for k in range(feeds.shape[0]):
+        if netlogo:
+            _netlogo_serial(feeds[k], clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
+                            out_start, out_syn, order_key, rules)
+        else:
+            _step_serial(feeds[k], clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
+                         out_start, out_syn, order_key, rules)
+        for a in range(spiked.shape[1]):
+            for n in range(spiked.shape[0]):
+                out[k, a, n] = spiked[n, a] != 0
+
+
 class Engine:
     """A agents of one circuit (same synapses, independent potentials, pulses and weights).
 
@@ -528,10 +544,18 @@ class Engine:
         self.w[:] = weights
 
     def run(self, feeds: np.ndarray) -> np.ndarray:
-        """Step len(feeds) ticks with feeds [T, A, inputs]; returns the spikes [T, A, nodes]."""
+        """Step len(feeds) ticks with feeds [T, A, inputs]; returns the spikes [T, A, nodes]. For
+        the populations stepped on one thread, all T ticks are one compiled call (no Python
+        between ticks: a per-tick step() is bound by passing its 17 arrays into the kernel)."""
+        feeds = np.ascontiguousarray(feeds, dtype=np.float64)  # only read by the kernels
+        if feeds.ndim != 3 or feeds.shape[1:] != self.no_feed.shape:
+            raise ValueError(f"feeds must have shape (ticks, {self.agents}, {self.n_inputs}), got {feeds.shape}")
         out = np.zeros((len(feeds), self.agents, self.n_neurons + self.n_inputs), dtype=bool)
-        for k in range(len(feeds)):
-            out[k] = self.step(feeds[k])
+        if self.agents < PARALLEL_FROM:
+            _run_serial(feeds, self.semantics == "netlogo", out, *self.serial_args)
+        else:
+            for k in range(len(feeds)):
+                out[k] = self.step(feeds[k])
         return out
 
 

@@ -65,3 +65,21 @@ def test_weights_get_and_set():
         e.set_weights(np.ones((3, len(c.synapses))))
     with pytest.raises(ValueError, match="shape"):
         e.step(np.zeros((2, 1)))
+
+
+@pytest.mark.parametrize("semantics", ["phased", "netlogo"])
+def test_run_in_one_call_equals_step_by_step(semantics):
+    """run() steps all its ticks in one compiled call: the same spikes, potentials and weights as
+    step() tick by tick, and it refuses feeds of another shape."""
+    from spikinglab.brain.engine import Engine
+    c = load_circuit("insect").with_learning_rate(0.05)
+    feeds = random_feeds(2, 2000, 3, len(c.inputs))
+    whole, stepped = Engine(c, agents=3, semantics=semantics, seed=4), Engine(c, agents=3, semantics=semantics, seed=4)
+    spikes = whole.run(feeds)
+    np.testing.assert_array_equal(spikes, np.array([stepped.step(f).copy() for f in feeds]))
+    assert spikes.any(axis=(0, 1))[c.neuron_index("PAIN")]
+    for name in ("v", "w", "state", "hist"):
+        np.testing.assert_array_equal(getattr(whole, name), getattr(stepped, name))
+    assert whole.tick == stepped.tick == 2000
+    with pytest.raises(ValueError, match=r"feeds must have shape \(ticks, 3, 6\)"):
+        whole.run(feeds[:, :2])
