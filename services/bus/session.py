@@ -442,6 +442,10 @@ def service_main(name: str, parser: argparse.ArgumentParser, run, argv=None, int
     service saves, flushes or reports on its way out), a dead thread ends it, the session, then
     run(args, session)."""
     logging.basicConfig(level=logging.INFO, format=f"%(asctime)s {name} %(levelname)s %(message)s", stream=sys.stderr)
+    # numba's OpenMP threads spin after each parallel kernel by default, on the cores that the other
+    # side of a lock-step tick needs next: sleeping at once made world + brain 1.4-1.6x faster at
+    # A = 1,000-16,000 on 2 cores (docs/results.md). Read when OpenMP loads, at the first kernel.
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     args = parser.parse_args(argv)
     signal.signal(signal.SIGTERM, signal.default_int_handler)
     guard_threads()
