@@ -352,8 +352,6 @@ def _netlogo_parallel(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spik
     clock[TICK] += 1
 
 
-
-
 @njit(cache=True)
 def _run_serial(feeds, netlogo, out, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
                 out_start, out_syn, order_key, rules):
