@@ -51,7 +51,7 @@ class Brain:
         return self.actions
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")  # inlined into the fused loop as its loops were
 def bind(source, source_cols, target_cols, target):
     """target[:, target_cols] = source[:, source_cols] for every agent (row): compiled, as numpy's
     two fancy-indexing calls cost 2 us each at one agent and many times that on a lock-step tick."""

@@ -55,8 +55,8 @@ NETLOGO_RULES = {
 
 # npar columns: per neuron, these fields of its type (circuit.NeuronType), then the offset of dt = 0
 # in W(dt)
-NEURON_COLUMNS = ("rest", "threshold", "decay", "refractory_potential", "refractory_period", "floor", "w_min", "w_max")
-REST, THRESHOLD, DECAY, REFR_V, REFR_PERIOD, FLOOR, W_MIN, W_MAX, STDP_OFFSET = range(len(NEURON_COLUMNS) + 1)
+NEURON_COLUMNS = ("rest", "threshold", "decay", "refractory_potential", "refractory_period", "floor")
+REST, THRESHOLD, DECAY, REFR_V, REFR_PERIOD, FLOOR, STDP_OFFSET = range(len(NEURON_COLUMNS) + 1)
 # learning: stdp[group, profile] holds w_min, w_max, then the table W(dt) (stdp.py), for the agents of
 # one group of per-agent parameters (group[a]) and the neurons of one profile (profile[n])
 LO, HI, TABLE = 0, 1, 2
@@ -352,17 +352,26 @@ def _netlogo_parallel(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spik
     clock[TICK] += 1
 
 
+@njit(cache=True, inline="always")
+def serial_tick(netlogo, feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
+                out_start, out_syn, order_key, rules):
+    """One tick of either semantics on one thread, for compiled loops of many ticks (Engine.run,
+    spikinglab.loop's fused loop); the arguments after the feed are Engine.serial_args."""
+    if netlogo:
+        _netlogo_serial(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
+                        out_start, out_syn, order_key, rules)
+    else:
+        _step_serial(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
+                     out_start, out_syn, order_key, rules)
+
+
 @njit(cache=True)
 def _run_serial(feeds, netlogo, out, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
                 out_start, out_syn, order_key, rules):
     """Engine.run's ticks in one call: feeds [T, A, inputs] -> out [T, A, nodes]."""
     for k in range(feeds.shape[0]):
-        if netlogo:
-            _netlogo_serial(feeds[k], clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
-                            out_start, out_syn, order_key, rules)
-        else:
-            _step_serial(feeds[k], clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
-                         out_start, out_syn, order_key, rules)
+        serial_tick(netlogo, feeds[k], clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
+                    out_start, out_syn, order_key, rules)
         for a in range(spiked.shape[1]):
             for n in range(spiked.shape[0]):
                 out[k, a, n] = spiked[n, a] != 0
