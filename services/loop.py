@@ -82,6 +82,22 @@ def _fused(ticks, netlogo, t0, world_training, grid, arena_of, pos, heading, fpa
         _act(grid.shape[1], grid.shape[2], pos, heading, fpar, steps, actions, events, distance, resets)
 
 
+def population(params: Mapping, seeds, *, circuit: str | Circuit = "insect", preset: str = "paper",
+               learned_after: int = 5000, semantics: str = DEFAULT_SEMANTICS,
+               order: str = "random") -> tuple[World, Brain]:
+    """World and brain of every parameter setting on every seed, as one population: agent
+    k * len(seeds) + j is setting k on seed j (`evaluate` has the arguments' meaning)."""
+    seeds = np.asarray(list(seeds), np.int64)
+    n = setting_count(params)
+    per_agent = {k: np.repeat(v, len(seeds)) for k, v in agent_columns(n, params).items()}  # a setting's seeds together
+    side = {s: {k: v for k, v in per_agent.items() if AGENT_PARAMS[k].side == s} for s in ("world", "brain")}
+    world = World(params_for(preset, learned_after=learned_after), agents=n * len(seeds), seed=0,
+                  numbers=np.tile(seeds, n), agent_params=side["world"])
+    brain = brain_for(world, load_circuit(circuit) if not isinstance(circuit, Circuit) else circuit,
+                      params=side["brain"], semantics=semantics, order=order)
+    return world, brain
+
+
 def evaluate(params: Mapping, ticks: int, seeds=range(4), *, circuit: str | Circuit = "insect",
              preset: str = "paper", learned_after: int = 5000, semantics: str = DEFAULT_SEMANTICS,
              order: str = "random") -> dict[str, np.ndarray]:
@@ -93,17 +109,11 @@ def evaluate(params: Mapping, ticks: int, seeds=range(4), *, circuit: str | Circ
     --agents`, and the sweep's seed s). Returns arrays [settings, seeds]: "learning_time" (the last
     tick on a noxious patch before `learned_after` ticks off them; -1: not within `ticks`),
     "collisions", "food", and "collisions_last_quarter" (of the run's collision bins)."""
-    seeds = np.asarray(list(seeds), np.int64)
-    n = setting_count(params)
-    columns = agent_columns(n, params)
-    agents = n * len(seeds)
-    per_agent = {k: np.repeat(v, len(seeds)) for k, v in columns.items()}  # setting-major: its seeds together
-    side = {s: {k: v for k, v in per_agent.items() if AGENT_PARAMS[k].side == s} for s in ("world", "brain")}
-    world = World(params_for(preset, learned_after=learned_after), agents=agents, seed=0,
-                  numbers=np.tile(seeds, n), agent_params=side["world"])
-    brain = brain_for(world, load_circuit(circuit) if not isinstance(circuit, Circuit) else circuit,
-                      params=side["brain"], semantics=semantics, order=order)
+    seeds = list(seeds)
+    world, brain = population(params, seeds, circuit=circuit, preset=preset, learned_after=learned_after,
+                              semantics=semantics, order=order)
     closed_loop(world, brain, ticks)
+    n, agents = setting_count(params), world.agents
     m = world.metrics
     bins = np.array(m.bins, np.int64).reshape(-1, agents)
     last_quarter = bins[-max(len(bins) // 4, 1):].sum(axis=0) if len(bins) else np.zeros(agents, np.int64)

@@ -14,24 +14,20 @@ from pathlib import Path
 
 import numpy as np
 
-from spikinglab.brain.circuit import load_circuit
 from spikinglab.brain.engine import DEFAULT_SEMANTICS
 from spikinglab.brain.service import add_engine_args
 from spikinglab.learning import PAPER, all_definitions, noxious_ticks, plot_table1, stats
-from spikinglab.loop import brain_for
+from spikinglab.loop import population
 from spikinglab.options import Parser, at_least, positive
-from spikinglab.world.world import BIN, PRESETS, World, params_for
+from spikinglab.world.world import BIN, PRESETS
 
 
 def sweep(a_values: list[float], seeds: int, ticks: int, preset: str, learned_after: int, progress=None,
           semantics: str = DEFAULT_SEMANTICS, order: str = "random") -> list[dict]:
     """Every A+ = A- value on seeds 0..N-1, all as one population (agent = value-major, then seed);
     a row per value."""
-    numbers = np.tile(np.arange(seeds), len(a_values))  # seed s of every value is the same insect
-    rate = np.repeat(np.asarray(a_values, dtype=np.float64), seeds)
-    world = World(params_for(preset, learned_after=learned_after), agents=len(numbers), seed=0, numbers=numbers)
-    brain = brain_for(world, load_circuit("insect"), params={"a_plus": rate, "a_minus": rate},
-                      semantics=semantics, order=order)
+    world, brain = population({"a_plus": a_values, "a_minus": a_values}, range(seeds), preset=preset,
+                              learned_after=learned_after, semantics=semantics, order=order)
     noxious = noxious_ticks(world, brain, ticks, (lambda t: progress.update(1)) if progress else None)
     all_bins = np.array(world.metrics.bins).T  # [agents, ticks / 1000]
     rows = []
