@@ -28,16 +28,9 @@ def sharded(agents: int, shards: int, ticks: int) -> float:
     with sockets, tempfile.TemporaryDirectory() as tmp:
         world = spawn("world", ["--listen", endpoints[0], "--ticks", ticks, "--agents", agents, "--shards", shards,
                                 "--out", tmp], Path(tmp) / "world.log")
-        before = os.environ.get("NUMBA_NUM_THREADS")
-        os.environ["NUMBA_NUM_THREADS"] = threads  # each shard's share of the cores
-        try:
-            brains = [spawn("brain", ["--listen", endpoints[i + 1], "--connect", endpoints[0], "--once", "--shard",
-                                      f"{i + 1}/{shards}"], subprocess.DEVNULL) for i in range(shards)]
-        finally:
-            if before is None:
-                os.environ.pop("NUMBA_NUM_THREADS")
-            else:
-                os.environ["NUMBA_NUM_THREADS"] = before
+        brains = [spawn("brain", ["--listen", endpoints[i + 1], "--connect", endpoints[0], "--once", "--shard",
+                                  f"{i + 1}/{shards}"], subprocess.DEVNULL, env={"NUMBA_NUM_THREADS": threads})
+                  for i in range(shards)]  # each shard's share of the cores
         try:
             if world.wait(1800) != 0 or any(b.wait(120) != 0 for b in brains):
                 raise SystemExit(f"a shard or the world failed:\n{(Path(tmp) / 'world.log').read_text()[-2000:]}")

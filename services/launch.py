@@ -113,13 +113,14 @@ def options_for(service: str, args: argparse.Namespace) -> dict:
     return {name: value for name, value in vars(args).items() if name in own}
 
 
-def spawn(service: str, argv: list, output: Path | int | None = None, cwd: Path | None = None) -> subprocess.Popen:
+def spawn(service: str, argv: list, output: Path | int | None = None, cwd: Path | None = None,
+          env: dict[str, str] | None = None) -> subprocess.Popen:
     """`python -m <service's module> argv` in a session of its own: Ctrl-C in the terminal reaches
     only the launcher, which ends the services in order (the world first, so that it writes the
     ticks done). Output (stdout and stderr) goes to the file `output`, to the terminal as it is
-    (None), or to subprocess.PIPE / DEVNULL."""
+    (None), or to subprocess.PIPE / DEVNULL. `env`: variables set for this process only."""
     out = open(output, "a") if isinstance(output, Path) else output
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    env = dict(os.environ, PYTHONUNBUFFERED="1", **(env or {}))
     try:
         return subprocess.Popen([sys.executable, "-m", SERVICES.get(service, service), *map(str, argv)], stdout=out,
                                 stderr=None if out is None else subprocess.STDOUT, env=env, cwd=cwd,
