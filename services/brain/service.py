@@ -285,15 +285,15 @@ def run(args: argparse.Namespace, session) -> int:
         log.info("brain ready on group %s (%s)%s", args.group, bus.sender,
                  f", shard {args.shard[0]} of {args.shard[1]}" if args.shard[1] > 1 else "")
         kept = None  # (run, tick) whose learning was saved when the run stopped without its end
+
+        def unsaved() -> bool:  # learning of a run that has not ended, not kept yet
+            return node.brain is not None and kept != (node.run, node.last_tick)
         while True:
             message = sensors.get(timeout=0.25)
-            stopped = node.brain is not None and kept != (node.run, node.last_tick)
             if message is not None:
-                if stopped and node.starts_run(message):
+                if unsaved() and node.starts_run(message):
                     kept = keep_learning(args, node, circuit, f"run {message.run} starts before it ended")
                 serve(node, message, sensors, motor, state, circuit)
-            elif stopped and not world.alive:  # gone without an end (its end would be here by now)
-                kept = keep_learning(args, node, circuit, "its world left the bus")
             # every turn, all that waits: a flood on the control key must not pile up while the run goes on
             while (order := control.get(timeout=0)) is not None:
                 try:
@@ -313,8 +313,10 @@ def run(args: argparse.Namespace, session) -> int:
                 if args.once:
                     return 0
                 node = new_node()
+            if message is None and unsaved() and not world.alive:  # gone without an end (read above, had it come)
+                kept = keep_learning(args, node, circuit, "its world left the bus")
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM mid-run: the learning so far is kept
-        if node.brain is not None and kept != (node.run, node.last_tick):
+        if unsaved():
             keep_learning(args, node, circuit, "the brain was interrupted")
         raise
     finally:
