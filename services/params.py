@@ -8,8 +8,10 @@ settings costs no more than one setting.
 
 from __future__ import annotations
 
+import csv
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -78,3 +80,53 @@ def setting_count(params: Mapping) -> int:
     if len(lengths) > 1:
         raise ValueError(f"parameter columns of different lengths: {sorted(lengths)}")
     return lengths.pop() if lengths else 1
+
+
+def read_params(path: Path) -> dict[str, np.ndarray]:
+    """Per-agent parameters from a CSV file (`--params`): a header of parameter names, then one row
+    of numbers per agent, or a single row for every agent; blank lines and lines starting with #
+    are skipped. The columns, each as long as the rows; ValueError names the file, line and fault."""
+    try:
+        with open(path, newline="") as f:
+            lines = [(n, row) for n, row in enumerate(csv.reader(f), 1)
+                     if row and "".join(row).strip() and not row[0].lstrip().startswith("#")]
+    except OSError as e:
+        raise ValueError(f"parameter file {path}: cannot read it ({e.strerror or e})") from None
+    except (UnicodeDecodeError, csv.Error) as e:
+        raise ValueError(f"parameter file {path}: not a CSV text file ({e})") from None
+    if len(lines) < 2:
+        raise ValueError(f"parameter file {path}: expected a header of parameter names and at least one row of "
+                         f"values (e.g. a_plus,w_max / 0.02,15)")
+    (_, header), rows = lines[0], lines[1:]
+    names = [name.strip() for name in header]
+    if len(set(names)) < len(names):
+        raise ValueError(f"parameter file {path}, line {lines[0][0]}: a parameter named twice ({', '.join(names)})")
+    values = np.empty((len(rows), len(names)))
+    for k, (n, row) in enumerate(rows):
+        if len(row) != len(names):
+            raise ValueError(f"parameter file {path}, line {n}: {len(row)} values for {len(names)} parameters")
+        for j, text in enumerate(row):
+            try:
+                values[k, j] = float(text)
+            except ValueError:
+                raise ValueError(f"parameter file {path}, line {n}: {names[j]} is {text.strip()!r}, not a number") \
+                    from None
+    try:
+        return agent_columns(len(rows), dict(zip(names, values.T)))
+    except ValueError as e:
+        raise ValueError(f"parameter file {path}: {e}") from None
+
+
+def side_of(columns: Mapping, side: str) -> dict:
+    """The columns that `side` ("brain" or "world") reads."""
+    return {name: values for name, values in columns.items() if AGENT_PARAMS[name].side == side}
+
+
+def file_for_agents(path: Path, agents: int) -> dict[str, np.ndarray]:
+    """read_params, checked to fit a population of `agents` (one row for all, or one per agent)."""
+    columns = read_params(path)
+    rows = len(next(iter(columns.values())))
+    if rows not in (1, agents):
+        raise ValueError(f"parameter file {path}: {rows} rows of values for {agents} agents (--agents): give one "
+                         f"row for all of them, or one per agent")
+    return columns

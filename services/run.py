@@ -30,11 +30,12 @@ from spikinglab.brain.brain import check_sensors
 from spikinglab.brain.checkpoint import load_weights
 from spikinglab.brain.circuit import CircuitError, load_circuit
 from spikinglab.brain.engine import PARALLEL_FROM
-from spikinglab.brain.service import add_engine_args
+from spikinglab.brain.service import add_engine_args, brain_params
 from spikinglab.cli import version
 from spikinglab.launch import STOP_S, Launcher, Process, local_endpoints, options_for
 from spikinglab.learning import PAPER
 from spikinglab.options import Parser, agent_list, at_least, positive
+from spikinglab.params import read_params
 from spikinglab.recorder.screenshot import last_tick, repair, viewer_command
 from spikinglab.recorder.service import free_port, viewer_answers, web_viewer_url
 from spikinglab.world.service import CHECKPOINT, add_world_args, world_from_args
@@ -45,6 +46,7 @@ LIVE_VIEW_WITHIN_S = 60.0  # the recorder's viewer servers are up well within th
 PAPER_TABLE_1 = {f"{a:.2f}": n for a, n in PAPER.items()}  # keyed as summary.json shows A
 STARTED_WITH = "command.json"  # in a run folder: the options the run was started with, for --resume
 RESUME_MAY_CHANGE = ("quiet", "no_record", "view")  # how a run is watched, not what it is
+KEPT_PARAMS = "params.csv"  # in a run folder: the --params file the run was started with, which world and brain read
 
 
 def parser() -> argparse.ArgumentParser:
@@ -92,6 +94,8 @@ def arguments(p: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace
     watching = [f"--{k.replace('_', '-')}" for k in RESUME_MAY_CHANGE if getattr(args, k)]
     resumed = p.parse_args([*started, *watching])
     resumed.runs, resumed.id, resumed.resume = folder.parent, folder.name, folder
+    if resumed.params:  # the copy the run began with: the file given may have changed since
+        resumed.params = folder / KEPT_PARAMS
     return resumed
 
 
@@ -121,7 +125,9 @@ def main(argv=None) -> int:
         check_sensors(circuit, SENSORS)
         if args.a_plus is not None:
             circuit = circuit.with_learning_rate(args.a_plus)
-        world_from_args(args)
+        world_from_args(args)  # and the --params file, for the world's agents
+        if args.params:
+            brain_params(args.params, circuit)
         if args.load:
             load_weights(args.load, circuit)
     except (CircuitError, MapError, ValueError, OSError) as e:
@@ -144,6 +150,9 @@ def main(argv=None) -> int:
         (folder / "FAILED.txt").unlink(missing_ok=True)  # it said how to go on: this is it
     else:
         (folder / STARTED_WITH).write_text(json.dumps({"argv": argv}))
+        if args.params:  # kept with the run, and read from there: what it was is what it stays
+            shutil.copyfile(args.params, folder / KEPT_PARAMS)
+            args.params = folder / KEPT_PARAMS
     kept = folder / "checkpoint"
     (world_ep, brain_ep), sockets = local_endpoints("world", "brain")
 
@@ -168,8 +177,9 @@ def main(argv=None) -> int:
     if args.agents < PARALLEL_FROM and len(os.sched_getaffinity(0)) >= 2:
         # lock-step latency: world and brain on a core each (a population keeps the brain's threads)
         world.options["cpu"], brain.options["cpu"] = sorted(os.sched_getaffinity(0))[:2]
-    log.info("run %s: %d ticks, seed %d, %d agent(s), A+ = A- = %s, world %s%s, %s semantics%s", run_id, args.ticks,
+    log.info("run %s: %d ticks, seed %d, %d agent(s), A+ = A- = %s, world %s%s%s, %s semantics%s", run_id, args.ticks,
              args.seed, args.agents, learning_rate(circuit), args.preset, f", map {args.map}" if args.map else "",
+             f", per-agent parameters {', '.join(read_params(args.params))} from {args.params}" if args.params else "",
              args.semantics, f"; resumed at tick {resume_at:,}" if resume_at is not None else "")
     started = time.time()
     launcher = Launcher()
@@ -279,6 +289,12 @@ def summarise(folder: Path, args, circuit, run_id: str, wall_s: float,
     brain_stats = json.loads((folder / "brain-stats.json").read_text()) if (folder / "brain-stats.json").exists() else {}
     weights = load_weights(folder / "weights.npz", circuit)
     plastic = circuit.plastic_synapses
+    columns = read_params(args.params) if args.params else {}
+    per_agent = {name: column.tolist() for name, column in columns.items()}
+    rates = {which: learning_rate(circuit, which) for which in ("a_plus", "a_minus")}
+    for which in set(rates) & set(per_agent):  # set per agent by the --params file
+        values = sorted(set(per_agent[which]))
+        rates[which] = values[0] if len(values) == 1 else values
     bins = np.array(metrics["collisions_per_1000_ticks"], dtype=float).reshape(args.agents, -1)
     q = max(bins.shape[1] // 4, 1)
     times = metrics["learning_time"]
@@ -298,11 +314,11 @@ def summarise(folder: Path, args, circuit, run_id: str, wall_s: float,
         "spikinglab": version(),
         "command": " ".join(["spikinglab", "run", *sys.argv[2:]]) if sys.argv[1:2] == ["run"] else " ".join(sys.argv),
         "run": run_id,
-        "parameters": {"ticks": args.ticks, "seed": args.seed, "agents": args.agents, "a_plus": learning_rate(circuit),
-                       "a_minus": learning_rate(circuit, "a_minus"), "circuit": circuit.source, "preset": args.preset,
+        "parameters": {"ticks": args.ticks, "seed": args.seed, "agents": args.agents, **rates, "circuit": circuit.source, "preset": args.preset,
                        "map": str(args.map) if args.map else None, "shared_arena": args.shared,
                        "training": not args.no_training, "learned_after": args.learned_after,
-                       "semantics": args.semantics, "order": args.order},
+                       "semantics": args.semantics, "order": args.order,
+                       "per_agent": per_agent},  # the --params file's columns ({}: none)
         "wall_time_s": round(wall_s, 1),
         "ticks_per_s": metrics["ticks_per_s"],
         "learning_time": metrics["learning_time"],

@@ -34,6 +34,10 @@ def files(tmp_path_factory):
     (folder / "badmode.json5").write_text('{mode: "boss"}\n')
     (folder / "list.json5").write_text('["tls/127.0.0.1:7447"]\n')
     (folder / "occupied").write_text("a file, not a folder\n")
+    (folder / "typo.csv").write_text("a_plsu,w_max\n0.02,15\n")
+    (folder / "rows.csv").write_text("a_plus\n0.01\n0.02\n0.03\n")
+    (folder / "word.csv").write_text("a_plus,move_step\n0.02,1\n0.02,fast\n")
+    (folder / "low.csv").write_text("w_max\n3\n")
     (folder / "bad.toml").write_text('[neurons]\nA = "regular"\n[[synapses]]\nfrom = "A"\nto = "B"\nweight = 5\n'
                                      'delay = 1\n')
     return folder
@@ -62,6 +66,14 @@ CASES = [  # id, arguments ({f}: the input files, {busy}: a port in use), exit c
      "foreign.npz: not a weights checkpoint (an .npz without the arrays weights and synapses"),
     ("run missing checkpoint", "run --load {f}/missing.npz", 2, "missing.npz: cannot read it (No such file"),
     ("run map without start", "run --map {f}/nostart.txt", 2, "nostart.txt: no start 'S' in the map"),
+    ("run params unknown column", "run --params {f}/typo.csv", 2,
+     "typo.csv: unknown per-agent parameter 'a_plsu' (known: a_plus, "),
+    ("run params rows not agents", "run --agents 2 --params {f}/rows.csv", 2,
+     "rows.csv: 3 rows of values for 2 agents (--agents): give one row for all of them, or one per agent"),
+    ("run params not a number", "run --agents 2 --params {f}/word.csv", 2,
+     "word.csv, line 3: move_step is 'fast', not a number"),
+    ("brain params the circuit refuses", "brain --params {f}/low.csv", 2, "low.csv: /"),  # names the circuit too
+    ("world params missing", "world --params {f}/none.csv", 2, "none.csv: cannot read it (No such file or directory)"),
     ("run abbreviated option", "run --tick 5", 2, "unrecognized arguments: --tick 5"),
     ("sweep 500 ticks", "sweep --ticks 500", 2, "argument --ticks: must be at least 1,000, got 500"),
     ("sweep no seeds", "sweep --seeds 0", 2, "argument --seeds: must be at least 1, got 0"),

@@ -37,6 +37,26 @@ def test_run_writes_summary_plot_and_weights(tmp_path):
     assert f"written to {folder}" in done.stdout and "learning time" in done.stdout
 
 
+def test_per_agent_parameters_from_a_file_reach_world_and_brain(tmp_path):
+    """`--params`: each insect runs with its row (one that does not learn keeps its weights); the
+    file is kept in the run folder and its columns are in the summary."""
+    study = tmp_path / "study.csv"
+    study.write_text("# two insects\na_plus,a_minus,move_step\n0.04,0.04,1\n0,0,0.5\n")
+    done = spikinglab("run", "--ticks", 3000, "--agents", 2, "--params", study, "--runs", tmp_path, "--id", "p",
+                      "--no-record", "--quiet")
+    assert done.returncode == 0, done.stderr
+    folder = tmp_path / "p"
+    per_agent = json.loads((folder / "summary.json").read_text())["parameters"]["per_agent"]
+    assert per_agent == {"a_plus": [0.04, 0.0], "a_minus": [0.04, 0.0], "move_step": [1.0, 0.5]}
+    assert (folder / "params.csv").read_text() == study.read_text()
+    weights = load_weights(folder / "weights.npz", load_circuit("insect"))
+    np.testing.assert_array_equal(weights[1], load_weights_initial()[0])  # A+ = A- = 0: nothing learnt
+    assert not np.array_equal(weights[0], weights[1])
+    distance = json.loads((folder / "metrics.json").read_text())["distance"]
+    assert distance[1] < 0.75 * distance[0]  # half a patch a step against one
+    assert not list(folder.glob("weights-*-tick*.npz"))  # a run that ended keeps no stop-gap weights
+
+
 def test_a_trained_insect_runs_with_training_off(tmp_path):
     assert spikinglab("run", "--ticks", 2000, "--runs", tmp_path, "--id", "train", "--a-plus", 0.08,
                       "--quiet").returncode == 0
@@ -135,7 +155,9 @@ def test_a_run_stopped_in_its_first_thousand_ticks_still_plots(tmp_path):
 def test_an_interrupted_run_goes_on_with_resume_and_ends_as_an_uninterrupted_one(tmp_path):
     """Ctrl-C after a checkpoint, then `spikinglab run --resume`: the run ends with exactly the
     result of the same run never interrupted; a new run never takes the interrupted one's folder."""
-    options = ("--ticks", 12000, "--seed", 5, "--checkpoint-every", 4000, "--no-record")
+    study = tmp_path / "study.csv"
+    study.write_text("a_plus,a_minus,move_step\n0.03,0.03,0.8\n")
+    options = ("--ticks", 12000, "--seed", 5, "--checkpoint-every", 4000, "--no-record", "--params", study)
     whole = spikinglab("run", *options, "--runs", tmp_path / "whole", "--id", "r", "--quiet")
     assert whole.returncode == 0, whole.stderr
     assert not (tmp_path / "whole" / "r" / "checkpoint").exists()  # a whole run keeps no checkpoints
@@ -152,6 +174,7 @@ def test_an_interrupted_run_goes_on_with_resume_and_ends_as_an_uninterrupted_one
     again = spikinglab("run", *options, "--runs", tmp_path, "--id", "r", "--quiet")
     assert again.returncode == 2 and f"go on with it: spikinglab run --resume {tmp_path / 'r'}" in again.stderr
     assert spikinglab("run", "--resume", tmp_path / "r", "--ticks", 50).returncode == 2  # only its own options
+    study.write_text("a_plus,a_minus,move_step\n0.01,0.01,1.2\n")  # the run goes on with the values it began with
     resumed = spikinglab("run", "--resume", tmp_path / "r", "--quiet")
     assert resumed.returncode == 0, resumed.stderr
     got, want = (json.loads((folder / "summary.json").read_text())

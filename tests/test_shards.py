@@ -20,11 +20,18 @@ TICKS, SEED, AGENTS = 3000, 3, 7  # 7 agents in 3 shards: slices of 2, 2 and 3
 
 
 def test_three_shards_run_bit_for_bit_as_one_brain(tmp_path):
+    """With a parameter file of a row per agent, read whole by world and shards: each shard takes
+    its slice of the brain's columns."""
+    columns = {"a_plus": 0.01 * (1 + np.arange(AGENTS) % 4), "w_max": 10.0 + np.arange(AGENTS),
+               "move_step": 1 - 0.05 * np.arange(AGENTS)}
+    study = tmp_path / "study.csv"
+    np.savetxt(study, np.column_stack(list(columns.values())), delimiter=",", header=",".join(columns), comments="")
     world_port = free_port()
     world = start("world", "--group", "sh", "--listen", endpoint(world_port), "--ticks", TICKS, "--seed", SEED,
-                  "--agents", AGENTS, "--shards", 3, "--out", tmp_path, log=tmp_path / "world.log")
+                  "--agents", AGENTS, "--shards", 3, "--params", study, "--out", tmp_path, log=tmp_path / "world.log")
     shards = [start("brain", "--group", "sh", "--connect", endpoint(world_port), "--shard", f"{i}/3", "--once",
-                    "--a-plus", 0.04, "--save", tmp_path / f"weights{i}.npz", log=tmp_path / f"brain{i}.log")
+                    "--a-plus", 0.04, "--params", study, "--save", tmp_path / f"weights{i}.npz",
+                    log=tmp_path / f"brain{i}.log")
               for i in (1, 2, 3)]
     try:
         assert finish(world, 120, tmp_path / "world.log") == 0
@@ -34,8 +41,8 @@ def test_three_shards_run_bit_for_bit_as_one_brain(tmp_path):
         for process in (world, *shards):
             process.kill()
     circuit = load_circuit("insect").with_learning_rate(0.04)
-    alone = World(params_for("paper"), agents=AGENTS, seed=SEED)
-    brain = brain_for(alone, circuit)
+    alone = World(params_for("paper"), agents=AGENTS, seed=SEED, agent_params={"move_step": columns["move_step"]})
+    brain = brain_for(alone, circuit, params={"a_plus": columns["a_plus"], "w_max": columns["w_max"]})
     closed_loop(alone, brain, TICKS)
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["ticks"] == TICKS and sum(metrics["collisions"]) > 0

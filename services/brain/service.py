@@ -27,11 +27,12 @@ from spikinglab.bus import keys
 from spikinglab.bus.schemas import QUIET_S, Array, BrainLayout, BrainState, BusError, Control, Motor, Sensors, TickBatch
 from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 from spikinglab.options import Parser, shard
+from spikinglab.params import read_params, side_of
 
 from .brain import Brain, check_sensors
 from .checkpoint import load_weights, save_weights
 from .circuit import CircuitError, load_circuit
-from .engine import DEFAULT_SEMANTICS, ORDERS, SEMANTICS
+from .engine import DEFAULT_SEMANTICS, ORDERS, SEMANTICS, learning_tables
 
 log = logging.getLogger("spikinglab.brain")
 STATE_BATCH = 50  # ticks per BrainState message (one put per 50 ticks keeps recording off the loop's back)
@@ -44,6 +45,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--circuit", default="insect", help="circuit name in circuits/ or a .toml path (default insect)")
     p.add_argument("--a-plus", type=float, help="A+ = A- of the learning neurons (default: the circuit's)")
     p.add_argument("--no-training", action="store_true", help="weights stay as they are")
+    p.add_argument("--params", type=Path, metavar="FILE.csv",
+                   help="per-agent parameters: a CSV file with a header of names (a_plus, a_minus, tau_plus, "
+                        "tau_minus, w_max, initial_weight, input_gain; the world's go to the world) and a row per "
+                        "agent of the whole population, or one row for all (docs/api.md); a shard takes its slice")
     add_engine_args(p)
     p.add_argument("--seed", type=int, default=None,
                    help="the netlogo order's seed, agent a using seed + a (default: the world's seed, which its "
@@ -85,6 +90,16 @@ def add_engine_args(p: argparse.ArgumentParser) -> None:
                    help="netlogo: neurons each tick in a seeded random order (as NetLogo's ask) or in file order")
 
 
+def brain_params(path: Path, circuit) -> dict:
+    """The --params file's columns (all of them: a shard slices them by its sensors' agents), checked
+    against the circuit before any run: ValueError for a value it cannot take (a w_max below its
+    initial weights)."""
+    columns = read_params(path)
+    try:
+        learning_tables(circuit, side_of(columns, "brain"), len(next(iter(columns.values()))))
+    except ValueError as e:
+        raise ValueError(f"parameter file {path}: {e}") from None
+    return columns
 
 
 class BrainNode:
@@ -92,8 +107,10 @@ class BrainNode:
 
     def __init__(self, circuit, training: bool = True, weights: np.ndarray | None = None,
                  checkpoints: Path | None = None, quiet_s: float = QUIET_S, shard: tuple[int, int] = (1, 1),
-                 **engine_options):
+                 params: dict | None = None, **engine_options):
+        """`params`: per-agent parameter columns of the whole population (spikinglab.params.read_params)."""
         self.circuit, self.training, self.initial_weights = circuit, training, weights
+        self.params = side_of(params or {}, "brain")
         self.shard = shard  # (i, n): this brain serves the i-th of n slices of the population
         self.first = 0  # the population's index of this brain's first agent (its sensors say it)
         self.checkpoints = checkpoints  # the folder of this brain's whole-state checkpoints (None: none kept)
@@ -110,13 +127,14 @@ class BrainNode:
     def start(self, message: Sensors) -> None:
         """A fresh brain for the sensors and agents of `message` (a new run)."""
         agents = message.values.shape[0]
+        params = self.params_of(message.first, agents)  # first: a message that does not fit changes nothing
         options = dict(self.engine_options)
         if options.get("seed") is None:
             options["seed"] = message.seed
         self.first = message.first
         options["seed"] += message.first  # agent k of a slice is agent first + k of the population
         self.brain = Brain(self.circuit, message.names, tuple(self.circuit.actuators), agents=agents,
-                           training=self.training, **options)
+                           training=self.training, params=params, **options)
         if self.initial_weights is not None:  # one agent's weights are given to every agent
             w = self.initial_weights
             self.brain.engine.set_weights(w[0] if w.shape[0] == 1 else w)
@@ -124,6 +142,20 @@ class BrainNode:
         log.info("brain for %d agent(s) of circuit %s, sensors %s, training %s, %s", agents, self.circuit.name,
                  ", ".join(message.names), "on" if self.training else "off",
                  ", ".join(f"{k} {v}" for k, v in options.items()))
+
+    def params_of(self, first: int, agents: int) -> dict:
+        """The per-agent columns of agents first.. first + agents - 1: this shard's slice of the
+        population the columns give (BusError if the world sends other agents)."""
+        rows = {len(column) for column in self.params.values()} - {1}
+        if not rows:
+            return self.params  # one value for every agent
+        population = rows.pop()
+        i, n = self.shard
+        lo, hi = population * (i - 1) // n, population * i // n
+        if (first, first + agents) != (lo, hi):
+            raise BusError(f"does not fit the parameter file: its {population} agents make agents {lo}-{hi - 1} "
+                           f"this brain's (shard {i}/{n}); the world sends agents {first}-{first + agents - 1}")
+        return {name: column if len(column) == 1 else column[lo:hi] for name, column in self.params.items()}
 
     def starts_run(self, message: Sensors) -> bool:
         """Whether `message` starts a run this node does not serve: its tick 0, or a resumed run's
@@ -257,6 +289,7 @@ def run(args: argparse.Namespace, session) -> int:
         if args.a_plus is not None:
             circuit = circuit.with_learning_rate(args.a_plus)
         weights = load_weights(args.load, circuit) if args.load else None
+        params = brain_params(args.params, circuit) if args.params else None
     except (CircuitError, ValueError, OSError) as e:
         log.error("%s", e)
         return 2
@@ -267,7 +300,8 @@ def run(args: argparse.Namespace, session) -> int:
         return 2
     def new_node() -> BrainNode:  # one per run the brain serves
         return BrainNode(circuit, training=not args.no_training, weights=weights, checkpoints=args.checkpoint,
-                         shard=args.shard, seed=args.seed, semantics=args.semantics, order=args.order)
+                         shard=args.shard, params=params, seed=args.seed, semantics=args.semantics,
+                         order=args.order)
     node = new_node()
     bus = Bus(session, args.group, keys.brain_service(args.shard))
     bus.watch_others(lambda: f" at tick {node.last_tick + 1} of run {node.run}" if node.run else "")

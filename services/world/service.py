@@ -38,6 +38,7 @@ from spikinglab.bus.schemas import (
 )
 from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 from spikinglab.options import Parser, at_least
+from spikinglab.params import file_for_agents, side_of
 
 from .world import PRESETS, SENSORS, MapError, World, map_world, params_for, world_actions
 
@@ -76,6 +77,10 @@ def add_world_args(p: argparse.ArgumentParser) -> None:
     w.add_argument("--no-training", action="store_true", help="no push on noxious patches (test mode)")
     w.add_argument("--learned-after", type=at_least(1), default=5000,
                    help="collision-free ticks that count as learned (default 5,000)")
+    w.add_argument("--params", type=Path, metavar="FILE.csv",
+                   help="per-agent parameters: a CSV file with a header of names (rotation_step, move_step; the "
+                        "brain's, such as a_plus or w_max, go to the brain) and a row per agent, or one row for all "
+                        "(docs/api.md)")
 
 
 def world_from_args(args: argparse.Namespace) -> World:
@@ -88,8 +93,9 @@ def world_from_args(args: argparse.Namespace) -> World:
     grid = None
     if args.map:
         params, grid = map_world(args.map, params)
+    columns = file_for_agents(args.params, args.agents) if args.params else {}
     return World(params, agents=args.agents, seed=args.seed, shared=args.shared, grid=grid,
-                 training=not args.no_training)
+                 training=not args.no_training, agent_params=side_of(columns, "world"))
 
 
 def actions_from(message: Motor, agents: int) -> np.ndarray | None:
