@@ -18,18 +18,19 @@ TICKS, SEED, AGENTS = 3000, 5, 2
 def inprocess_run(semantics):
     world = World(params_for("paper"), agents=AGENTS, seed=SEED)
     brain = brain_for(world, load_circuit("insect").with_learning_rate(0.04), semantics=semantics)
-    pos, spikes = [], []
+    pos, sensed, spikes = [], [], []
 
     def keep(t):
         pos.append(world.pos.copy())
+        sensed.append(world.sensors.copy())
         spikes.append(brain.engine.spiked.copy())
     closed_loop(world, brain, TICKS, keep)
-    return np.array(pos), np.array(spikes), brain.engine.get_weights(), world.metrics
+    return np.array(pos), np.array(sensed), np.array(spikes), brain.engine.get_weights(), world.metrics
 
 
 @pytest.mark.parametrize("semantics", ["phased", "netlogo"])  # netlogo: its random order comes from the seed too
 def test_same_seed_same_run_in_one_process_and_across_the_bus(tmp_path, semantics):
-    pos, spikes, weights, metrics = inprocess_run(semantics)
+    pos, sensed, spikes, weights, metrics = inprocess_run(semantics)
     assert metrics.collisions.sum() > 0 and spikes.sum() > 0  # something happened
 
     world_port, brain_port = free_port(), free_port()
@@ -58,6 +59,8 @@ def test_same_seed_same_run_in_one_process_and_across_the_bus(tmp_path, semantic
     bus_pos = np.concatenate([m.pos.numpy("pos", "<f8", 3) for m in world_states])
     bus_spikes = np.concatenate([m.spiked.numpy("spiked", "|u1", 3) for m in brain_states]).astype(bool)
     np.testing.assert_array_equal(bus_pos, pos)  # bit for bit
+    # the recorder's sensors of tick t are those the brain stepped on in tick t
+    np.testing.assert_array_equal(np.concatenate([m.sensors.numpy("sensors", "<f8", 3) for m in world_states]), sensed)
     np.testing.assert_array_equal(bus_spikes, spikes)
     np.testing.assert_array_equal(load_weights(tmp_path / "weights.npz", load_circuit("insect")), weights)
     np.testing.assert_array_equal(brain_states[-1].weights.numpy("weights", "<f8", 2), weights)  # the final ones

@@ -189,10 +189,10 @@ class Progress:
             self.bar.close()
 
 
-def keep_state(batch: TickBatch, changes: list, world: World, t: int) -> None:
-    """Tick t as the recorder sees it: poses after the actions, this tick's events and changes."""
+def keep_state(batch: TickBatch, changes: list, world: World, t: int, sensors: np.ndarray) -> None:
+    """Tick t as the recorder sees it: its sensors, poses after the actions, its events and changes."""
     m = world.metrics
-    batch.add(t, sensors=world.sensors, pos=world.pos, heading=world.heading, events=world.events,
+    batch.add(t, sensors=sensors, pos=world.pos, heading=world.heading, events=world.events,
               collisions=m.collisions, food=m.food)
     for row in world.changes():
         changes.append((t, *row))
@@ -362,22 +362,27 @@ def run(args: argparse.Namespace, session) -> int:
 
 
 def tick_loop(args, world, brains, state, requests, progress, trajectory, batch, changes) -> None:
-    """The lock-step ticks: each waits for the brain's answer (every shard's) to the last sensors sent."""
+    """The lock-step ticks: each waits for the brain's answer (every shard's) to the last sensors sent.
+    The recorder's share of tick t is kept after tick t + 1's sensors are sent, while the brain steps."""
+    spare = world.sensors.copy()  # the next tick's sensors go here while tick t's are kept
     for t in range(world.tick, args.ticks):
         actions = brains.collect(world, requests)
         if requests[0].checkpoint and args.checkpoint and (args.checkpoint / PENDING).exists():
             (args.checkpoint / PENDING).replace(args.checkpoint / CHECKPOINT)  # the brain has kept this tick too
         world.act(actions)
         trajectory.keep(t)
-        if state is not None:  # this tick's poses, events and changes, before the next sense()
-            keep_state(batch, changes, world, t)
+        sensed = world.sensors  # tick t's
         if t + 1 < args.ticks:  # the brain's next tick first: the recorder can wait
             keep = args.checkpoint is not None and (t + 1) % args.checkpoint_every == 0
             if keep:
                 keep_checkpoint(args, world, trajectory, requests[0].run)
+            if state is not None:  # sense() fills every value: a swap, not a copy, keeps tick t's
+                world.sensors, spare = spare, world.sensors
             requests = brains.send(world, t + 1, requests[0].run, keep)
-        if state is not None and (batch.full or t + 1 == args.ticks):
-            state.put(state_message(batch, changes, t + 1 == args.ticks, world, requests[0].run))
+        if state is not None:  # the next sense() left poses, events and changes as act() made them
+            keep_state(batch, changes, world, t, sensed)
+            if batch.full or t + 1 == args.ticks:
+                state.put(state_message(batch, changes, t + 1 == args.ticks, world, requests[0].run))
         progress.update(t + 1)
 
 
