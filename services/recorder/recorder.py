@@ -19,7 +19,6 @@ ticks, never one log call per value. What goes where:
 
 from __future__ import annotations
 
-import math
 from collections import defaultdict
 
 import numpy as np
@@ -97,6 +96,7 @@ class Recorder:
         self.world_done = False  # the world's final batch has arrived
         self._announced = False  # whether "recording starts at tick N" was said
         self._trail: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # agent -> (ticks, positions)
+        self._last_pose = None  # (tick, pos [A, 2], heading [A]) after the last tick of the world's last batch
         self.missing: dict[str, int] = {}  # "world" / "brain" -> ticks of its state that never came
         self._next_tick: dict[str, int] = {}  # the tick each state stream's next batch should start at
         self._reset_buffers()
@@ -201,25 +201,50 @@ class Recorder:
         self.last_tick = max(self.last_tick, m.tick + len(pos) - 1)
         if self._collisions_at_bin is None:
             self._collisions_at_bin = np.zeros(self.agents, np.int64)
-        detail_rows = [a for a in self.detail if a < self.agents]
-        for k in range(len(pos)):
-            t = m.tick + k
-            self.b["pose"].append((t, pos[k], heading[k]))
-            self.b["sensors"].append((t, m.sensor_names, sensed[k][detail_rows]))
-            mine = changes[changes[:, 0] == t]
-            if len(mine) and self.grid is not None:
+        ticks = m.tick + np.arange(len(pos))
+        self.b["pose"].append((ticks, pos, heading))
+        self._keep_vision(ticks, m.sensor_names, sensed, pos, heading)
+        if self.grid is not None:
+            for t in np.unique(changes[:, 0]):  # the patches eaten, in tick order
+                mine = changes[changes[:, 0] == t]
                 for _, arena, ix, iy, colour in mine:
                     self.grid[arena, ix, iy] = colour
                 if (mine[:, 1] == self.arena_shown).any():
-                    self._log_map(t)
-            if (t + 1) % 1000 == 0:  # the learning curve, per 1,000 ticks like the world's own bins
-                self.b["bins"].append((t, float((collisions[k] - self._collisions_at_bin).mean()), float(food[k].mean())))
-                self._collisions_at_bin = collisions[k].copy()
-            for a in np.flatnonzero(events[k, :, EV_LEARNED]):
-                self.event(f"agent {a} learned: no collision for the required run of ticks (tick {t})", "INFO", t)
+                    self._log_map(int(t))
+        for k in np.flatnonzero((ticks + 1) % 1000 == 0):  # the learning curve, per 1,000 ticks like the world's
+            self.b["bins"].append((int(ticks[k]), float((collisions[k] - self._collisions_at_bin).mean()),
+                                   float(food[k].mean())))
+            self._collisions_at_bin = collisions[k].copy()
+        for k, a in zip(*np.nonzero(events[:, :, EV_LEARNED])):
+            t = int(ticks[k])
+            self.event(f"agent {a} learned: no collision for the required run of ticks (tick {t})", "INFO", t)
         if m.final:
             self.world_done = True
             self.event(f"run ended at tick {m.tick + len(pos)}", "INFO", m.tick + len(pos))
+
+    def _keep_vision(self, ticks, names, sensed, pos, heading) -> None:
+        """Each detail agent's vision ray (from where it stood after the tick before, as far as the
+        nearest smell, in its colour; 4 patches and grey when it smells nothing) and whether it felt
+        pain or reward, for the ticks of one world batch."""
+        last = self._last_pose  # the ray of a batch's first tick starts at the last batch's last pose
+        joined = last is not None and last[0] == ticks[0] - 1 and last[1].shape == pos.shape[1:]
+        before_pos = np.concatenate([last[1][None] if joined else pos[:1], pos[:-1]])
+        before_heading = np.concatenate([last[2][None] if joined else heading[:1], heading[:-1]])
+        self._last_pose = (int(ticks[-1]), pos[-1], heading[-1])
+        smells = [j for j, name in enumerate(names) if name in SMELLS]
+        palette = np.array([SEEN_COLOUR[SMELLS[names[j]]] for j in smells] + [(110, 110, 110)], np.uint8)
+        every = np.arange(len(ticks))
+        for a in (a for a in self.detail if a < self.agents):
+            distances = np.where(np.isnan(sensed[:, a, smells]), np.inf, sensed[:, a, smells])  # [T, smells]
+            nearest = distances.argmin(axis=1) if smells else np.zeros(len(ticks), np.int64)
+            d = distances[every, nearest] if smells else np.full(len(ticks), np.inf)
+            seen = np.isfinite(d)
+            rad = np.radians(before_heading[:, a])
+            tip = before_pos[:, a] + np.where(seen, d, 4.0)[:, None] * np.stack([np.sin(rad), np.cos(rad)], axis=1)
+            felt = [~np.isnan(sensed[:, a, names.index(n)]) if n in names else np.zeros(len(ticks), bool)
+                    for n in ("pain", "reward")]
+            self.b[f"vision{a}"].append((ticks, np.stack([before_pos[:, a], tip], axis=1),
+                                         palette[np.where(seen, nearest, len(smells))], *felt))
 
     def on_brain_layout(self, m: BrainLayout) -> None:
         self.layout = m
@@ -275,7 +300,7 @@ class Recorder:
                 self.event(f"recording starts at tick {self.first_tick}: the recorder started late", "WARN",
                            self.first_tick)
         if b["pose"]:
-            self._flush_world(b["pose"], b["sensors"])
+            self._flush_world(b)
         if b["spikes"] or b["weights"]:
             self._flush_brain(b["spikes"], b["potentials"], b["weights"])
         if b["bins"]:
@@ -287,10 +312,8 @@ class Recorder:
     def _columns(self, path: str, ticks, columns) -> None:
         self.rec.send_columns(path, indexes=[rr.TimeColumn("tick", sequence=np.asarray(ticks))], columns=columns)
 
-    def _flush_world(self, poses, sensors) -> None:
-        ticks = np.array([p[0] for p in poses])
-        pos = np.stack([p[1] for p in poses])  # [T, A, 2]
-        heading = np.stack([p[2] for p in poses])
+    def _flush_world(self, b) -> None:
+        ticks, pos, heading = (np.concatenate(column) for column in zip(*b["pose"]))  # [T], [T, A, 2], [T, A]
         T, A = pos.shape[:2]
         colours = np.tile(np.array([(255, 150, 40)] * A, np.uint8), (T, 1))
         sizes = np.full((T, A), 0.45, np.float32)
@@ -300,45 +323,28 @@ class Recorder:
                 sizes[:, a] = 0.7
         self._columns("/world/insects", ticks, rr.Points2D.columns(
             positions=self.view(pos).reshape(-1, 2), colors=colours, radii=sizes.reshape(-1)).partition([A] * T))
-        pose_at = {int(t): (p, h) for t, p, h in poses}
         for a in (a for a in self.detail if a < A):
-            self._flush_agent(a, ticks, pos[:, a], heading[:, a], pose_at, sensors)
+            self._flush_agent(a, ticks, pos[:, a], heading[:, a], b[f"vision{a}"])
 
-    def _flush_agent(self, a, ticks, pos, heading, pose_at, sensors) -> None:
+    def _flush_agent(self, a, ticks, pos, heading, vision) -> None:
         rad = np.radians(heading)
         ahead = np.stack([np.sin(rad), np.cos(rad)], axis=1)
         start = self.view(pos)
         tip = self.view(pos + 1.2 * ahead)
         self._columns(f"/world/heading/agent{a}", ticks, rr.Arrows2D.columns(
             origins=start, vectors=tip - start, colors=np.tile([255, 230, 0], (len(ticks), 1))).partition([1] * len(ticks)))
-        # the vision ray of tick t starts where the insect was after tick t - 1
-        k = self.detail.index(a)
-        rays, ray_colours, ray_ticks, hurt, fed = [], [], [], [], []
-        for t, names, values in sensors:
-            before = pose_at.get(t - 1) or pose_at.get(t)
-            if before is None:
-                continue
-            p, h = before[0][a], before[1][a]
-            row = dict(zip(names, values[k]))
-            seen = [(d, SMELLS[n]) for n, d in row.items() if n in SMELLS and not math.isnan(d)]
-            d, colour = min(seen) if seen else (4.0, None)
-            direction = np.array([math.sin(math.radians(h)), math.cos(math.radians(h))])
-            rays.append(self.view(np.stack([p, p + d * direction])))
-            ray_colours.append(SEEN_COLOUR.get(colour, (110, 110, 110)))
-            ray_ticks.append(t)
-            hurt.append(not math.isnan(row.get("pain", math.nan)))
-            fed.append(not math.isnan(row.get("reward", math.nan)))
-        if rays:
+        if vision:  # strips as one [T, 2, 2] array: Rerun converts it at once, a list strip by strip
+            ray_ticks, rays, ray_colours, hurt, fed = (np.concatenate(column) for column in zip(*vision))
+            rays = self.view(rays)
             self._columns(f"/world/vision/agent{a}", ray_ticks, rr.LineStrips2D.columns(
                 strips=rays, colors=ray_colours, radii=np.full(len(rays), 0.08, np.float32)).partition([1] * len(rays)))
             for flags, path, colour in ((hurt, "/world/pain", (255, 60, 60)), (fed, "/world/reward", (90, 230, 110))):
                 # a mark in the ticks it happens, an empty batch in the others (no stale mark)
-                marks = [ray[0] for ray, f in zip(rays, flags) if f]
-                if marks or path == "/world/pain":
+                marks = rays[flags, 0]
+                if len(marks) or path == "/world/pain":
                     self._columns(path, ray_ticks, rr.Points2D.columns(
-                        positions=np.array(marks, np.float64).reshape(-1, 2),
-                        colors=np.tile(colour, (len(marks), 1)).astype(np.uint8).reshape(-1, 3),
-                        radii=np.full(len(marks), 0.9, np.float32)).partition([int(f) for f in flags]))
+                        positions=marks, colors=np.tile(np.array(colour, np.uint8), (len(marks), 1)),
+                        radii=np.full(len(marks), 0.9, np.float32)).partition(flags.astype(np.int64)))
         # the trail: every TRAIL_EVERY ticks, the last `trail` positions, split where it jumped (reset)
         old_ticks, old_pos = self._trail.get(a, (np.zeros(0, np.int64), np.zeros((0, 2))))
         history_ticks = np.concatenate([old_ticks, ticks])

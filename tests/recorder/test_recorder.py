@@ -15,7 +15,7 @@ from spikinglab.brain.checkpoint import load_weights
 from spikinglab.brain.circuit import load_circuit
 from spikinglab.bus import keys
 from spikinglab.loop import brain_for, closed_loop
-from spikinglab.world.world import World, generate_map, params_for
+from spikinglab.world.world import SENSORS, World, generate_map, params_for
 
 from ..processes import ROOT, Watcher, finish, start, ticks_in, wait_for
 
@@ -51,13 +51,14 @@ def recorded_run(tmp_path_factory):
     assert "replay it: " in done.stdout
     world = World(params_for("paper"), seed=SEED)
     brain = brain_for(world, load_circuit("insect").with_learning_rate(0.04))
-    pos, spikes = [], np.zeros(len(brain.circuit.node_names), np.int64)
+    pos, sensed, spikes = [], [], np.zeros(len(brain.circuit.node_names), np.int64)
 
     def keep(t):
         pos.append(world.pos[0].copy())
+        sensed.append(dict(zip(SENSORS, world.sensors[0])))
         spikes[:] += brain.engine.spiked[0]
     closed_loop(world, brain, TICKS, keep)
-    return runs / "r", read(runs / "r" / "recording.rrd"), np.array(pos), spikes, world
+    return runs / "r", read(runs / "r" / "recording.rrd"), np.array(pos), spikes, world, sensed
 
 
 def view(xy, params):
@@ -65,7 +66,7 @@ def view(xy, params):
 
 
 def test_map_and_positions_are_the_worlds(recorded_run):
-    folder, data, pos, _, world = recorded_run
+    folder, data, pos, _, world, _ = recorded_run
     images = data["/world/map"]
     first = np.frombuffer(bytes(images["SegmentationImage:buffer"][0][0]), np.uint8)
     grid0 = generate_map(world.params, SEED)
@@ -81,7 +82,7 @@ def test_map_and_positions_are_the_worlds(recorded_run):
 
 
 def test_spikes_weights_and_learning_curve_are_the_brains(recorded_run):
-    folder, data, _, spikes, world = recorded_run
+    folder, data, _, spikes, world, _ = recorded_run
     circuit = load_circuit("insect")
     for k, name in enumerate(circuit.node_names):
         raster = data.get(f"/brain/agent0/spikes/{k:02d}_{name}", {}).get("tick", [])
@@ -209,3 +210,19 @@ def test_each_run_gets_its_own_recording(tmp_path):
         assert data["/world/insects"]["tick"] == list(range(2000))
         assert "/world/map" in data  # the second run's map came while the first could still go on
     assert first["/world/insects"] != then["/world/insects"]  # another seed: another path
+
+
+def test_vision_rays_and_pain_marks_are_what_the_insect_sensed(recorded_run):
+    """Tick t's ray runs from where the insect stood after tick t - 1 as far as the nearest smell (4
+    patches when none); a pain mark is there in the ticks it felt pain, and only then."""
+    _, data, pos, _, world, sensed = recorded_run
+    rays = data["/world/vision/agent0"]
+    assert rays["tick"] == list(range(TICKS))
+    strips = np.array([row[0] for row in rays["LineStrips2D:strips"]])  # [T, 2 ends, 2]
+    np.testing.assert_allclose(strips[1:, 0], view(pos[:-1], world.params), atol=1e-4)
+    nearest = [min([s[n] for n in ("smell_black", "smell_red", "smell_green") if not np.isnan(s[n])], default=4.0)
+               for s in sensed]
+    np.testing.assert_allclose(np.linalg.norm(strips[:, 1] - strips[:, 0], axis=1), nearest, atol=1e-4)
+    pain = data["/world/pain"]
+    felt = [t for t, marks in zip(pain["tick"], pain["Points2D:positions"]) if marks]
+    assert felt == [t for t, s in enumerate(sensed) if not np.isnan(s["pain"])] and felt
