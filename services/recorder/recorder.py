@@ -202,10 +202,11 @@ class Recorder:
         if self._collisions_at_bin is None:
             self._collisions_at_bin = np.zeros(self.agents, np.int64)
         ticks = m.tick + np.arange(len(pos))
-        self.b["pose"].append((ticks, pos, heading))
-        self._keep_vision(ticks, m.sensor_names, sensed, pos, heading)
+        if len(ticks):  # none in a run's final batch when it ended before its first tick
+            self.b["pose"].append((ticks, pos, heading))
+            self._keep_vision(ticks, m.sensor_names, sensed, pos, heading)
         if self.grid is not None:
-            for t in np.unique(changes[:, 0]):  # the patches eaten, in tick order
+            for t in np.intersect1d(changes[:, 0], ticks):  # the patches eaten in these ticks, in tick order
                 mine = changes[changes[:, 0] == t]
                 for _, arena, ix, iy, colour in mine:
                     self.grid[arena, ix, iy] = colour
