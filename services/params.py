@@ -117,6 +117,11 @@ def read_params(path: Path) -> dict[str, np.ndarray]:
         raise ValueError(f"parameter file {path}: {e}") from None
 
 
+def file_rows(columns: Mapping) -> int:
+    """The rows of read_params' columns (each has as many: at least one)."""
+    return len(next(iter(columns.values())))
+
+
 def side_of(columns: Mapping, side: str) -> dict:
     """The columns that `side` ("brain" or "world") reads."""
     return {name: values for name, values in columns.items() if AGENT_PARAMS[name].side == side}
@@ -125,7 +130,7 @@ def side_of(columns: Mapping, side: str) -> dict:
 def file_for_agents(path: Path, agents: int) -> dict[str, np.ndarray]:
     """read_params, checked to fit a population of `agents` (one row for all, or one per agent)."""
     columns = read_params(path)
-    rows = len(next(iter(columns.values())))
+    rows = file_rows(columns)
     if rows not in (1, agents):
         raise ValueError(f"parameter file {path}: {rows} rows of values for {agents} agents (--agents): give one "
                          f"row for all of them, or one per agent")

@@ -126,8 +126,7 @@ def main(argv=None) -> int:
         if args.a_plus is not None:
             circuit = circuit.with_learning_rate(args.a_plus)
         world_from_args(args)  # and the --params file, for the world's agents
-        if args.params:
-            brain_params(args.params, circuit)
+        columns = brain_params(args.params, circuit) if args.params else {}
         if args.load:
             load_weights(args.load, circuit)
     except (CircuitError, MapError, ValueError, OSError) as e:
@@ -179,7 +178,7 @@ def main(argv=None) -> int:
         world.options["cpu"], brain.options["cpu"] = sorted(os.sched_getaffinity(0))[:2]
     log.info("run %s: %d ticks, seed %d, %d agent(s), A+ = A- = %s, world %s%s%s, %s semantics%s", run_id, args.ticks,
              args.seed, args.agents, learning_rate(circuit), args.preset, f", map {args.map}" if args.map else "",
-             f", per-agent parameters {', '.join(read_params(args.params))} from {args.params}" if args.params else "",
+             f", per-agent parameters {', '.join(columns)} from {args.params}" if columns else "",
              args.semantics, f"; resumed at tick {resume_at:,}" if resume_at is not None else "")
     started = time.time()
     launcher = Launcher()
@@ -314,7 +313,8 @@ def summarise(folder: Path, args, circuit, run_id: str, wall_s: float,
         "spikinglab": version(),
         "command": " ".join(["spikinglab", "run", *sys.argv[2:]]) if sys.argv[1:2] == ["run"] else " ".join(sys.argv),
         "run": run_id,
-        "parameters": {"ticks": args.ticks, "seed": args.seed, "agents": args.agents, **rates, "circuit": circuit.source, "preset": args.preset,
+        "parameters": {"ticks": args.ticks, "seed": args.seed, "agents": args.agents, **rates,
+                       "circuit": circuit.source, "preset": args.preset,
                        "map": str(args.map) if args.map else None, "shared_arena": args.shared,
                        "training": not args.no_training, "learned_after": args.learned_after,
                        "semantics": args.semantics, "order": args.order,

@@ -27,7 +27,7 @@ from spikinglab.bus import keys
 from spikinglab.bus.schemas import QUIET_S, Array, BrainLayout, BrainState, BusError, Control, Motor, Sensors, TickBatch
 from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 from spikinglab.options import Parser, shard
-from spikinglab.params import read_params, side_of
+from spikinglab.params import file_rows, read_params, side_of
 
 from .brain import Brain, check_sensors
 from .checkpoint import load_weights, save_weights
@@ -96,7 +96,7 @@ def brain_params(path: Path, circuit) -> dict:
     initial weights)."""
     columns = read_params(path)
     try:
-        learning_tables(circuit, side_of(columns, "brain"), len(next(iter(columns.values()))))
+        learning_tables(circuit, side_of(columns, "brain"), file_rows(columns))
     except ValueError as e:
         raise ValueError(f"parameter file {path}: {e}") from None
     return columns
