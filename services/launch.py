@@ -38,6 +38,7 @@ from importlib import resources
 from pathlib import Path
 
 from spikinglab.options import Parser, UsageError
+from spikinglab.params import file_for_agents
 
 log = logging.getLogger("spikinglab.launch")
 SERVICES = {  # a launch file's `service` -> the module run as `python -m` (it has parser() and main())
@@ -276,20 +277,51 @@ def read_launch_file(path: Path) -> tuple[list[Process], str | None]:
     unknown = sorted(set(settings) - {"until"})
     if unknown:
         raise LaunchError(f"{path}, [launch]: unknown key(s) {', '.join(unknown)} (known: until)")
-    processes = []
+    processes, parsed = [], {}
     for name, table in data.items():
         if not isinstance(table, dict):
             raise LaunchError(f"{path}: {name!r} should be a table [{name}] of a process's options")
         options = dict(table)
         process = Process(name, str(options.pop("service", name)), options)
-        process.check(f"{path}, [{name}]")
+        parsed[name] = process.check(f"{path}, [{name}]")
         processes.append(process)
     if not processes:
         raise LaunchError(f"{path} names no process: add a table such as [world]")
+    check_brains_fit_worlds(path, processes, parsed)
     until = settings.get("until")
     if until is not None and until not in data:
         raise LaunchError(f"{path}, [launch]: until = {until!r} is not one of its processes ({', '.join(data)})")
     return processes, until
+
+
+def check_brains_fit_worlds(path: Path, processes: list[Process], parsed: dict[str, argparse.Namespace]) -> None:
+    """What no one service's parser sees: a brain launched with a world it cannot serve (another group,
+    shard count or number of agents in its parameter file) would refuse every message while the world
+    waits. A file with no world (its brain joins a world elsewhere) is not checked."""
+    worlds = [parsed[p.name] for p in processes if p.service == "world"]
+    if not worlds:
+        return
+    shards_taken: dict[tuple[str, int], str] = {}
+    for brain in (p for p in processes if p.service == "brain"):
+        args, where = parsed[brain.name], f"{path}, [{brain.name}]"
+        world = next((w for w in worlds if w.group == args.group), None)
+        if world is None:
+            raise LaunchError(f"{where}: group {args.group!r} is no world's in this file (theirs: "
+                              f"{', '.join(sorted({w.group for w in worlds}))}): the brain would wait for sensors "
+                              f"that never come")
+        (i, n), world_name = args.shard, next(p.name for p in processes if parsed[p.name] is world)
+        if n != world.shards:
+            raise LaunchError(f"{where}: shard = \"{i}/{n}\", but [{world_name}] runs the brain as shards = "
+                              f"{world.shards}")
+        if (args.group, i) in shards_taken:
+            raise LaunchError(f"{where}: shard {i}/{n} is also [{shards_taken[args.group, i]}]'s")
+        shards_taken[args.group, i] = brain.name
+        if args.params is not None:
+            try:
+                file_for_agents(args.params, world.agents)
+            except ValueError as e:
+                raise LaunchError(f"{where}: {str(e).replace('(--agents)', f'(agents of [{world_name}])')}") \
+                    from None
 
 
 def shipped() -> dict[str, Path]:

@@ -38,6 +38,9 @@ def files(tmp_path_factory):
     (folder / "rows.csv").write_text("a_plus\n0.01\n0.02\n0.03\n")
     (folder / "word.csv").write_text("a_plus,move_step\n0.02,1\n0.02,fast\n")
     (folder / "low.csv").write_text("w_max\n3\n")
+    unfit = {"rows": f'params = "{folder / "rows.csv"}"', "shards": 'shard = "2/2"', "group": 'group = "other"'}
+    for name, brain in unfit.items():  # a brain each that could never serve its world: refused before anything starts
+        (folder / f"unfit-{name}.toml").write_text(f'[world]\nagents = 2\n[brain]\nonce = true\n{brain}\n')
     (folder / "bad.toml").write_text('[neurons]\nA = "regular"\n[[synapses]]\nfrom = "A"\nto = "B"\nweight = 5\n'
                                      'delay = 1\n')
     return folder
@@ -104,6 +107,12 @@ CASES = [  # id, arguments ({f}: the input files, {busy}: a port in use), exit c
     ("launch file misspelt option", "launch {f}/typo.toml", 2, "typo.toml, [world]: unrecognized arguments: --tick"),
     ("launch file bad value", "launch {f}/badvalue.toml", 2,
      "badvalue.toml, [world]: argument --ticks: must be at least 1, got 0"),
+    ("launch brain params for other agents", "launch {f}/unfit-rows.toml", 2,
+     "unfit-rows.toml, [brain]: parameter file {f}/rows.csv: 3 rows of values for 2 agents (agents of [world])"),
+    ("launch brain shards unlike the world's", "launch {f}/unfit-shards.toml", 2,
+     'unfit-shards.toml, [brain]: shard = "2/2", but [world] runs the brain as shards = 1'),
+    ("launch brain in another group", "launch {f}/unfit-group.toml", 2,
+     "unfit-group.toml, [brain]: group 'other' is no world's in this file"),
     ("launch file unknown service", "launch {f}/noservice.toml", 2, "noservice.toml, [mind]: unknown service 'mind'"),
 ]
 
@@ -119,7 +128,7 @@ def test_bad_input(case, command, code, says, files, busy_port, tmp_path):
                           text=True, timeout=120)
     lines = [line for line in done.stderr.splitlines() if line.strip()]
     assert done.returncode == code, done.stderr
-    assert lines and says in lines[-1], done.stderr
+    assert lines and says.format(f=files) in lines[-1], done.stderr
     assert "Traceback" not in done.stderr + done.stdout
     assert not list(tmp_path.rglob("summary.json")) and not list(tmp_path.rglob("*.png"))
     assert not running_with(str(tmp_path))
