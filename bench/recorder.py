@@ -14,6 +14,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from spikinglab.bench import steady_rate
 from spikinglab.launch import local_endpoints, spawn
 from spikinglab.options import Parser
 
@@ -33,7 +34,7 @@ def one_run(ticks: int, record: bool, folder: Path) -> dict:
         world.wait()
         world_done = time.monotonic()
         brain.wait(60)
-        result = {"ticks_per_s": json.loads((folder / "metrics.json").read_text())["ticks_per_s"]}
+        result = {"ticks_per_s": steady_rate(folder)}
         if recorder is not None:
             recorder.wait(300)
             result["lag_s"] = round(time.monotonic() - world_done, 2)

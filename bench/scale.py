@@ -17,6 +17,7 @@ import subprocess
 import tempfile
 from pathlib import Path
 
+from spikinglab.bench import steady_rate
 from spikinglab.launch import local_endpoints, spawn
 from spikinglab.options import Parser, at_least
 
@@ -37,7 +38,7 @@ def sharded(agents: int, shards: int, ticks: int) -> float:
         finally:
             for process in (world, *brains):
                 process.kill()
-        return json.loads((Path(tmp) / "metrics.json").read_text())["ticks_per_s"] * agents
+        return steady_rate(Path(tmp)) * agents
 
 
 def main(argv=None) -> dict:
