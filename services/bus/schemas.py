@@ -52,6 +52,16 @@ class Array(msgspec.Struct, frozen=True):
             a = a.astype(a.dtype.newbyteorder("<"))
         return cls(a.dtype.str, tuple(a.shape), a.tobytes())
 
+    @classmethod
+    def view(cls, a: np.ndarray) -> "Array":
+        """As of(), but no copy: the message reads `a`'s memory when it is encoded, so `a` must hold
+        the same values for as long as the message may be put. The lock-step sensors are put every
+        tick: a 16,000-agent reading is 640 KB, and copying it (into fresh pages each tick) cost the
+        world 200 us of its 4 ms tick."""
+        if a.dtype.byteorder == ">" or not a.flags.c_contiguous:
+            return cls.of(a)
+        return cls(a.dtype.str, tuple(a.shape), memoryview(a).cast("B"))
+
     def check(self, field: str, dtype: str, ndim: int) -> None:
         """BusError unless dtype, number of dimensions, and byte length agree. Plain Python, no
         array made: on the lock-step path every numpy call costs ~5 us with cold caches."""
@@ -92,8 +102,7 @@ def _sensed_in_range(values: Array) -> bool:
     if len(values.data) <= 8 * 64:
         return all(0 <= x < SENSED_MAX for x in struct.unpack(f"<{len(values.data) // 8}d", values.data) if x == x)
     sensed = values.numpy("values", "<f8", 2)
-    sensed = sensed[~np.isnan(sensed)]
-    return bool(((sensed >= 0) & (sensed < SENSED_MAX)).all())
+    return not ((sensed < 0) | (sensed >= SENSED_MAX)).any()  # NaN is neither: no mask to copy (112 -> 15 us at A = 16000)
 
 
 class Message(msgspec.Struct, tag_field="kind", frozen=True, kw_only=True):

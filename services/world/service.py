@@ -127,8 +127,8 @@ class Brains:
         """What the world's insects sense for `tick`, each shard's slice sent to it (the seed: the
         brain's netlogo order follows it; `checkpoint`: the world kept its state at the start of
         this tick, the brain keeps its own)."""
-        values = world.sense()
-        requests = [Sensors(tick=tick, names=SENSORS, values=Array.of(values[lo:hi]), run=run_id, seed=world.seed,
+        values = world.sense()  # viewed, not copied: sense() fills it again only after collect() got every answer
+        requests = [Sensors(tick=tick, names=SENSORS, values=Array.view(values[lo:hi]), run=run_id, seed=world.seed,
                             checkpoint=checkpoint, first=lo) for lo, hi in self.slices]
         for outbox, request in zip(self.sensors, requests):
             outbox.put(request)

@@ -98,3 +98,17 @@ def test_sensor_values_are_checked_alike_for_few_agents_and_many(row, agents):
         else:
             with pytest.raises(BusError, match="a sensor value outside"):
                 decode(encode(message), Sensors)
+
+
+def test_an_array_viewed_encodes_as_one_copied():
+    """Array.view (the lock-step sensors, not copied) puts the same bytes on the bus as Array.of,
+    for an array in place, a strided slice and a big-endian one (those two copied), and reads the
+    array's memory as it is when encoded."""
+    values = np.arange(20, dtype="<f8").reshape(4, 5)
+    for a in (values, values[:, 1:3], values.astype(">f8"), values[1:3]):
+        assert encode(Sensors(tick=1, names=("a",), values=Array.view(a))) == \
+            encode(Sensors(tick=1, names=("a",), values=Array.of(a)))
+    viewed = Array.view(values)
+    values[0, 0] = 99.0
+    assert decode(encode(Sensors(tick=1, names=tuple("abcde"), values=viewed)), Sensors).values.numpy(
+        "values", "<f8", 2)[0, 0] == 99.0
