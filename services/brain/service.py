@@ -24,7 +24,18 @@ import numpy as np
 
 from spikinglab import snapshots
 from spikinglab.bus import keys
-from spikinglab.bus.schemas import QUIET_S, Array, BrainLayout, BrainState, BusError, Control, Motor, Sensors, TickBatch
+from spikinglab.bus.schemas import (
+    QUIET_S,
+    Array,
+    BrainLayout,
+    BrainState,
+    BusError,
+    Control,
+    Motor,
+    Sensors,
+    TickBatch,
+    state_batch,
+)
 from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 from spikinglab.options import Parser, shard
 from spikinglab.params import file_rows, read_params, side_of
@@ -35,7 +46,7 @@ from .circuit import CircuitError, load_circuit
 from .engine import DEFAULT_SEMANTICS, ORDERS, SEMANTICS, learning_tables
 
 log = logging.getLogger("spikinglab.brain")
-STATE_BATCH = 50  # ticks per BrainState message (one put per 50 ticks keeps recording off the loop's back)
+FREE_STATE_BATCH = 50  # ticks per BrainState message when free-running: 50 ms behind at 1 kHz for a live view
 HEARTBEAT_S = 0.05  # free-running: a motor message (an empty one if nothing fired) at least this often
 CATCH_UP_S = 0.05  # free-running: a clock this far behind skips ahead instead of running the missed ticks
 
@@ -66,8 +77,9 @@ def parser() -> argparse.ArgumentParser:
                    help="write the rejected messages (and, free-running, the tick rate and lateness) here (JSON) "
                         "when a run ends")
     p.add_argument("--publish-state", action="store_true",
-                   help=f"publish spikes and potentials of every tick, and the weights, in batches of {STATE_BATCH} "
-                        "ticks (recorder); the first tick waits until someone subscribes")
+                   help="publish spikes and potentials of every tick, and the weights, in batches of 50 to 250 ticks "
+                        f"(fewer for more agents; {FREE_STATE_BATCH} free-running) for the recorder; the first tick "
+                        "waits until someone subscribes")
     free = p.add_argument_group("free-running (robot)")
     free.add_argument("--clock", type=float, default=0, metavar="HZ",
                       help="tick on this clock with the latest sensor reading, motor spikes as events "
@@ -116,13 +128,17 @@ class BrainNode:
         self.checkpoints = checkpoints  # the folder of this brain's whole-state checkpoints (None: none kept)
         self.engine_options = engine_options  # semantics, order, seed
         self.brain: Brain | None = None
-        self.batch = TickBatch(STATE_BATCH)  # spikes and potentials not yet published
+        self.free_running = False  # True: state batches of FREE_STATE_BATCH ticks, not by agents (lock-step)
+        self.batch = TickBatch(FREE_STATE_BATCH)  # spikes and potentials not yet published (start() sizes it)
         self.stepped = False  # whether the last answer() stepped the brain (not a repeat)
         self.last_tick = -1
         self.run: str | None = None  # the run served, as its sensor messages name it
         self.last_answer: Motor | None = None
         self.warned = False  # said that the world keeps checkpoints and this brain does not
         self.quiet_s, self.heard_at = quiet_s, 0.0  # when the run served last asked (monotonic)
+
+    def new_batch(self) -> TickBatch:
+        return TickBatch(FREE_STATE_BATCH if self.free_running else state_batch(self.brain.agents))
 
     def start(self, message: Sensors) -> None:
         """A fresh brain for the sensors and agents of `message` (a new run)."""
@@ -138,7 +154,7 @@ class BrainNode:
         if self.initial_weights is not None:  # one agent's weights are given to every agent
             w = self.initial_weights
             self.brain.engine.set_weights(w[0] if w.shape[0] == 1 else w)
-        self.batch = TickBatch(STATE_BATCH)  # nothing of a previous run goes into this one's batches
+        self.batch = self.new_batch()  # nothing of a previous run goes into this one's batches
         log.info("brain for %d agent(s) of circuit %s, sensors %s, training %s, %s", agents, self.circuit.name,
                  ", ".join(message.names), "on" if self.training else "off",
                  ", ".join(f"{k} {v}" for k, v in options.items()))
@@ -249,7 +265,7 @@ class BrainNode:
                         self.run, message.tick, e)
             return
         self.last_tick, self.last_answer = message.tick - 1, None
-        self.batch = TickBatch(STATE_BATCH)
+        self.batch = self.new_batch()
         log.info("run %s resumed at tick %d from %s", self.run, message.tick, path)
 
     def ends(self, order: Control) -> bool:
@@ -422,6 +438,7 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
                 sensors.refuse(BusError(f"does not fit the circuit: {e}"))
                 latest = None
     latest_at = time.monotonic()
+    node.free_running = True
     node.start(latest)
     node.run = latest.run
     engine, brain = node.brain.engine, node.brain

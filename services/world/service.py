@@ -35,6 +35,7 @@ from spikinglab.bus.schemas import (
     WorldMap,
     WorldState,
     new_run_id,
+    state_batch,
 )
 from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 from spikinglab.options import Parser, at_least
@@ -44,7 +45,6 @@ from .world import PRESETS, SENSORS, MapError, World, map_world, params_for, wor
 
 log = logging.getLogger("spikinglab.world")
 RESEND_AFTER = 1.0  # seconds without an answer before the sensors are sent again
-STATE_BATCH = 50  # ticks per WorldState message (one put per 50 ticks keeps recording off the loop's back)
 
 
 def parser() -> argparse.ArgumentParser:
@@ -327,7 +327,7 @@ def run(args: argparse.Namespace, session) -> int:
             wait_for_subscriber(state, "a recorder")
             bus.outbox(keys.world_map(args.group)).put(WorldMap(
                 tick=start, run=run_id, grid=Array.of(world.grid), x_min=world.params.x_min, y_min=world.params.y_min))
-        batch, changes = TickBatch(STATE_BATCH), []
+        batch, changes = TickBatch(state_batch(world.agents)), []
         if resumed:
             log.info("run %s resumed at tick %d from %s", run_id, start, args.checkpoint / CHECKPOINT)
         log.info("run %s: %d ticks, seed %d, %d agent(s)", run_id, args.ticks, world.seed, world.agents)

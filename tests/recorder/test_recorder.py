@@ -14,6 +14,7 @@ from rerun.chunk import RrdReader
 from spikinglab.brain.checkpoint import load_weights
 from spikinglab.brain.circuit import load_circuit
 from spikinglab.bus import keys
+from spikinglab.bus.schemas import state_batch
 from spikinglab.loop import brain_for, closed_loop
 from spikinglab.world.world import SENSORS, World, generate_map, params_for
 
@@ -88,7 +89,7 @@ def test_spikes_weights_and_learning_curve_are_the_brains(recorded_run):
         raster = data.get(f"/brain/agent0/spikes/{k:02d}_{name}", {}).get("tick", [])
         assert len([t for t in raster if t is not None]) == spikes[k], name
     weights = data["/brain/agent0/weights"]
-    assert weights["tick"][-1] == TICKS - 1 and weights["tick"][0] == 49  # after each batch of 50 ticks
+    assert weights["tick"][-1] == TICKS - 1 and weights["tick"][0] == state_batch(1) - 1  # after each batch
     saved = load_weights(folder / "weights.npz", circuit)[0, circuit.plastic_synapses]
     np.testing.assert_array_equal(weights["Scalars:scalars"][-1], saved)
     potentials = data["/brain/agent0/potentials"]
