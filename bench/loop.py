@@ -7,7 +7,8 @@ All figures in one run, on this machine:
   engine:     the engine alone at A = 1000 on random feeds (the in-process loop's bound)
   bus:        world and brain as two processes on a local Zenoh bus (Unix sockets, one CPU each,
               as `spikinglab run` places them), 1 agent, A = 1000 and A = 16000
-  recording:  the 1-agent lock-step loop with both publishing state to a recorder
+  recording:  the 1-agent lock-step loop with both publishing state to a recorder (run in turns
+              with the unrecorded one)
 The bus figures are the world's own, after its first tick: that round trip holds the brain's
 start (its network built, compiled code loaded: 0.1-0.2 s), which the in-process loop and the
 ping-pong leave out as a warm-up too.
@@ -118,7 +119,9 @@ def main(argv=None) -> dict:
     batch_in = inprocess(args.batch_ticks // 4, args.semantics, A)
     print(f"A = {A}: engine alone {engine:,.0f} agent-ticks/s, the loop in one process {batch_in:,.0f} "
           f"({batch_in / engine:.0%} of the engine)")
-    bus, text = median_of([over_the_bus(args.ticks, 1, args.semantics) for _ in range(args.repeats)])
+    # unrecorded and recorded in turns: the machine drifts more between minutes than the recording costs
+    turns = [(over_the_bus(args.ticks, 1, args.semantics), recorded_run(args.ticks)) for _ in range(args.repeats)]
+    bus, text = median_of([plain for plain, _ in turns])
     print(f"two processes on the bus, 1 agent: {bus:,.0f} ticks/s median ({1e6 / bus:.0f} us per lock-step "
           f"round trip, {bus / pings:.0%} of the bare ping-pong; runs: {text})")
     batch, text = median_of([over_the_bus(args.batch_ticks, A, args.semantics) * A for _ in range(args.repeats)])
@@ -128,7 +131,7 @@ def main(argv=None) -> dict:
     large, text = median_of([over_the_bus(args.large_ticks, big, args.semantics) * big for _ in range(args.repeats)])
     print(f"A = {big}: in one process {large_in:,.0f} agent-ticks/s, two processes on the bus {large:,.0f} median "
           f"({large / large_in:.0%}; runs: {text})")
-    recorded, text = median_of([recorded_run(args.ticks) for _ in range(args.repeats)])
+    recorded, text = median_of([recorded for _, recorded in turns])
     print(f"two processes on the bus, 1 agent, recorded: {recorded:,.0f} ticks/s median ({1 - recorded / bus:.0%} "
           f"below the loop unrecorded; runs: {text})")
     result = {"zenoh_roundtrips_per_s": round(pings), "inprocess_ticks_per_s": round(rate),
