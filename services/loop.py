@@ -18,7 +18,7 @@ from spikinglab.brain.brain import Brain, bind
 from spikinglab.brain.circuit import Circuit, load_circuit
 from spikinglab.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, serial_tick
 from spikinglab.params import AGENT_PARAMS, agent_columns, setting_count
-from spikinglab.world.world import ACTIONS, BIN, SENSORS, World, _act, _sense, _touch, params_for, world_actions
+from spikinglab.world.world import ACTIONS, BIN, PAIN, SENSORS, World, _act, _sense, _touch, params_for, world_actions
 
 
 def brain_for(world: World, circuit: Circuit, params: Mapping | None = None, **engine_options) -> Brain:
@@ -40,9 +40,13 @@ def closed_loop(world: World, brain: Brain, ticks: int, on_tick: Callable[[int],
             on_tick(t)
 
 
-def fused_loop(world: World, brain: Brain, ticks: int) -> None:
-    """`ticks` ticks of the closed loop as compiled calls, one per stretch up to a bin's end."""
+def fused_loop(world: World, brain: Brain, ticks: int, noxious: np.ndarray | None = None) -> None:
+    """`ticks` ticks of the closed loop as compiled calls, one per stretch up to a bin's end.
+    `noxious` ([ticks, agents] uint8): row t set to 1 where an agent's pain sensor was fed in the
+    call's tick t (spikinglab.learning.noxious_ticks)."""
     engine, m = brain.engine, world.metrics
+    if noxious is None:
+        noxious = np.zeros((0, world.agents), np.uint8)  # none kept
     # the brain's sensor columns -> its input neurons; its actuators -> the world's action columns
     bound = [(brain.action_names[c], int(n)) for c, n in zip(brain._action_cols, brain._actuators)]
     world_cols = np.array([ACTIONS.index(name) for name, _ in bound if name in ACTIONS], np.int64)
@@ -55,7 +59,7 @@ def fused_loop(world: World, brain: Brain, ticks: int) -> None:
                world.heading, world.fpar, world.steps, world.kind, world.sensors, world.last_patch, world.events,
                world.eaten, m.collisions, m.collisions_by_colour, m.food, m.distance, m.last_collision,
                m.last_noxious, m.learned_at, world._bin, m.resets, actions, brain._sensor_cols, brain._input_cols,
-               world_cols, actuators, brain.feed, *engine.serial_args)
+               world_cols, actuators, brain.feed, noxious[done:done + n], *engine.serial_args)
         world.tick += n
         done += n
         if world.tick % BIN == 0:
@@ -67,10 +71,13 @@ def fused_loop(world: World, brain: Brain, ticks: int) -> None:
 @njit(cache=True)
 def _fused(ticks, netlogo, t0, world_training, grid, arena_of, pos, heading, fpar, steps, kind, sensors, last_patch,
            events, eaten, collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins,
-           resets, actions, sensor_cols, input_cols, world_cols, actuators, feed, clock, syn, npar, lrn, inpar, v, w,
-           state, last_spike, hist, ring, spiked, out_start, out_syn, order_key, rules):
+           resets, actions, sensor_cols, input_cols, world_cols, actuators, feed, noxious, clock, syn, npar, lrn, inpar,
+           v, w, state, last_spike, hist, ring, spiked, out_start, out_syn, order_key, rules):
     for k in range(ticks):
         _sense(grid, arena_of, pos, heading, fpar, kind, sensors)
+        if noxious.shape[0] > 0:
+            for a in range(sensors.shape[0]):
+                noxious[k, a] = sensors[a, PAIN] == sensors[a, PAIN]  # fed: not NaN
         bind(sensors, sensor_cols, input_cols, feed)
         serial_tick(netlogo, feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
                     out_start, out_syn, order_key, rules)

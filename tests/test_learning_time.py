@@ -1,9 +1,11 @@
 """Learning time from noxious ticks: the post-hoc definitions agree with the world's own counter."""
 
+import numpy as np
+
 from spikinglab.brain.circuit import load_circuit
 from spikinglab.learning import learning_time, noxious_ticks, stats
-from spikinglab.loop import brain_for
-from spikinglab.world.world import World, params_for
+from spikinglab.loop import brain_for, closed_loop
+from spikinglab.world.world import PAIN, World, params_for
 
 
 def test_definitions_on_hand_made_ticks():
@@ -29,3 +31,25 @@ def test_post_hoc_definition_equals_the_worlds_counter_on_a_real_run():
     expected = [None if t < 0 else int(t) for t in world.metrics.learned_at]
     assert [learning_time(n, ticks, window) for n in noxious] == expected
     assert any(t is not None for t in expected) and all(len(n) > 0 for n in noxious)
+
+
+def test_the_compiled_loop_keeps_the_same_noxious_ticks_as_reading_the_pain_sensor_each_tick():
+    """noxious_ticks runs stretches of ticks as one compiled call that keeps the ticks the pain
+    sensor was fed; reading the sensor after every tick in Python gives the same, and on_tick
+    sees every tick."""
+    runs, seen = [], []
+    for compiled in (True, False):
+        world = World(params_for("paper"), agents=3, seed=2)
+        brain = brain_for(world, load_circuit("insect").with_learning_rate(0.04), semantics="netlogo")
+        if compiled:
+            runs.append(noxious_ticks(world, brain, 2500, seen.append))
+            continue
+        kept = [[] for _ in range(world.agents)]
+
+        def keep(t, world=world, kept=kept):
+            for agent in np.flatnonzero(~np.isnan(world.sensors[:, PAIN])):
+                kept[agent].append(t)
+        closed_loop(world, brain, 2500, keep)
+        runs.append(kept)
+    assert runs[0] == runs[1] and all(runs[0])
+    assert seen == list(range(2500))
