@@ -147,3 +147,26 @@ def test_connecting_where_nothing_answers_is_reported_within_10_s(tmp_path):
     finally:
         brain.terminate()
         brain.wait(10)
+
+
+def test_a_brain_that_refuses_every_reading_is_named_by_the_world(files, tmp_path):
+    """Started by hand, a brain whose parameter file has 3 rows for the world's 2 agents refuses
+    every sensors message and says why; the world waits for it (a brain may be fixed and
+    restarted) and says, within 10 s, that it is on the bus but does not answer."""
+    port = free_port()
+    world = start("world", "--listen", f"tcp/127.0.0.1:{port}", "--agents", 2, "--group", tmp_path.name,
+                  log=tmp_path / "world.log")
+    brain = start("brain", "--connect", f"tcp/127.0.0.1:{port}", "--group", tmp_path.name, "--params",
+                  files / "rows.csv", log=tmp_path / "brain.log")
+    try:
+        started, said = time.monotonic(), ""
+        while "on the bus but no answer" not in said and time.monotonic() - started < 25:
+            time.sleep(0.2)
+            said = (tmp_path / "world.log").read_text()
+        assert "brain on the bus but no answer to tick 0 for 10 s: its log says why" in said
+        assert "does not fit the parameter file" in (tmp_path / "brain.log").read_text()
+        assert world.poll() is None and brain.poll() is None  # neither gives up
+    finally:
+        for process in (world, brain):
+            process.terminate()
+            process.wait(10)

@@ -45,6 +45,7 @@ from .world import PRESETS, SENSORS, MapError, World, map_world, params_for, wor
 
 log = logging.getLogger("spikinglab.world")
 RESEND_AFTER = 1.0  # seconds without an answer before the sensors are sent again
+UNANSWERED_S = 10.0  # a brain on the bus that has not answered a tick for this long is named (then every minute)
 
 
 def parser() -> argparse.ArgumentParser:
@@ -139,15 +140,24 @@ class Brains:
         is silent for RESEND_AFTER is asked again, and one that left the bus is named and waited for."""
         t, run_id = requests[0].tick, requests[0].run
         answers = [None] * len(self.shards)
+        asked_at, said_at = time.monotonic(), None
         while any(a is None for a in answers):
             answer = self.motor.get(timeout=RESEND_AFTER)
             if answer is None:
-                for k in (k for k, a in enumerate(answers) if a is None):
+                silent = [k for k, a in enumerate(answers) if a is None]
+                for k in silent:
                     if not self.presences[k].alive:
                         log.warning("%s lost at tick %d: waiting for it to come back", self.names[k], t)
                         wait_for_subscriber(self.sensors[k], self.waited_for[k], self.presences[k])
                         log.info("%s back: continuing at tick %d", self.names[k], t)
+                        asked_at, said_at = time.monotonic(), None
                     self.sensors[k].put(requests[k])
+                now = time.monotonic()
+                if now - asked_at >= UNANSWERED_S and (said_at is None or now - said_at >= 60):
+                    said_at = now  # on the bus, yet silent: most likely it refuses these sensors, and says why
+                    log.warning("%s on the bus but no answer to tick %d for %.0f s: its log says why (a brain "
+                                "refuses sensors that do not fit its circuit, parameter file or shard)",
+                                " and ".join(self.names[k] for k in silent), t, now - asked_at)
                 continue
             k = self.index.get(answer.first)
             size = None if k is None else self.slices[k][1] - self.slices[k][0]
