@@ -39,7 +39,7 @@ def noxious_ticks(world, brain, ticks: int, on_tick: Callable[[int], None] | Non
     """Run world and brain in the closed loop for `ticks` ticks; the ticks each agent spent on a
     noxious patch (the pain sensor fed), from which every definition below is computed. `on_tick(t)`
     is called for every tick t; below PARALLEL_FROM agents, after each stretch of BIN ticks, which
-    runs as one compiled call that keeps the pain sensor's ticks (60 % faster for 16 agents)."""
+    runs as one compiled call that keeps the pain sensor's ticks (1.7 times as fast for 16 agents)."""
     from spikinglab.loop import closed_loop, fused_loop
     from spikinglab.params import PARALLEL_FROM
     from spikinglab.world.world import BIN, PAIN
@@ -47,8 +47,9 @@ def noxious_ticks(world, brain, ticks: int, on_tick: Callable[[int], None] | Non
     if brain.agents < PARALLEL_FROM:
         fed = np.zeros((ticks, world.agents), np.uint8)
         for start in range(0, ticks, BIN):
-            fused_loop(world, brain, min(BIN, ticks - start), fed[start:start + BIN])
-            for t in range(start, min(start + BIN, ticks)) if on_tick is not None else ():
+            stretch = range(start, min(start + BIN, ticks))
+            fused_loop(world, brain, len(stretch), fed[stretch.start:stretch.stop])
+            for t in stretch if on_tick else ():  # the same calls as tick by tick, after the stretch
                 on_tick(t)
         return [np.flatnonzero(fed[:, a]).tolist() for a in range(world.agents)]
     noxious = [[] for _ in range(world.agents)]
