@@ -238,7 +238,8 @@ def test_a_frozen_recorder_never_holds_the_run_back(tmp_path):
         assert "Traceback" not in (tmp_path / f"{name}.log").read_text()
     said = (tmp_path / "recorder.log").read_text()
     written = re.search(r"recording written to .* \(ticks 0\.\.(\d+)\).* ticks missing: (.*); rejected: (.*)", said)
-    assert written and int(written.group(1)) < 19999, said[-2000:]
+    # not the whole run: it ends short, or a batch queued when it froze came on SIGCONT after a gap it names
+    assert written and (int(written.group(1)) < 19999 or written.group(2) != "none"), said[-2000:]
     assert "left without the run's end" in said
     pace = json.loads((tmp_path / "metrics.json").read_text())["ticks_per_s"]
     print(f"frozen recorder: the run went on to its end at {pace:,.0f} ticks/s; recorded ticks 0..{written.group(1)} "
