@@ -23,19 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from spikinglab import snapshots
-from spikinglab.bus import keys
-from spikinglab.bus.schemas import (
-    QUIET_S,
-    Array,
-    BrainLayout,
-    BrainState,
-    BusError,
-    Control,
-    Motor,
-    Sensors,
-    TickBatch,
-    state_batch,
-)
+from spikinglab.bus import keys, schemas
+from spikinglab.bus.schemas import QUIET_S, Array, BrainLayout, BrainState, BusError, Control, Motor, Sensors, TickBatch
 from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
 from spikinglab.options import Parser, shard
 from spikinglab.params import file_rows, read_params, side_of
@@ -138,7 +127,7 @@ class BrainNode:
         self.quiet_s, self.heard_at = quiet_s, 0.0  # when the run served last asked (monotonic)
 
     def new_batch(self) -> TickBatch:
-        return TickBatch(FREE_STATE_BATCH if self.free_running else state_batch(self.brain.agents))
+        return TickBatch(FREE_STATE_BATCH if self.free_running else schemas.state_batch(self.brain.agents))
 
     def start(self, message: Sensors) -> None:
         """A fresh brain for the sensors and agents of `message` (a new run)."""
