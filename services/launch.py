@@ -318,10 +318,9 @@ def check_brains_fit_worlds(path: Path, processes: list[Process], parsed: dict[s
         shards_taken[args.group, i] = brain.name
         if args.params is not None:
             try:
-                file_for_agents(args.params, world.agents)
+                file_for_agents(args.params, world.agents, f"agents of [{world_name}]")
             except ValueError as e:
-                raise LaunchError(f"{where}: {str(e).replace('(--agents)', f'(agents of [{world_name}])')}") \
-                    from None
+                raise LaunchError(f"{where}: {e}") from None
 
 
 def shipped() -> dict[str, Path]:

@@ -127,11 +127,12 @@ def side_of(columns: Mapping, side: str) -> dict:
     return {name: values for name, values in columns.items() if AGENT_PARAMS[name].side == side}
 
 
-def file_for_agents(path: Path, agents: int) -> dict[str, np.ndarray]:
-    """read_params, checked to fit a population of `agents` (one row for all, or one per agent)."""
+def file_for_agents(path: Path, agents: int, said_by: str = "--agents") -> dict[str, np.ndarray]:
+    """read_params, checked to fit a population of `agents` (one row for all, or one per agent);
+    `said_by`: where the number of agents was given, for the error."""
     columns = read_params(path)
     rows = file_rows(columns)
     if rows not in (1, agents):
-        raise ValueError(f"parameter file {path}: {rows} rows of values for {agents} agents (--agents): give one "
+        raise ValueError(f"parameter file {path}: {rows} rows of values for {agents} agents ({said_by}): give one "
                          f"row for all of them, or one per agent")
     return columns
