@@ -298,18 +298,18 @@ def check_brains_fit_worlds(path: Path, processes: list[Process], parsed: dict[s
     """What no one service's parser sees: a brain launched with a world it cannot serve (another group,
     shard count or number of agents in its parameter file) would refuse every message while the world
     waits. A file with no world (its brain joins a world elsewhere) is not checked."""
-    worlds = [parsed[p.name] for p in processes if p.service == "world"]
+    worlds = {p.name: parsed[p.name] for p in processes if p.service == "world"}
     if not worlds:
         return
     shards_taken: dict[tuple[str, int], str] = {}
     for brain in (p for p in processes if p.service == "brain"):
         args, where = parsed[brain.name], f"{path}, [{brain.name}]"
-        world = next((w for w in worlds if w.group == args.group), None)
-        if world is None:
+        world_name = next((name for name, w in worlds.items() if w.group == args.group), None)
+        if world_name is None:
             raise LaunchError(f"{where}: group {args.group!r} is no world's in this file (theirs: "
-                              f"{', '.join(sorted({w.group for w in worlds}))}): the brain would wait for sensors "
-                              f"that never come")
-        (i, n), world_name = args.shard, next(p.name for p in processes if parsed[p.name] is world)
+                              f"{', '.join(sorted({w.group for w in worlds.values()}))}): the brain would wait for "
+                              f"sensors that never come")
+        world, (i, n) = worlds[world_name], args.shard
         if n != world.shards:
             raise LaunchError(f"{where}: shard = \"{i}/{n}\", but [{world_name}] runs the brain as shards = "
                               f"{world.shards}")
