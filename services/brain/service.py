@@ -108,8 +108,9 @@ class BrainNode:
 
     def __init__(self, circuit, training: bool = True, weights: np.ndarray | None = None,
                  checkpoints: Path | None = None, quiet_s: float = QUIET_S, shard: tuple[int, int] = (1, 1),
-                 params: dict | None = None, **engine_options):
-        """`params`: per-agent parameter columns of the whole population (spikinglab.params.read_params)."""
+                 params: dict | None = None, free_running: bool = False, **engine_options):
+        """`params`: per-agent parameter columns of the whole population (spikinglab.params.read_params);
+        `free_running`: on a clock (robot), state batches of FREE_STATE_BATCH ticks, not sized by agents."""
         self.circuit, self.training, self.initial_weights = circuit, training, weights
         self.params = side_of(params or {}, "brain")
         self.shard = shard  # (i, n): this brain serves the i-th of n slices of the population
@@ -117,7 +118,7 @@ class BrainNode:
         self.checkpoints = checkpoints  # the folder of this brain's whole-state checkpoints (None: none kept)
         self.engine_options = engine_options  # semantics, order, seed
         self.brain: Brain | None = None
-        self.free_running = False  # True: state batches of FREE_STATE_BATCH ticks, not by agents (lock-step)
+        self.free_running = free_running
         self.batch = TickBatch(FREE_STATE_BATCH)  # spikes and potentials not yet published (start() sizes it)
         self.stepped = False  # whether the last answer() stepped the brain (not a repeat)
         self.last_tick = -1
@@ -305,8 +306,8 @@ def run(args: argparse.Namespace, session) -> int:
         return 2
     def new_node() -> BrainNode:  # one per run the brain serves
         return BrainNode(circuit, training=not args.no_training, weights=weights, checkpoints=args.checkpoint,
-                         shard=args.shard, params=params, seed=args.seed, semantics=args.semantics,
-                         order=args.order)
+                         shard=args.shard, params=params, free_running=bool(args.clock), seed=args.seed,
+                         semantics=args.semantics, order=args.order)
     node = new_node()
     bus = Bus(session, args.group, keys.brain_service(args.shard))
     bus.watch_others(lambda: f" at tick {node.last_tick + 1} of run {node.run}" if node.run else "")
@@ -427,7 +428,6 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
                 sensors.refuse(BusError(f"does not fit the circuit: {e}"))
                 latest = None
     latest_at = time.monotonic()
-    node.free_running = True
     node.start(latest)
     node.run = latest.run
     engine, brain = node.brain.engine, node.brain
