@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 from spikinglab.bench import steady_rate
+from spikinglab.bus.schemas import state_batch
 from spikinglab.launch import local_endpoints, spawn
 from spikinglab.options import Parser
 
@@ -50,24 +51,25 @@ def alone(ticks: int) -> float:
     import rerun as rr
 
     from spikinglab.brain.circuit import load_circuit
-    from spikinglab.brain.service import STATE_BATCH, BrainNode, layout
-    from spikinglab.bus.schemas import Array, Sensors, TickBatch, WorldMap, decode, encode
+    from spikinglab.brain.service import BrainNode, layout
+    from spikinglab.bus.schemas import Array, Sensors, TickBatch, WorldMap, decode, encode, new_run_id
     from spikinglab.recorder.recorder import Recorder, blueprint
     from spikinglab.world.service import keep_state, state_message
     from spikinglab.world.world import SENSORS, World, world_actions
 
-    circuit, world = load_circuit("insect"), World(seed=1)
+    circuit, world, run = load_circuit("insect"), World(seed=1), new_run_id()
     node = BrainNode(circuit)
-    messages = [encode(WorldMap(tick=0, grid=Array.of(world.grid), x_min=80, y_min=1)), encode(layout(circuit, 0))]
-    batch, changes = TickBatch(STATE_BATCH), []
+    messages = [encode(WorldMap(tick=0, run=run, grid=Array.of(world.grid), x_min=world.params.x_min,
+                                y_min=world.params.y_min)), encode(layout(circuit, 0, run))]
+    batch, changes = TickBatch(state_batch(world.agents)), []
     values = world.sense()
     for t in range(ticks):
-        answer = node.answer(Sensors(tick=t, names=SENSORS, values=Array.of(values)))
+        answer = node.answer(Sensors(tick=t, names=SENSORS, values=Array.of(values), run=run))
         node.keep_state()
         world.act(world_actions(answer.names, answer.actions.numpy("actions", "|u1", 2)))
-        keep_state(batch, changes, world, t)
+        keep_state(batch, changes, world, t, values)
         if batch.full or t + 1 == ticks:
-            messages.append(encode(state_message(batch, changes, t + 1 == ticks, world)))
+            messages.append(encode(state_message(batch, changes, t + 1 == ticks, world, run)))
             messages.append(encode(node.state_message(final=t + 1 == ticks)))
         values = world.sense()
     with tempfile.TemporaryDirectory() as tmp:
@@ -91,7 +93,7 @@ def main(argv=None) -> dict:
         recorded = one_run(args.ticks, True, Path(b))
     print(f"lock-step, 1 agent, {args.ticks:,} ticks: {plain['ticks_per_s']:,.0f} ticks/s without the recorder, "
           f"{recorded['ticks_per_s']:,.0f} with it")
-    print(f"recorder: {recorded['messages']:,} messages (world and brain state in batches of 50 ticks), "
+    print(f"recorder: {recorded['messages']:,} messages (world and brain state in batches of {state_batch(1)} ticks), "
           f"file complete {recorded['lag_s']} s after the last tick, {recorded['file_mb']} MB")
     result = {"loop_ticks_per_s": round(plain["ticks_per_s"]), "recorded_loop_ticks_per_s": round(recorded["ticks_per_s"]),
               "recorder_messages": recorded["messages"], "recorder_lag_s": recorded["lag_s"],

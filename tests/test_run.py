@@ -11,6 +11,7 @@ import numpy as np
 
 from spikinglab.brain.checkpoint import load_weights
 from spikinglab.brain.circuit import load_circuit
+from spikinglab.bus.schemas import state_batch
 
 from .processes import ROOT, running_with
 
@@ -101,6 +102,11 @@ def test_benchmarks_run_and_end_with_json():
     figures = json.loads(fuzz.stdout.strip().splitlines()[-1])
     assert figures["escapes"] == 0 and len(figures["keys"]) == 7
     assert all(counts["tried"] >= 10 for counts in figures["keys"].values())
+    recorder = spikinglab("bench", "recorder", "--ticks", 1000)
+    assert recorder.returncode == 0, recorder.stderr
+    figures = json.loads(recorder.stdout.strip().splitlines()[-1])
+    assert figures["recorder_messages"] >= 2 * 1000 // state_batch(1) and figures["recording_mb"] > 0
+    assert all(figures[k] > 0 for k in ("loop_ticks_per_s", "recorded_loop_ticks_per_s", "recorder_alone_ticks_per_s"))
 
 
 def start_run(tmp_path, *args):
