@@ -268,9 +268,9 @@ class Recorder:
             self.spike_counts = np.zeros(spiked.shape[1:], np.int64)
         self.spike_counts += spiked.sum(axis=0, dtype=np.int64)
         self._count_gap("brain", m.tick, len(spiked))
-        for k in range(len(spiked)):
-            self.b["spikes"].append((m.tick + k, spiked[k][rows]))
-            self.b["potentials"].append((m.tick + k, potentials[k][rows]))
+        if len(spiked):  # the batch as arrays, [T, detail rows, nodes]: flush() joins them
+            self.b["spikes"].append((np.arange(m.tick, m.tick + len(spiked)), spiked[:, rows]))
+            self.b["potentials"].append(potentials[:, rows])
         last = m.tick + len(spiked) - 1
         self.last_tick = max(self.last_tick, last)
         weights = m.weights.numpy("weights", "<f8", 2)
@@ -352,10 +352,13 @@ class Recorder:
         history = np.concatenate([old_pos, pos])
         self._trail[a] = (history_ticks[-self.trail:], history[-self.trail:])
         strips, counts, when = [], [], []
+        shown = self.view(history)  # once for the whole history: the same points as piece by piece
         for t in ticks[(ticks % TRAIL_EVERY) == 0]:
-            part = history[history_ticks <= t][-self.trail:][::TRAIL_STEP]
-            pieces = np.split(part, np.flatnonzero(np.linalg.norm(np.diff(part, axis=0), axis=1) > 3) + 1)
-            pieces = [self.view(p) for p in pieces if len(p) > 1]
+            end = np.searchsorted(history_ticks, t, side="right")  # the ticks come in order
+            part = slice(max(0, end - self.trail), end, TRAIL_STEP)
+            jumps = np.linalg.norm(np.diff(history[part], axis=0), axis=1) > 3  # in world units, as before
+            pieces = np.split(shown[part], np.flatnonzero(jumps) + 1)
+            pieces = [p for p in pieces if len(p) > 1]
             strips += pieces
             counts.append(len(pieces))
             when.append(t)
@@ -365,20 +368,22 @@ class Recorder:
                 radii=np.full(len(strips), 0.1, np.float32)).partition(counts))
 
     def _flush_brain(self, spikes, potentials, weights) -> None:
-        shown = len(spikes[0][1]) if spikes else len(weights[0][1])
+        if spikes:
+            ticks, spiked_rows = (np.concatenate(column) for column in zip(*spikes))  # [T], [T, shown, nodes]
+            potential_rows = np.concatenate(potentials)
+        shown = spiked_rows.shape[1] if spikes else len(weights[0][1])
         for i, a in enumerate(self.detail[:shown]):
             base = f"/brain/agent{a}"
             if spikes:
-                ticks = np.array([s[0] for s in spikes])
-                spiked = np.stack([s[1][i] for s in spikes])  # [T, nodes]
+                spiked = spiked_rows[:, i]  # [T, nodes]
                 names = self.layout.nodes if self.layout else tuple(f"n{k}" for k in range(spiked.shape[1]))
                 for k, name in enumerate(names):
                     when = ticks[spiked[:, k] > 0]
                     if len(when):  # the raster row: the node's row number, only in the ticks it spiked
                         self._columns(f"{base}/spikes/{k:02d}_{name}", when,
                                       rr.Scalars.columns(scalars=np.full(len(when), len(names) - k, np.float64)))
-                pot = np.stack([p[1][i] for p in potentials]).astype(np.float64)
-                self._columns(f"{base}/potentials", [p[0] for p in potentials], rr.Scalars.columns(scalars=pot))
+                pot = potential_rows[:, i].astype(np.float64)
+                self._columns(f"{base}/potentials", ticks, rr.Scalars.columns(scalars=pot))
             if weights and self.layout is not None:
                 w = np.stack([x[1][i][list(self.layout.plastic)] for x in weights])
                 self._columns(f"{base}/weights", [x[0] for x in weights], rr.Scalars.columns(scalars=w))
