@@ -89,6 +89,7 @@ class Recorder:
         self.grid = None  # [arenas, width, height] as the world last told
         self.x_min = self.y_min = 0
         self.spike_counts: np.ndarray | None = None  # [agents, nodes] spikes seen (tests, summary)
+        self.brain_shape: tuple | None = None  # (agents, nodes, neurons, synapses) of the first brain state
         self.agents = 0
         self._flushed_to = -1
         self._collisions_at_bin = None
@@ -141,18 +142,20 @@ class Recorder:
                     refuse("a map change outside the map")
         elif isinstance(message, BrainState):
             nodes, neurons, synapses = message.spiked.shape[2], message.potentials.shape[2], message.weights.shape[1]
-            if self.spike_counts is not None and message.spiked.shape[1:] != self.spike_counts.shape:
-                refuse(f"spikes of {list(message.spiked.shape[1:])} agents x nodes, "
-                       f"before {list(self.spike_counts.shape)}")
+            shape = (message.spiked.shape[1], nodes, neurons, synapses)
+            if self.brain_shape is not None and shape != self.brain_shape:  # its batches are joined at a flush
+                refuse("a brain state of {} agents, {} nodes, {} neurons, {} synapses; before {}, {}, {}, {}".format(
+                    *shape, *self.brain_shape))
             if self.layout is not None and (nodes, neurons, synapses) != (
                     len(self.layout.nodes), self.layout.neurons, len(self.layout.synapses)):
                 refuse(f"{nodes} nodes, {neurons} neurons, {synapses} synapses; the brain's layout says "
                        f"{len(self.layout.nodes)}, {self.layout.neurons}, {len(self.layout.synapses)}")
         elif isinstance(message, BrainLayout) and self.layout is not None and message != self.layout:
             refuse("a second brain layout, not the one the recording has")
-        elif isinstance(message, BrainLayout) and self.spike_counts is not None:
-            if len(message.nodes) != self.spike_counts.shape[1]:
-                refuse(f"a layout of {len(message.nodes)} nodes for spikes of {self.spike_counts.shape[1]}")
+        elif isinstance(message, BrainLayout) and self.brain_shape is not None:
+            if (len(message.nodes), message.neurons, len(message.synapses)) != self.brain_shape[1:]:
+                refuse("a layout of {} nodes, {} neurons, {} synapses for brain states of {}, {}, {}".format(
+                    len(message.nodes), message.neurons, len(message.synapses), *self.brain_shape[1:]))
         elif isinstance(message, WorldMap) and self.agents and self.grid is not None:
             if message.grid.shape[1:] != self.grid.shape[1:]:
                 refuse(f"a map of {list(message.grid.shape[1:])} patches during a run on {list(self.grid.shape[1:])}")
@@ -264,7 +267,8 @@ class Recorder:
         potentials = m.potentials.numpy("potentials", "<f4", 3)
         agents = spiked.shape[1]
         rows = [a for a in self.detail if a < agents]
-        if self.spike_counts is None or self.spike_counts.shape != spiked.shape[1:]:
+        if self.brain_shape is None:  # fits() holds every later one to it
+            self.brain_shape = (*spiked.shape[1:], m.potentials.shape[2], m.weights.shape[1])
             self.spike_counts = np.zeros(spiked.shape[1:], np.int64)
         self.spike_counts += spiked.sum(axis=0, dtype=np.int64)
         self._count_gap("brain", m.tick, len(spiked))

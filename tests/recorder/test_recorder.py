@@ -227,3 +227,39 @@ def test_vision_rays_and_pain_marks_are_what_the_insect_sensed(recorded_run):
     pain = data["/world/pain"]
     felt = [t for t, marks in zip(pain["tick"], pain["Points2D:positions"]) if marks]
     assert felt == [t for t, s in enumerate(sensed) if not np.isnan(s["pain"])] and felt
+
+
+def test_brain_states_unlike_the_first_are_refused_whole_even_before_the_layout(tmp_path):
+    """The recorder joins a brain's batches at each flush: one of other agents, nodes, neurons or
+    synapses would not join (a forged one once ended the recorder with a ValueError there)."""
+    import msgspec
+    import rerun as rr
+
+    from spikinglab.brain.service import layout
+    from spikinglab.bus.schemas import Array, BrainState, BusError, new_run_id
+    from spikinglab.recorder.recorder import Recorder
+
+    circuit, run = load_circuit("insect"), new_run_id()
+    nodes, neurons, synapses = len(circuit.node_names), len(circuit.neuron_names), len(circuit.synapses)
+
+    def state(tick, agents=1, nodes=nodes, neurons=neurons, synapses=synapses):
+        return BrainState(tick=tick, run=run, spiked=Array.of(np.ones((10, agents, nodes), np.uint8)),
+                          potentials=Array.of(np.zeros((10, agents, neurons), np.float32)),
+                          weights=Array.of(np.ones((agents, synapses))))
+
+    rec = rr.RecordingStream("spikinglab-test", recording_id="t")
+    rec.save(str(tmp_path / "t.rrd"))
+    recorder = Recorder(rec, flush_every=15)
+    recorder.on(state(0))
+    for unlike in (state(10, agents=2), state(10, nodes=nodes + 1), state(10, neurons=neurons - 1),
+                   state(10, synapses=synapses + 1)):
+        with pytest.raises(BusError, match="does not fit the recording: a brain state of"):
+            recorder.on(unlike)
+    recorder.on(layout(circuit, 0, run))
+    recorder.on(state(10))  # past flush_every: the two batches are joined and sent
+    with pytest.raises(BusError, match="does not fit the recording"):
+        recorder.on(msgspec.structs.replace(layout(circuit, 0, run), neurons=neurons - 1))
+    recorder.close()
+    rec.flush()
+    potentials = read(tmp_path / "t.rrd")["/brain/agent0/potentials"]
+    assert potentials["tick"] == list(range(20))
