@@ -98,7 +98,8 @@ values = st.recursive(
 
 class Services:
     """The service code that takes decoded messages, set up as during a run of 3 agents: a brain
-    serving run r1 (and a fresh one), the world's and the gateway's motor handling, a recorder."""
+    serving run r1 (and a fresh one), the world's and the gateway's motor handling, a recorder,
+    and for each state message a fresh recorder that joins it with a real one at a flush."""
 
     def __init__(self):
         self.serving = serving_brain()
@@ -126,6 +127,13 @@ class Services:
         else:
             attempt(self.recorder.on, message)
             self.recorder.flush()
+            # a fresh recorder that holds the real message of that kind unflushed, as batches wait
+            # between flushes, then takes this one: joining the two at the flush must not fail
+            joined = Recorder(rr.RecordingStream("spikinglab-fuzz-joined"), detail=(0, 2), flush_every=2**62)
+            for kind in dict.fromkeys((BrainLayout, WorldMap, type(message))):  # the map and layout, then one like it
+                joined.on(example(kind))
+            attempt(joined.on, message)
+            joined.flush()
         return "taken" if any(taken) else "refused"
 
     def outcomes(self, payload: bytes) -> list[str]:
@@ -227,22 +235,25 @@ def messages(draw, kind=None):
         return Motor(tick=tick, names=action_names, actions=array(draw, "|u1", (A, len(action_names)),
                                                                   st.integers(0, 255)), run=draw(runs))
     if kind is BrainState:
-        return BrainState(tick=tick, spiked=array(draw, "|u1", (T, A, NODES), st.integers(0, 1)),
+        return BrainState(tick=tick, run=draw(runs),
+                          spiked=array(draw, "|u1", (T, A, NODES), st.integers(0, 1)),
                           potentials=array(draw, "<f4", (T, A, NEURONS), st.floats(width=32)),
                           weights=array(draw, "<f8", (A, SYNAPSES), numbers))
     if kind is BrainLayout:
-        return BrainLayout(tick=tick, circuit=draw(st.text(max_size=5)), nodes=draw(names | st.just(CIRCUIT.node_names)),
-                           neurons=draw(st.integers(0, 20) | i64), synapses=draw(names), plastic=tuple(draw(st.lists(i64, max_size=3))))
+        return BrainLayout(tick=tick, run=draw(runs), circuit=draw(st.text(max_size=5)),
+                           nodes=draw(names | st.just(CIRCUIT.node_names)), neurons=draw(st.integers(0, 20) | i64),
+                           synapses=draw(names), plastic=tuple(draw(st.lists(i64, max_size=3))))
     if kind is WorldState:
         S, K = draw(st.integers(0, 5)), draw(st.integers(0, 3))
-        return WorldState(tick=tick, sensor_names=draw(st.lists(st.sampled_from(INSECT_SENSORS), min_size=S,
-                                                                max_size=S).map(tuple)),
+        return WorldState(tick=tick, run=draw(runs),
+                          sensor_names=tuple(draw(st.lists(st.sampled_from(INSECT_SENSORS), min_size=S, max_size=S))),
                           sensors=array(draw, "<f8", (T, A, S), numbers), pos=array(draw, "<f8", (T, A, 2), places),
                           heading=array(draw, "<f8", (T, A), places), events=array(draw, "<i8", (T, A, 4), i64),
                           collisions=array(draw, "<i8", (T, A), i64), food=array(draw, "<i8", (T, A), i64),
                           changes=array(draw, "<i8", (K, 5), i64 | st.integers(0, 40)), final=draw(st.booleans()))
     if kind is WorldMap:
-        return WorldMap(tick=tick, grid=array(draw, "|u1", (draw(st.integers(0, 3)), 41, 60), st.integers(0, 255)),
+        return WorldMap(tick=tick, run=draw(runs),
+                        grid=array(draw, "|u1", (draw(st.integers(0, 3)), 41, 60), st.integers(0, 255)),
                         x_min=draw(i64), y_min=draw(i64))
     return kind(tick=tick, command=draw(st.text(max_size=5) | st.just("end")), run=draw(runs))
 
