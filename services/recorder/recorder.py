@@ -272,9 +272,8 @@ class Recorder:
             self.spike_counts = np.zeros(spiked.shape[1:], np.int64)
         self.spike_counts += spiked.sum(axis=0, dtype=np.int64)
         self._count_gap("brain", m.tick, len(spiked))
-        if len(spiked):  # the batch as arrays, [T, detail rows, nodes]: flush() joins them
-            self.b["spikes"].append((np.arange(m.tick, m.tick + len(spiked)), spiked[:, rows]))
-            self.b["potentials"].append(potentials[:, rows])
+        if len(spiked):  # the batch as arrays, [T, detail rows, nodes or neurons]: flush() joins them
+            self.b["brain"].append((np.arange(m.tick, m.tick + len(spiked)), spiked[:, rows], potentials[:, rows]))
         last = m.tick + len(spiked) - 1
         self.last_tick = max(self.last_tick, last)
         weights = m.weights.numpy("weights", "<f8", 2)
@@ -306,8 +305,8 @@ class Recorder:
                            self.first_tick)
         if b["pose"]:
             self._flush_world(b)
-        if b["spikes"] or b["weights"]:
-            self._flush_brain(b["spikes"], b["potentials"], b["weights"])
+        if b["brain"] or b["weights"]:
+            self._flush_brain(b["brain"], b["weights"])
         if b["bins"]:
             ticks = np.array([r[0] for r in b["bins"]])
             self._columns("/learning/collisions_per_1000", ticks, rr.Scalars.columns(scalars=[r[1] for r in b["bins"]]))
@@ -371,14 +370,13 @@ class Recorder:
                 strips=strips, colors=np.tile([255, 230, 0, 120], (len(strips), 1)).astype(np.uint8),
                 radii=np.full(len(strips), 0.1, np.float32)).partition(counts))
 
-    def _flush_brain(self, spikes, potentials, weights) -> None:
-        if spikes:
-            ticks, spiked_rows = (np.concatenate(column) for column in zip(*spikes))  # [T], [T, shown, nodes]
-            potential_rows = np.concatenate(potentials)
-        shown = spiked_rows.shape[1] if spikes else len(weights[0][1])
+    def _flush_brain(self, batches, weights) -> None:
+        if batches:  # [T], [T, shown, nodes], [T, shown, neurons]
+            ticks, spiked_rows, potential_rows = (np.concatenate(column) for column in zip(*batches))
+        shown = spiked_rows.shape[1] if batches else len(weights[0][1])
         for i, a in enumerate(self.detail[:shown]):
             base = f"/brain/agent{a}"
-            if spikes:
+            if batches:
                 spiked = spiked_rows[:, i]  # [T, nodes]
                 names = self.layout.nodes if self.layout else tuple(f"n{k}" for k in range(spiked.shape[1]))
                 for k, name in enumerate(names):
