@@ -246,6 +246,16 @@ def metrics_of(world: World, ticks: int, elapsed: float, resumed_at: int = 0) ->
     }
 
 
+def outcome(result: dict, shown: int = 8) -> str:
+    """The log's one line on what the insects did: each one's for a few, a summary for a population."""
+    collisions, learned = result["collisions"], result["learning_time"]
+    if len(collisions) <= shown:
+        return f"collisions {collisions}; learning time {learned}"
+    reached = sum(t is not None for t in learned)
+    return (f"{len(collisions)} insects: collisions {np.mean(collisions):.1f} per insect on average (the first "
+            f"{shown}: {collisions[:shown]}); learned: {reached} of {len(learned)}")
+
+
 class Trajectory:
     """Agent 0's path over the first and the last TRAJECTORY ticks, and the map at both times
     (trajectory.png, the paper's fig. 8: short paths early in training, long ones late)."""
@@ -363,8 +373,7 @@ def run(args: argparse.Namespace, session) -> int:
             result["steady_ticks_per_s"] = round((done - start - 1) / max(elapsed - first, 1e-9), 1)
         result["rejected_messages"] = bus.rejections()
         result["partial"] = done < args.ticks
-        log.info("%d ticks in %.1f s (%.0f ticks/s); collisions %s; learning time %s", done, elapsed,
-                 result["ticks_per_s"], result["collisions"][:8], result["learning_time"][:8])
+        log.info("%d ticks in %.1f s (%.0f ticks/s); %s", done, elapsed, result["ticks_per_s"], outcome(result))
         if args.checkpoint and done == args.ticks:  # the run is whole: nothing left to resume
             (args.checkpoint / CHECKPOINT).unlink(missing_ok=True)
             (args.checkpoint / PENDING).unlink(missing_ok=True)
