@@ -102,11 +102,12 @@ def test_benchmarks_run_and_end_with_json():
     figures = json.loads(fuzz.stdout.strip().splitlines()[-1])
     assert figures["escapes"] == 0 and len(figures["keys"]) == 7
     assert all(counts["tried"] >= 10 for counts in figures["keys"].values())
-    recorder = spikinglab("bench", "recorder", "--ticks", 1000)
+    recorder = spikinglab("bench", "recorder", "--ticks", 1000, "--repeats", 2)
     assert recorder.returncode == 0, recorder.stderr
     figures = json.loads(recorder.stdout.strip().splitlines()[-1])
     assert figures["recorder_messages"] >= 2 * 1000 // state_batch(1) and figures["recording_mb"] > 0
     assert all(figures[k] > 0 for k in ("loop_ticks_per_s", "recorded_loop_ticks_per_s", "recorder_alone_ticks_per_s"))
+    assert len(figures["recording_cost_by_pair"]) == 2  # both pairs ran, in turns
 
 
 def start_run(tmp_path, *args):
