@@ -1,7 +1,8 @@
 """Recorder benchmark: a one-agent lock-step run with and without the recorder.
 
-Prints the loop's ticks/s both ways (pairs of runs in turns, the medians), the messages the recorder took, its lag (how long after the
-world's last tick the file was complete) and the file size. The last line is JSON.
+Prints the loop's ticks/s both ways (pairs of runs in turns, the medians), the messages the
+recorder took, its lag (how long after the world's last tick the file was complete) and the file
+size. The last line is JSON.
 Run: `spikinglab bench recorder` or `python -m spikinglab.bench.recorder`.
 """
 
