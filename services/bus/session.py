@@ -442,10 +442,14 @@ def service_main(name: str, parser: argparse.ArgumentParser, run, argv=None, int
     service saves, flushes or reports on its way out), a dead thread ends it, the session, then
     run(args, session)."""
     logging.basicConfig(level=logging.INFO, format=f"%(asctime)s {name} %(levelname)s %(message)s", stream=sys.stderr)
-    # numba's OpenMP threads spin after each parallel kernel by default, on the cores that the other
-    # side of a lock-step tick needs next: sleeping at once made world + brain 1.4-1.6x faster at
-    # A = 1,000-16,000 on 2 cores (docs/results.md). Read when OpenMP loads, at the first kernel.
+    # numba's OpenMP threads spin after each parallel kernel by default (about 3 ms), on the cores
+    # that the other side of a lock-step tick needs next: sleeping made world + brain 1.4-1.6x
+    # faster at A = 1,000-16,000 on 2 cores. Sleeping at once, though, each of a tick's back-to-back
+    # kernels waits for its threads to wake: a spin of about 10 us (GNU OpenMP's count; others
+    # ignore it) bridges them and no more, 1.2x faster again at A = 1,000 (docs/results.md).
+    # Read when OpenMP loads, at the first kernel.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    os.environ.setdefault("GOMP_SPINCOUNT", "1000")
     args = parser.parse_args(argv)
     signal.signal(signal.SIGTERM, signal.default_int_handler)
     guard_threads()
