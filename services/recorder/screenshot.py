@@ -7,6 +7,7 @@ the time cursor is set to --tick (default: the end), and the window is saved.
 
 from __future__ import annotations
 
+import argparse
 import os
 import shutil
 import signal
@@ -19,7 +20,7 @@ from pathlib import Path
 import rerun.experimental as rrx
 from rerun.chunk import RrdReader
 
-from spikinglab.options import Parser
+from spikinglab.options import Parser, at_least
 
 
 def viewer_command() -> list[str] | None:
@@ -79,12 +80,16 @@ def screenshot(recording: Path, out: Path, tick: int | None = None, size: str = 
                 if time.monotonic() > deadline:
                     raise RuntimeError("the headless viewer did not start within 30 s") from None
                 time.sleep(0.2)
-        client.open(str(recording.resolve()))
-        time.sleep(settle)  # panels are still empty if captured at once
-        client.set_time("tick", sequence=tick, play_state="paused")
-        time.sleep(settle)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        client.save_screenshot(str(out.resolve()))
+        try:
+            client.open(str(recording.resolve()))
+            time.sleep(settle)  # panels are still empty if captured at once
+            client.set_time("tick", sequence=tick, play_state="paused")
+            time.sleep(settle)
+            out.parent.mkdir(parents=True, exist_ok=True)
+            client.save_screenshot(str(out.resolve()))
+        except ConnectionError as e:  # the viewer's answer to a request it cannot carry out
+            raise RuntimeError(f"the viewer could not show {recording} at tick {tick}: "
+                               f"{str(e).splitlines()[0]}") from None
     finally:  # the whole group: killing the wrapper alone left a ~400 MB viewer behind per call
         try:
             os.killpg(viewer.pid, signal.SIGKILL)
@@ -94,23 +99,32 @@ def screenshot(recording: Path, out: Path, tick: int | None = None, size: str = 
     return out
 
 
+def window_size(text: str) -> str:
+    """A --size option: WIDTHxHEIGHT in points, e.g. 1600x900."""
+    width, _, height = text.partition("x")
+    if not (width.isdigit() and height.isdigit() and int(width) > 0 and int(height) > 0):
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in points, e.g. 1600x900; got {text!r}")
+    return text
+
+
 def main(argv=None) -> int:
     p = Parser(prog="spikinglab screenshot", description=__doc__.splitlines()[0])
     p.add_argument("recording", type=Path)
     p.add_argument("--out", type=Path, help="PNG file (default: beside the recording, replay.png)")
-    p.add_argument("--tick", type=int, help="where the time cursor goes (default: the last tick)")
-    p.add_argument("--size", default="1600x900", help="window size in points (default 1600x900)")
+    p.add_argument("--tick", type=at_least(0), help="where the time cursor goes (default: the last tick)")
+    p.add_argument("--size", type=window_size, default="1600x900", help="window size in points (default 1600x900)")
     args = p.parse_args(argv)
     if not args.recording.is_file():
         print(f"spikinglab screenshot: {args.recording}: no such recording", file=sys.stderr)
         return 2
     try:
-        tick = last_tick(args.recording) if args.tick is None else args.tick
+        last = last_tick(args.recording)  # read whatever --tick says: it also tells a recording from other files
     except RuntimeError as e:  # rerun's reader: not an .rrd, or a damaged one
         print(f"spikinglab screenshot: {args.recording}: not a Rerun recording (.rrd): {e}", file=sys.stderr)
         return 2
     try:
-        out = screenshot(args.recording, args.out or args.recording.with_name("replay.png"), tick, args.size)
+        out = screenshot(args.recording, args.out or args.recording.with_name("replay.png"),
+                         last if args.tick is None else args.tick, args.size)
     except RuntimeError as e:  # the headless viewer could not start or render
         print(f"spikinglab screenshot: {e}", file=sys.stderr)
         return 1
