@@ -52,14 +52,30 @@ def port(text: str) -> int:
     return value
 
 
-def positive(text: str) -> float:
-    """A float option above 0."""
+def number(text: str) -> float:
+    """A finite float option."""
     try:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not value > 0 or value == float("inf"):
+    if value != value or value in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text}")
+    return value
+
+
+def positive(text: str) -> float:
+    """A float option above 0."""
+    value = number(text)
+    if not value > 0:
         raise argparse.ArgumentTypeError(f"must be a number above 0, got {text}")
+    return value
+
+
+def not_negative(text: str) -> float:
+    """A float option of 0 or more (0 meaning none or no limit, as each option's help says)."""
+    value = number(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be 0 or more, got {text}")
     return value
 
 

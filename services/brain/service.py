@@ -26,7 +26,7 @@ from spikinglab import snapshots
 from spikinglab.bus import keys, schemas
 from spikinglab.bus.schemas import QUIET_S, Array, BrainLayout, BrainState, BusError, Control, Motor, Sensors, TickBatch
 from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
-from spikinglab.options import Parser, shard
+from spikinglab.options import Parser, at_least, not_negative, number, positive, shard
 from spikinglab.params import file_rows, read_params, side_of
 
 from .brain import Brain, check_sensors
@@ -43,14 +43,14 @@ CATCH_UP_S = 0.05  # free-running: a clock this far behind skips ahead instead o
 def parser() -> argparse.ArgumentParser:
     p = Parser(prog="spikinglab brain", description="The spiking-network brain, on the bus.")
     p.add_argument("--circuit", default="insect", help="circuit name in circuits/ or a .toml path (default insect)")
-    p.add_argument("--a-plus", type=float, help="A+ = A- of the learning neurons (default: the circuit's)")
+    p.add_argument("--a-plus", type=number, help="A+ = A- of the learning neurons (default: the circuit's)")
     p.add_argument("--no-training", action="store_true", help="weights stay as they are")
     p.add_argument("--params", type=Path, metavar="FILE.csv",
                    help="per-agent parameters: a CSV file with a header of names (a_plus, a_minus, tau_plus, "
                         "tau_minus, w_max, initial_weight, input_gain; the world's go to the world) and a row per "
                         "agent of the whole population, or one row for all (docs/api.md); a shard takes its slice")
     add_engine_args(p)
-    p.add_argument("--seed", type=int, default=None,
+    p.add_argument("--seed", type=at_least(0), default=None,
                    help="the netlogo order's seed, agent a using seed + a (default: the world's seed, which its "
                         "sensor messages carry, so that a run is the same in one process or across the bus)")
     p.add_argument("--load", type=Path, help="start from the weights in this checkpoint (.npz)")
@@ -70,10 +70,10 @@ def parser() -> argparse.ArgumentParser:
                         f"(fewer for more agents; {FREE_STATE_BATCH} free-running) for the recorder; the first tick "
                         "waits until someone subscribes")
     free = p.add_argument_group("free-running (robot)")
-    free.add_argument("--clock", type=float, default=0, metavar="HZ",
+    free.add_argument("--clock", type=not_negative, default=0, metavar="HZ",
                       help="tick on this clock with the latest sensor reading, motor spikes as events "
                            "(robot mode, e.g. 1000); default 0: lock-step with a world")
-    free.add_argument("--stale-after", type=float, default=0.5,
+    free.add_argument("--stale-after", type=positive, default=0.5,
                       help="seconds after which a reading no longer counts as sensed (default 0.5)")
     free.add_argument("--no-realtime", action="store_true",
                       help="do not ask for real-time scheduling of the clock thread (asked by default; needs "

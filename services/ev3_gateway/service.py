@@ -36,7 +36,7 @@ import numpy as np
 from spikinglab.bus import keys
 from spikinglab.bus.schemas import INSECT_SENSORS, Array, BusError, Control, Motor, Sensors, new_run_id
 from spikinglab.bus.session import Bus, add_bus_args, guard_threads, open_session, thread_died
-from spikinglab.options import Parser
+from spikinglab.options import Parser, at_least, not_negative, number, positive
 
 from .backends import BLACK, GREEN, RED, EV3Backend, Reading, RobotLinkError, SimBackend, Wiring
 
@@ -59,28 +59,30 @@ def parser() -> argparse.ArgumentParser:
     robot.add_argument("--speed", type=int, default=w.speed, help="forward speed, -100..100")
     robot.add_argument("--spin-speed", type=int, default=w.spin_speed, help="spin speed, 0..100")
     sim = p.add_argument_group("simulated EV3")
-    sim.add_argument("--sim-seed", type=int, default=0)
+    sim.add_argument("--sim-seed", type=at_least(0), default=0)
     sim.add_argument("--sim-map", type=Path)
-    sim.add_argument("--sim-patch-cm", type=float, default=30.0, help="the floor's squares (default 30 cm)")
-    sim.add_argument("--sim-object-cm", type=float, default=15.0,
+    sim.add_argument("--sim-patch-cm", type=positive, default=30.0, help="the floor's squares (default 30 cm)")
+    sim.add_argument("--sim-object-cm", type=positive, default=15.0,
                      help="the objects in the centre of black and red squares (default 15 cm)")
-    sim.add_argument("--link-ms", type=float, default=5.0, help="simulated link round trip (default 5 ms)")
+    sim.add_argument("--link-ms", type=not_negative, default=5.0, help="simulated link round trip (default 5 ms)")
     m = p.add_argument_group("mapping and safety")
-    m.add_argument("--move-ms", type=int, default=500, help="forward time per MOVE spike (default 500)")
-    m.add_argument("--spin-ms", type=int, default=100, help="spin time per ROTATE spike (default 100)")
-    m.add_argument("--pain-below-cm", type=float, default=5.0, help="ultrasonic distance that hurts (default 5)")
-    m.add_argument("--contact-value", type=float, default=0.0,
+    m.add_argument("--move-ms", type=at_least(1),  # 0 would be "until stopped" to the brick
+                   default=500, help="forward time per MOVE spike (default 500)")
+    m.add_argument("--spin-ms", type=at_least(1), default=100, help="spin time per ROTATE spike (default 100)")
+    m.add_argument("--pain-below-cm", type=not_negative, default=5.0, help="ultrasonic distance that hurts (default 5)")
+    m.add_argument("--contact-value", type=number, default=0.0,
                    help="value fed for pain and reward (default 0: a spike in the tick it is read)")
-    m.add_argument("--motor-timeout", type=float, default=0.2,
+    m.add_argument("--motor-timeout", type=positive, default=0.2,
                    help="stop when the brain was not heard, or no command came after the last one ended, for this "
                         "long (default 0.2 s: with the brain heard every 50 ms, a stall stops the motors within "
                         "250 ms)")
-    m.add_argument("--max-command-age", type=float, default=0.2,
+    m.add_argument("--max-command-age", type=positive, default=0.2,
                    help="drop a motor command that answers a reading older than this (default 0.2 s): a brain "
                         "that stalled sends no backlog")
-    p.add_argument("--max-polls", type=float, default=0, metavar="PER_S",
+    p.add_argument("--max-polls", type=not_negative, default=0, metavar="PER_S",
                    help="poll at most this often (default 0: as fast as the link allows)")
-    p.add_argument("--duration", type=float, default=0, help="stop after this many seconds (default: run until Ctrl-C)")
+    p.add_argument("--duration", type=not_negative, default=0,
+                   help="stop after this many seconds (default 0: run until Ctrl-C)")
     p.add_argument("--stats", type=Path,
                    help="write polls, commands, stops, link losses and the times of collisions here (JSON) at the end")
     add_bus_args(p)

@@ -53,7 +53,7 @@ def parser() -> argparse.ArgumentParser:
     live.add_argument("--web-port", type=port, default=9090, help="--web's port (default 9090)")
     p.add_argument("--detail", default=(0,), type=agent_list,
                    help="agents with raster, potentials, weights, ray, trail, e.g. 0,3 (default 0)")
-    p.add_argument("--flush-every", type=int, default=1000, help="ticks per batch written (default 1,000)")
+    p.add_argument("--flush-every", type=at_least(1), default=1000, help="ticks per batch written (default 1,000)")
     p.add_argument("--forever", action="store_true", help="keep recording after the run's end")
     p.add_argument("--backlog-mb", type=at_least(1), default=256,
                    help="messages waiting to be recorded, at most (default %(default)s MB): beyond, they are dropped "
@@ -228,9 +228,17 @@ def open_recording(args: argparse.Namespace, path: Path, recording_id: str, serv
     return rec
 
 
+def step_back(args: argparse.Namespace) -> None:
+    """Run behind the lock-step pair (--nice); the recorder buffers (losslessly) and catches up."""
+    try:
+        os.nice(args.nice)
+    except OSError as e:  # a negative increment needs root or CAP_SYS_NICE: record at the usual priority
+        log.warning("cannot change the priority by --nice %d (%s): recording at the usual priority", args.nice,
+                    e.strerror)
+
+
 def main(argv=None) -> int:
-    # os.nice: behind the lock-step pair; the recorder buffers (losslessly) and catches up
-    return service_main("recorder", parser(), run, argv, interrupted=0, prepare=lambda args: os.nice(args.nice))
+    return service_main("recorder", parser(), run, argv, interrupted=0, prepare=step_back)
 
 
 if __name__ == "__main__":

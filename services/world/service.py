@@ -69,7 +69,7 @@ def parser() -> argparse.ArgumentParser:
 def add_world_args(p: argparse.ArgumentParser) -> None:
     w = p.add_argument_group("world")
     w.add_argument("--ticks", type=at_least(1), default=40_000, help="ticks to run (default %(default)s)")
-    w.add_argument("--seed", type=int, default=0, help="world seed: maps and headings (agent a uses seed + a)")
+    w.add_argument("--seed", type=at_least(0), default=0, help="world seed: maps and headings (agent a uses seed + a)")
     w.add_argument("--agents", type=at_least(1), default=1, help="insects stepped together (default 1)")
     w.add_argument("--shared", action="store_true", help="all agents share one arena (default: one each)")
     w.add_argument("--preset", choices=sorted(PRESETS), default="paper",
