@@ -18,7 +18,7 @@ import numpy as np
 
 from spikinglab.brain.circuit import load_circuit
 from spikinglab.brain.engine import SEMANTICS, Engine
-from spikinglab.options import Parser
+from spikinglab.options import Parser, at_least
 
 FEED_PROBABILITY = 0.3  # chance per tick that a sensor feeds its input neuron a value in [0, 4)
 
@@ -56,11 +56,12 @@ def best_run_rate(engine, feeds, repeats):
 
 def main(argv=None) -> dict:
     parser = Parser(prog="spikinglab bench engine", description=__doc__.splitlines()[0])
-    parser.add_argument("--ticks", type=int, default=200_000, help="ticks per pass for one agent")
-    parser.add_argument("--agents", type=int, default=1000, help="agents in the batch case")
-    parser.add_argument("--batch-ticks", type=int, default=500, help="ticks per pass in the batch case")
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--rounds", type=int, default=20, help="rounds of the two batch engines in turns (ratio)")
+    parser.add_argument("--ticks", type=at_least(1), default=200_000, help="ticks per pass for one agent")
+    parser.add_argument("--agents", type=at_least(1), default=1000, help="agents in the batch case")
+    parser.add_argument("--batch-ticks", type=at_least(1), default=500, help="ticks per pass in the batch case")
+    parser.add_argument("--repeats", type=at_least(1), default=3)
+    parser.add_argument("--rounds", type=at_least(1), default=20,
+                        help="rounds of the two batch engines in turns (ratio)")
     args = parser.parse_args(argv)
 
     circuit = load_circuit("insect").with_learning_rate(0.04)

@@ -21,7 +21,7 @@ import numpy as np
 
 from spikinglab.ev3_gateway.fake_brick import FakeBrick
 from spikinglab.launch import local_endpoints, spawn
-from spikinglab.options import Parser
+from spikinglab.options import Parser, at_least, positive
 
 
 def polls_per_s(seconds: float) -> float:
@@ -70,9 +70,9 @@ def chain(trials: int, hz: float, max_polls: float = 0) -> tuple[list[float], di
 
 def main(argv=None) -> dict:
     p = Parser(prog="spikinglab bench gateway", description=__doc__.splitlines()[0])
-    p.add_argument("--seconds", type=float, default=5.0, help="for the polls/s figure")
-    p.add_argument("--trials", type=int, default=40)
-    p.add_argument("--clock", type=float, default=1000.0, help="the brain's clock (Hz)")
+    p.add_argument("--seconds", type=positive, default=5.0, help="for the polls/s figure")
+    p.add_argument("--trials", type=at_least(1), default=40)
+    p.add_argument("--clock", type=positive, default=1000.0, help="the brain's clock (Hz)")
     args = p.parse_args(argv)
     polls = polls_per_s(args.seconds)
     print(f"gateway polling the fake brick: {polls:,.0f} polls/s (3 sensors per poll, one direct command)")

@@ -34,7 +34,7 @@ from spikinglab.brain.circuit import load_circuit
 from spikinglab.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, SEMANTICS, Engine
 from spikinglab.launch import local_endpoints, spawn
 from spikinglab.loop import brain_for, closed_loop
-from spikinglab.options import Parser
+from spikinglab.options import Parser, at_least
 from spikinglab.world.world import World
 
 
@@ -100,12 +100,14 @@ def median_of(runs: list[float]) -> tuple[float, str]:
 
 def main(argv=None) -> dict:
     p = Parser(prog="spikinglab bench loop", description=__doc__.splitlines()[0])
-    p.add_argument("--ticks", type=int, default=20_000, help="ticks of the one-agent bus runs")
-    p.add_argument("--agents", type=int, default=1000)
-    p.add_argument("--batch-ticks", type=int, default=2000)
-    p.add_argument("--large-agents", type=int, default=16_000)
-    p.add_argument("--large-ticks", type=int, default=300)
-    p.add_argument("--repeats", type=int, default=3, help="runs of each bus case (default 3; the median is reported)")
+    p.add_argument("--ticks", type=at_least(2), default=20_000,
+                   help="ticks of the one-agent bus runs (rates are measured after the first)")
+    p.add_argument("--agents", type=at_least(1), default=1000)
+    p.add_argument("--batch-ticks", type=at_least(8), default=2000)  # a quarter of it in one process
+    p.add_argument("--large-agents", type=at_least(1), default=16_000)
+    p.add_argument("--large-ticks", type=at_least(2), default=300)
+    p.add_argument("--repeats", type=at_least(1), default=3,
+                   help="runs of each bus case (default 3; the median is reported)")
     p.add_argument("--semantics", choices=SEMANTICS, default=DEFAULT_SEMANTICS, help="the brain's engine semantics")
     args = p.parse_args(argv)
     A, big = args.agents, args.large_agents

@@ -89,7 +89,7 @@ def alone(ticks: int) -> float:
 
 def main(argv=None) -> dict:
     p = Parser(prog="spikinglab bench recorder", description=__doc__.splitlines()[0])
-    p.add_argument("--ticks", type=int, default=30_000)
+    p.add_argument("--ticks", type=at_least(2), default=30_000)
     p.add_argument("--repeats", type=at_least(1), default=3,
                    help="pairs of runs, without and with the recorder in turns (default 3; medians reported)")
     args = p.parse_args(argv)

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from spikinglab.launch import local_endpoints, spawn, stop
-from spikinglab.options import Parser
+from spikinglab.options import Parser, at_least, positive
 
 CONDITIONS = {  # name -> brain options
     "learning, A = 0.08 (the paper's robot)": ["--a-plus", 0.08],
@@ -83,10 +83,11 @@ def plot(results: dict, seconds: float, out: Path) -> None:
 
 def main(argv=None) -> dict:
     p = Parser(prog="spikinglab bench robot", description=__doc__.split("\n\n")[0])
-    p.add_argument("--seconds", type=float, default=120, help="real time per run (default 120)")
-    p.add_argument("--seeds", type=int, default=3, help="runs per condition (default 3)")
-    p.add_argument("--bin", type=float, default=30, help="seconds per column of the table (default 30)")
-    p.add_argument("--spin-ms", type=int, default=100, help="the gateway's spin per ROTATE (default 100: 5 degrees)")
+    p.add_argument("--seconds", type=positive, default=120, help="real time per run (default 120)")
+    p.add_argument("--seeds", type=at_least(1), default=3, help="runs per condition (default 3)")
+    p.add_argument("--bin", type=positive, default=30, help="seconds per column of the table (default 30)")
+    p.add_argument("--spin-ms", type=at_least(1), default=100,
+                   help="the gateway's spin per ROTATE (default 100: 5 degrees)")
     p.add_argument("--out", type=Path, default=Path("bench-results"))
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from spikinglab.learning import DEFAULT_DEFINITION, DEFINITIONS, PAPER, all_definitions, plot_table1, tick_text
-from spikinglab.options import Parser
+from spikinglab.options import Parser, at_least, positive
 
 A_VALUES = (0.01, 0.02, 0.03, 0.04, 0.08)
 STEPS = {"paper": "paper", "demo": "netlogo"}  # -> world preset
@@ -127,11 +127,11 @@ def definitions_markdown(rows: list[dict]) -> str:
 def main(argv=None) -> dict:
     p = Parser(prog="spikinglab bench table1", description=__doc__.splitlines()[0])
     p.add_argument("--ablation", action="store_true", help="the ablation table instead of the grid")
-    p.add_argument("--seeds", type=int, default=16)
-    p.add_argument("--ticks", type=int, default=150_000)
-    p.add_argument("--a-plus", type=float, nargs="+", default=None, help=f"A values (default {A_VALUES}; "
+    p.add_argument("--seeds", type=at_least(1), default=16)
+    p.add_argument("--ticks", type=at_least(1000), default=150_000)  # one bin of 1,000
+    p.add_argument("--a-plus", type=positive, nargs="+", default=None, help=f"A values (default {A_VALUES}; "
                    "ablation: 0.02 0.04)")
-    p.add_argument("--workers", type=int, default=len(os.sched_getaffinity(0)))
+    p.add_argument("--workers", type=at_least(1), default=len(os.sched_getaffinity(0)))
     p.add_argument("--out", type=Path, default=Path("runs") / "table1")
     args = p.parse_args(argv)
     from tqdm import tqdm
