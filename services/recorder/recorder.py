@@ -390,5 +390,9 @@ class Recorder:
                 w = np.stack([x[1][i][list(self.layout.plastic)] for x in weights])
                 self._columns(f"{base}/weights", [x[0] for x in weights], rr.Scalars.columns(scalars=w))
 
+    def ticks_held(self) -> str:
+        """The ticks recorded, for the log: "ticks 0..100000", or "no ticks"."""
+        return "no ticks" if self.first_tick is None else f"ticks {self.first_tick}..{self.last_tick}"
+
     def close(self) -> None:
         self.flush()

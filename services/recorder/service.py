@@ -166,8 +166,8 @@ def run(args: argparse.Namespace, session) -> int:
                     rec.disconnect()
                 run_id = next_run[0].run
                 path = out.with_name(f"{out.stem}-{run_id}{out.suffix}")
-                log.info("run %s: recorded to %s (ticks %s..%s); run %s starts: recording it to %s", recorder.run,
-                         current, recorder.first_tick, recorder.last_tick, run_id, path)
+                log.info("run %s: recorded to %s (%s); run %s starts: recording it to %s", recorder.run, current,
+                         recorder.ticks_held(), run_id, path)
                 rec = open_recording(args, path, f"{args.group}-{run_id}", served_at=serve and args.grpc_port)
                 recorder, current, ending = Recorder(rec, detail=detail, flush_every=args.flush_every), path, None
                 recorder.event(f"recorder on group {args.group}: run {run_id} follows another run, writing {path}")
@@ -206,8 +206,8 @@ def run(args: argparse.Namespace, session) -> int:
             stream.disconnect()
         bus.close()
         took = max(time.monotonic() - first_at, 1e-9)
-        log.info("recording written to %s (ticks %s..%s): %d messages in %.1f s, %.0f messages/s; ticks missing: %s; "
-                 "rejected: %s", current, recorder.first_tick, recorder.last_tick, received, took, received / took,
+        log.info("recording written to %s (%s): %d messages in %.1f s, %.0f messages/s; ticks missing: %s; "
+                 "rejected: %s", current, recorder.ticks_held(), received, took, received / took,
                  recorder.missing or "none", bus.rejections() or "none")
     return 0
 
