@@ -405,6 +405,19 @@ def plot_trajectory(folder: Path, summary: dict) -> None:
     plt.close(fig)
 
 
+
+def viewer_shown() -> str:
+    """The viewer command to print: the `rerun` this install has (a venv's beside its Python, else
+    on PATH), relative to here when under it; `rerun` (from rerun-sdk) if none is found."""
+    found = viewer_command()
+    if found is None:
+        return "rerun"
+    path = Path(found[0])
+    try:
+        return str(path.relative_to(Path.cwd())) if path.is_absolute() else str(path)
+    except ValueError:  # not under the current folder
+        return str(path)
+
 def report(folder: Path, summary: dict) -> None:
     head = summary["headline"]
     w = summary["final_weights"]
@@ -433,7 +446,7 @@ def report(folder: Path, summary: dict) -> None:
         print(f"recording: PARTIAL, {recording['why']}; it holds ticks {head['resumed_at'] or 0:,} to "
               f"{recording.get('last_tick', 0):,}")
     if recordings:  # the parts of a resumed run are one recording in the viewer
-        print(f"replay it: .venv/bin/rerun {' '.join(map(str, recordings))}")
+        print(f"replay it: {viewer_shown()} {' '.join(map(str, recordings))}")
 
 
 if __name__ == "__main__":

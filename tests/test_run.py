@@ -192,3 +192,10 @@ def test_an_interrupted_run_goes_on_with_resume_and_ends_as_an_uninterrupted_one
     assert not (tmp_path / "r" / "checkpoint").exists() and not (tmp_path / "r" / "FAILED.txt").exists()
     nothing = spikinglab("run", "--resume", tmp_path / "r")
     assert nothing.returncode == 2 and "nothing to resume" in nothing.stderr
+
+
+def test_the_replay_line_names_a_viewer_that_exists_from_any_folder(tmp_path, monkeypatch):
+    from spikinglab.run import viewer_shown
+    monkeypatch.chdir(tmp_path)  # a user who runs spikinglab outside the checkout (it printed .venv/bin/rerun)
+    shown = viewer_shown()
+    assert os.path.isfile(shown) and os.access(shown, os.X_OK), shown

@@ -49,7 +49,8 @@ def recorded_run(tmp_path_factory):
                            "--a-plus", "0.04", "--runs", str(runs), "--id", "r", "--quiet"],
                           cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
-    assert "replay it: " in done.stdout
+    replay = next(line for line in done.stdout.splitlines() if line.startswith("replay it: ")).split()
+    assert (ROOT / replay[2]).exists() and (runs / "r" / "recording.rrd").samefile(replay[3])  # works where it ran
     world = World(params_for("paper"), seed=SEED)
     brain = brain_for(world, load_circuit("insect").with_learning_rate(0.04))
     pos, sensed, spikes = [], [], np.zeros(len(brain.circuit.node_names), np.int64)
