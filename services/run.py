@@ -405,7 +405,6 @@ def plot_trajectory(folder: Path, summary: dict) -> None:
     plt.close(fig)
 
 
-
 def viewer_shown() -> str:
     """The viewer command to print: the `rerun` this install has (a venv's beside its Python, else
     on PATH), relative to here when under it; `rerun` (from rerun-sdk) if none is found."""
@@ -417,6 +416,7 @@ def viewer_shown() -> str:
         return str(path.relative_to(Path.cwd())) if path.is_absolute() else str(path)
     except ValueError:  # not under the current folder
         return str(path)
+
 
 def report(folder: Path, summary: dict) -> None:
     head = summary["headline"]
