@@ -4,6 +4,7 @@ that refuse a bad value before anything starts (argparse names the option in the
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 
@@ -58,7 +59,7 @@ def number(text: str) -> float:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if value != value or value in (float("inf"), float("-inf")):
+    if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"expected a finite number, got {text}")
     return value
 
