@@ -411,11 +411,10 @@ def viewer_shown() -> str:
     found = viewer_command()
     if found is None:
         return "rerun"
-    path = Path(found[0])
     try:
-        return str(path.relative_to(Path.cwd())) if path.is_absolute() else str(path)
-    except ValueError:  # not under the current folder
-        return str(path)
+        return str(Path(found[0]).relative_to(Path.cwd()))
+    except ValueError:  # not under the current folder (or not absolute): as found
+        return found[0]
 
 
 def report(folder: Path, summary: dict) -> None:
