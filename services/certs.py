@@ -24,8 +24,8 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from spikinglab.bus import keys
-from spikinglab.options import Parser, at_least
+from services.bus import keys
+from services.options import Parser, at_least
 
 log = logging.getLogger("spikinglab.certs")
 

@@ -37,17 +37,17 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
-from spikinglab.options import Parser, UsageError
-from spikinglab.params import file_for_agents
+from services.options import Parser, UsageError
+from services.params import file_for_agents
 
 log = logging.getLogger("spikinglab.launch")
 SERVICES = {  # a launch file's `service` -> the module run as `python -m` (it has parser() and main())
-    "world": "spikinglab.world.service",
-    "brain": "spikinglab.brain.service",
-    "record": "spikinglab.recorder.service",
-    "gateway": "spikinglab.ev3_gateway.service",
-    "router": "spikinglab.router",
-    "fake-brick": "spikinglab.ev3_gateway.fake_brick",
+    "world": "services.world.service",
+    "brain": "services.brain.service",
+    "record": "services.recorder.service",
+    "gateway": "services.ev3_gateway.service",
+    "router": "services.router",
+    "fake-brick": "services.ev3_gateway.fake_brick",
 }
 COLOURS = (36, 33, 35, 32, 34, 31)  # ANSI: cyan, yellow, magenta, green, blue, red
 ENDLESS = ("router", "fake-brick")  # serve the others and never end by themselves: stopped once they have
@@ -325,7 +325,7 @@ def check_brains_fit_worlds(path: Path, processes: list[Process], parsed: dict[s
 
 def shipped() -> dict[str, Path]:
     """The launch files shipped with spikinglab, by name."""
-    folder = Path(str(resources.files("spikinglab.launch_files")))
+    folder = Path(str(resources.files("services") / "launch_files"))
     return {path.stem: path for path in sorted(folder.glob("*.toml"))}
 
 

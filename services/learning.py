@@ -40,9 +40,9 @@ def noxious_ticks(world, brain, ticks: int, on_tick: Callable[[int], None] | Non
     noxious patch (the pain sensor fed), from which every definition below is computed. `on_tick(t)`
     is called for every tick t; below PARALLEL_FROM agents, after each stretch of BIN ticks, which
     runs as one compiled call that keeps the pain sensor's ticks (1.7 times as fast for 16 agents)."""
-    from spikinglab.loop import closed_loop, fused_loop
-    from spikinglab.params import PARALLEL_FROM
-    from spikinglab.world.world import BIN, PAIN
+    from services.loop import closed_loop, fused_loop
+    from services.params import PARALLEL_FROM
+    from services.world.world import BIN, PAIN
 
     if brain.agents < PARALLEL_FROM:
         fed = np.zeros((ticks, world.agents), np.uint8)

@@ -14,16 +14,16 @@ from collections.abc import Callable, Mapping
 import numpy as np
 from numba import njit
 
-from spikinglab.brain.brain import Brain, bind
-from spikinglab.brain.circuit import Circuit, load_circuit
-from spikinglab.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, serial_tick
-from spikinglab.params import AGENT_PARAMS, agent_columns, setting_count
-from spikinglab.world.world import ACTIONS, BIN, PAIN, SENSORS, World, _act, _sense, _touch, params_for, world_actions
+from services.brain.brain import Brain, bind
+from services.brain.circuit import Circuit, load_circuit
+from services.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, serial_tick
+from services.params import AGENT_PARAMS, agent_columns, setting_count
+from services.world.world import ACTIONS, BIN, PAIN, SENSORS, World, _act, _sense, _touch, params_for, world_actions
 
 
 def brain_for(world: World, circuit: Circuit, params: Mapping | None = None, **engine_options) -> Brain:
     """A brain for the world's agents; agent a's netlogo order is drawn from the world's seed +
-    numbers[a] (as its arena). `params`: the brain's per-agent columns (spikinglab.params)."""
+    numbers[a] (as its arena). `params`: the brain's per-agent columns (services.params)."""
     return Brain(circuit, SENSORS, tuple(circuit.actuators), agents=world.agents, training=world.training,
                  seed=world.seed + world.numbers, params=params, **engine_options)
 
@@ -43,7 +43,7 @@ def closed_loop(world: World, brain: Brain, ticks: int, on_tick: Callable[[int],
 def fused_loop(world: World, brain: Brain, ticks: int, noxious: np.ndarray | None = None) -> None:
     """`ticks` ticks of the closed loop as compiled calls, one per stretch up to a bin's end.
     `noxious` ([ticks, agents] uint8): row t set to 1 where an agent's pain sensor was fed in the
-    call's tick t (spikinglab.learning.noxious_ticks)."""
+    call's tick t (services.learning.noxious_ticks)."""
     engine, m = brain.engine, world.metrics
     if noxious is None:
         noxious = np.zeros((0, world.agents), np.uint8)  # none kept
@@ -110,7 +110,7 @@ def evaluate(params: Mapping, ticks: int, seeds=range(4), *, circuit: str | Circ
              order: str = "random") -> dict[str, np.ndarray]:
     """Train every parameter setting on every seed for `ticks` ticks, all as one population.
 
-    `params`: per-agent parameters (spikinglab.params.AGENT_PARAMS, e.g. {"a_plus": [0.01, 0.02],
+    `params`: per-agent parameters (services.params.AGENT_PARAMS, e.g. {"a_plus": [0.01, 0.02],
     "w_max": [15, 10]}), each a number or one value per setting. `seeds`: insect numbers in the
     world of seed 0 (its arenas, headings and netlogo orders; seed s is agent s of `spikinglab run
     --agents`, and the sweep's seed s). Returns arrays [settings, seeds]: "learning_time" (the last

@@ -9,8 +9,8 @@ import logging
 import sys
 import time
 
-from spikinglab.bus.session import add_bus_args, open_session
-from spikinglab.options import Parser
+from services.bus.session import add_bus_args, open_session
+from services.options import Parser
 
 log = logging.getLogger("spikinglab.router")
 

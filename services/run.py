@@ -25,21 +25,21 @@ from pathlib import Path
 
 import numpy as np
 
-from spikinglab import snapshots
-from spikinglab.brain.brain import check_sensors
-from spikinglab.brain.checkpoint import load_weights
-from spikinglab.brain.circuit import CircuitError, load_circuit
-from spikinglab.brain.engine import PARALLEL_FROM
-from spikinglab.brain.service import add_engine_args, brain_params
+from services import snapshots
+from services.brain.brain import check_sensors
+from services.brain.checkpoint import load_weights
+from services.brain.circuit import CircuitError, load_circuit
+from services.brain.engine import PARALLEL_FROM
+from services.brain.service import add_engine_args, brain_params
 from spikinglab.cli import version
-from spikinglab.launch import STOP_S, Launcher, Process, local_endpoints, options_for
-from spikinglab.learning import PAPER
-from spikinglab.options import Parser, agent_list, at_least, positive
-from spikinglab.params import read_params
-from spikinglab.recorder.screenshot import last_tick, repair, viewer_command
-from spikinglab.recorder.service import free_port, viewer_answers, web_viewer_url
-from spikinglab.world.service import CHECKPOINT, add_world_args, world_from_args
-from spikinglab.world.world import BIN, SENSORS, MapError
+from services.launch import STOP_S, Launcher, Process, local_endpoints, options_for
+from services.learning import PAPER
+from services.options import Parser, agent_list, at_least, positive
+from services.params import read_params
+from services.recorder.screenshot import last_tick, repair, viewer_command
+from services.recorder.service import free_port, viewer_answers, web_viewer_url
+from services.world.service import CHECKPOINT, add_world_args, world_from_args
+from services.world.world import BIN, SENSORS, MapError
 
 log = logging.getLogger("spikinglab.run")
 LIVE_VIEW_WITHIN_S = 60.0  # the recorder's viewer servers are up well within this (a few seconds here)
@@ -53,7 +53,7 @@ def parser() -> argparse.ArgumentParser:
     p = Parser(prog="spikinglab run", description=__doc__.splitlines()[0])
     add_world_args(p)
     p.set_defaults(ticks=100_000)
-    p.add_argument("--circuit", default="insect", help="circuit name in circuits/ or a .toml path (default insect)")
+    p.add_argument("--circuit", default="insect", help="circuit name in services/brain/circuits/ or a .toml path (default insect)")
     p.add_argument("--a-plus", type=positive, default=None,
                    help="A+ = A- of the learning neurons (default: the circuit's, 0.02 for the insect)")
     add_engine_args(p)

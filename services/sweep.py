@@ -14,12 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from spikinglab.brain.engine import DEFAULT_SEMANTICS
-from spikinglab.brain.service import add_engine_args
-from spikinglab.learning import PAPER, all_definitions, noxious_ticks, plot_table1, stats
-from spikinglab.loop import population
-from spikinglab.options import Parser, at_least, positive
-from spikinglab.world.world import BIN, PRESETS
+from services.brain.engine import DEFAULT_SEMANTICS
+from services.brain.service import add_engine_args
+from services.learning import PAPER, all_definitions, noxious_ticks, plot_table1, stats
+from services.loop import population
+from services.options import Parser, at_least, positive
+from services.world.world import BIN, PRESETS
 
 
 def sweep(a_values: list[float], seeds: int, ticks: int, preset: str, learned_after: int, progress=None,

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import zenoh
 
-from spikinglab.bus.schemas import BusError, decode
-from spikinglab.bus.session import make_config
-from spikinglab.launch import spawn
+from services.bus.schemas import BusError, decode
+from services.bus.session import make_config
+from services.launch import spawn
 
 ROOT = Path(__file__).resolve().parents[1]
 

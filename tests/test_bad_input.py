@@ -9,9 +9,9 @@ import time
 import numpy as np
 import pytest
 
-from spikinglab.brain.checkpoint import save_weights
-from spikinglab.brain.circuit import load_circuit
-from spikinglab.brain.engine import Engine
+from services.brain.checkpoint import save_weights
+from services.brain.circuit import load_circuit
+from services.brain.engine import Engine
 
 from .processes import free_port, running_with, start
 
@@ -135,7 +135,7 @@ def test_bad_input(case, command, code, says, files, busy_port, tmp_path):
         argv += ["--runs", str(tmp_path / "runs")]
     elif argv[0] == "conditioning":
         argv += ["--out", str(tmp_path / "figures")]
-    done = subprocess.run([sys.executable, "-m", "spikinglab.cli", *argv], cwd=tmp_path, capture_output=True,
+    done = subprocess.run([sys.executable, "-m", "spikinglab", *argv], cwd=tmp_path, capture_output=True,
                           text=True, timeout=120)
     lines = [line for line in done.stderr.splitlines() if line.strip()]
     assert done.returncode == code, done.stderr

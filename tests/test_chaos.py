@@ -12,14 +12,14 @@ import time
 import numpy as np
 import pytest
 
-from spikinglab import snapshots
-from spikinglab.brain.checkpoint import load_weights
-from spikinglab.brain.circuit import load_circuit
-from spikinglab.ev3_gateway.fake_brick import FakeBrick
-from spikinglab.loop import brain_for, closed_loop
-from spikinglab.recorder.screenshot import last_tick, viewer_command
-from spikinglab.world.service import metrics_of
-from spikinglab.world.world import World
+from services import snapshots
+from services.brain.checkpoint import load_weights
+from services.brain.circuit import load_circuit
+from services.ev3_gateway.fake_brick import FakeBrick
+from services.loop import brain_for, closed_loop
+from services.recorder.screenshot import last_tick, viewer_command
+from services.world.service import metrics_of
+from services.world.world import World
 
 from .processes import endpoint, finish, free_port, running_with, start, wait_for
 
@@ -42,7 +42,7 @@ def pid_of(marker: str, module: str) -> int:
 
 
 def training_run(tmp_path, *options) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "spikinglab.cli", "run", "--ticks", "20000", "--quiet", "--runs",
+    return subprocess.Popen([sys.executable, "-m", "spikinglab", "run", "--ticks", "20000", "--quiet", "--runs",
                              str(tmp_path / "runs"), "--id", "chaos", *map(str, options)], cwd=tmp_path,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
@@ -60,7 +60,7 @@ def kill_mid_run(tmp_path, module: str) -> float:
 
 def test_kill_9_of_the_recorder_the_run_goes_on_and_its_file_opens(tmp_path):
     run = training_run(tmp_path)
-    kill_mid_run(tmp_path, "spikinglab.recorder.service")
+    kill_mid_run(tmp_path, "services.recorder.service")
     out, err = run.communicate(timeout=240)
     assert run.returncode == 0, out + err
     folder = tmp_path / "runs" / "chaos"
@@ -101,7 +101,7 @@ def test_kill_9_of_the_world_or_brain_ends_the_run_saying_where_it_stopped(tmp_p
     assert not running_with(str(tmp_path))
     resume = f"spikinglab run --resume {folder}"
     assert resume in failure
-    resumed = subprocess.run([sys.executable, "-m", "spikinglab.cli", *resume.split()[1:]], cwd=tmp_path,
+    resumed = subprocess.run([sys.executable, "-m", "spikinglab", *resume.split()[1:]], cwd=tmp_path,
                              capture_output=True, text=True, timeout=240)
     assert resumed.returncode == 0, resumed.stdout + resumed.stderr
     head = json.loads((folder / "summary.json").read_text())["headline"]

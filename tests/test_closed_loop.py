@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from spikinglab.brain.checkpoint import load_weights
-from spikinglab.brain.circuit import load_circuit
-from spikinglab.bus import keys
-from spikinglab.bus.schemas import BrainLayout
-from spikinglab.loop import brain_for, closed_loop
-from spikinglab.world.world import World, params_for
+from services.brain.checkpoint import load_weights
+from services.brain.circuit import load_circuit
+from services.bus import keys
+from services.bus.schemas import BrainLayout
+from services.loop import brain_for, closed_loop
+from services.world.world import World, params_for
 
 from .processes import Watcher, endpoint, finish, free_port, start
 

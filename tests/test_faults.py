@@ -9,13 +9,13 @@ import time
 import msgspec
 import numpy as np
 
-from spikinglab.brain.checkpoint import load_weights
-from spikinglab.brain.circuit import load_circuit
-from spikinglab.bus import keys
-from spikinglab.bus.schemas import VERSION, Array, BusError, Control, Motor, Sensors, decode, encode
-from spikinglab.loop import brain_for, closed_loop
-from spikinglab.recorder.screenshot import last_tick
-from spikinglab.world.world import World
+from services.brain.checkpoint import load_weights
+from services.brain.circuit import load_circuit
+from services.bus import keys
+from services.bus.schemas import VERSION, Array, BusError, Control, Motor, Sensors, decode, encode
+from services.loop import brain_for, closed_loop
+from services.recorder.screenshot import last_tick
+from services.world.world import World
 
 from .bus.test_schemas import GOOD
 from .processes import Watcher, endpoint, finish, free_port, start, ticks_in, wait_for

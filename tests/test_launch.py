@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from spikinglab.launch import shipped
+from services.launch import shipped
 
 from .processes import free_port, running_with, wait_for
 
@@ -28,7 +28,7 @@ def launch_file(name: str, folder, **replace) -> str:
 
 
 def launch(folder, *args, stdout=subprocess.PIPE) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "spikinglab.cli", "launch", *map(str, args), "--no-colour"],
+    return subprocess.Popen([sys.executable, "-m", "spikinglab", "launch", *map(str, args), "--no-colour"],
                             cwd=folder, stdout=stdout, stderr=subprocess.PIPE, text=True)
 
 
@@ -90,7 +90,7 @@ def test_secure_launch_files_run_over_mutual_tls_once_certs_are_made(tmp_path):
     refused = launch(tmp_path, files[0])  # before `spikinglab certs`: refused, and told what to do
     out, err = refused.communicate(timeout=60)
     assert refused.returncode == 2 and "cannot read certs/router.json5" in err and "spikinglab certs" in err, err
-    made = subprocess.run([sys.executable, "-m", "spikinglab.cli", "certs", "certs"], cwd=tmp_path, capture_output=True,
+    made = subprocess.run([sys.executable, "-m", "spikinglab", "certs", "certs"], cwd=tmp_path, capture_output=True,
                           text=True)
     assert made.returncode == 0, made.stderr
     for file in files:

@@ -2,9 +2,9 @@
 
 import numpy as np
 
-from spikinglab.brain.circuit import load_circuit
-from spikinglab.loop import brain_for, closed_loop
-from spikinglab.world.world import World, params_for
+from services.brain.circuit import load_circuit
+from services.loop import brain_for, closed_loop
+from services.world.world import World, params_for
 
 SEEDS = 6  # arenas 0..5: the default seed and the next five, fixed before looking at results
 

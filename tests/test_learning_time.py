@@ -2,10 +2,10 @@
 
 import numpy as np
 
-from spikinglab.brain.circuit import load_circuit
-from spikinglab.learning import learning_time, noxious_ticks, stats
-from spikinglab.loop import brain_for, closed_loop
-from spikinglab.world.world import PAIN, World, params_for
+from services.brain.circuit import load_circuit
+from services.learning import learning_time, noxious_ticks, stats
+from services.loop import brain_for, closed_loop
+from services.world.world import PAIN, World, params_for
 
 
 def test_definitions_on_hand_made_ticks():

@@ -8,10 +8,10 @@ import sys
 import numpy as np
 import pytest
 
-from spikinglab.brain.circuit import load_circuit
-from spikinglab.loop import brain_for, closed_loop, evaluate
-from spikinglab.params import AGENT_PARAMS, PARALLEL_FROM, grid
-from spikinglab.world.world import World, params_for
+from services.brain.circuit import load_circuit
+from services.loop import brain_for, closed_loop, evaluate
+from services.params import AGENT_PARAMS, PARALLEL_FROM, grid
+from services.world.world import World, params_for
 
 from .processes import ROOT
 

@@ -9,15 +9,15 @@ import time
 
 import numpy as np
 
-from spikinglab.brain.checkpoint import load_weights
-from spikinglab.brain.circuit import load_circuit
-from spikinglab.bus.schemas import state_batch
+from services.brain.checkpoint import load_weights
+from services.brain.circuit import load_circuit
+from services.bus.schemas import state_batch
 
 from .processes import ROOT, running_with
 
 
 def spikinglab(*args, timeout=180):
-    return subprocess.run([sys.executable, "-m", "spikinglab.cli", *map(str, args)], cwd=ROOT, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "spikinglab", *map(str, args)], cwd=ROOT, capture_output=True,
                           text=True, timeout=timeout)
 
 
@@ -111,7 +111,7 @@ def test_benchmarks_run_and_end_with_json():
 
 
 def start_run(tmp_path, *args):
-    return subprocess.Popen([sys.executable, "-m", "spikinglab.cli", "run", "--runs", tmp_path, "--id", "r", "--quiet",
+    return subprocess.Popen([sys.executable, "-m", "spikinglab", "run", "--runs", tmp_path, "--id", "r", "--quiet",
                              *map(str, args)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -140,7 +140,7 @@ def test_ctrl_c_writes_a_partial_result_and_leaves_nothing_running(tmp_path):
 def test_a_dead_service_ends_the_run_and_is_named(tmp_path):
     run = start_run(tmp_path, "--ticks", 200_000)
     wait_for_ticks(tmp_path / "r")
-    (brain,) = [pid for pid, cmdline in running_with(str(tmp_path)).items() if "spikinglab.brain" in cmdline]
+    (brain,) = [pid for pid, cmdline in running_with(str(tmp_path)).items() if "services.brain" in cmdline]
     os.kill(brain, signal.SIGKILL)
     killed = time.monotonic()
     _, err = run.communicate(timeout=60)
@@ -152,7 +152,7 @@ def test_a_dead_service_ends_the_run_and_is_named(tmp_path):
 
 
 def test_a_run_stopped_in_its_first_thousand_ticks_still_plots(tmp_path):
-    from spikinglab.run import plot
+    from services.run import plot
     summary = {"collisions_per_1000_ticks": [[]], "learning_time": [None],
                "parameters": {"a_plus": 0.02, "seed": 0, "learned_after": 5000}}
     plot(tmp_path, summary)  # no finished bin yet: an empty plot, not a traceback after Ctrl-C
@@ -195,7 +195,7 @@ def test_an_interrupted_run_goes_on_with_resume_and_ends_as_an_uninterrupted_one
 
 
 def test_the_replay_line_names_a_viewer_that_exists_from_any_folder(tmp_path, monkeypatch):
-    from spikinglab.run import viewer_shown
+    from services.run import viewer_shown
     monkeypatch.chdir(tmp_path)  # a user who runs spikinglab outside the checkout (it printed .venv/bin/rerun)
     shown = viewer_shown()
     assert os.path.isfile(shown) and os.access(shown, os.X_OK), shown

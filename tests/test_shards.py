@@ -8,11 +8,11 @@ import time
 
 import numpy as np
 
-from spikinglab.brain.checkpoint import load_weights
-from spikinglab.brain.circuit import load_circuit
-from spikinglab.bus import keys
-from spikinglab.loop import brain_for, closed_loop
-from spikinglab.world.world import World, params_for
+from services.brain.checkpoint import load_weights
+from services.brain.circuit import load_circuit
+from services.bus import keys
+from services.loop import brain_for, closed_loop
+from services.world.world import World, params_for
 
 from .processes import Watcher, endpoint, finish, free_port, start, ticks_in, wait_for
 
@@ -95,13 +95,13 @@ def test_a_dead_shard_is_named_and_waited_for(tmp_path):
 
 
 def test_the_scale_and_loop_benchmarks_print_their_figures():
-    done = subprocess.run([sys.executable, "-m", "spikinglab.cli", "bench", "scale", "--agents", "40", "--shards", "1",
+    done = subprocess.run([sys.executable, "-m", "spikinglab", "bench", "scale", "--agents", "40", "--shards", "1",
                            "2", "--ticks", "100"], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     figures = json.loads(done.stdout.strip().splitlines()[-1])
     assert figures["agents"] == 40 and set(figures["shards"]) == {"1", "2"}
     assert all(v > 0 for v in figures["shards"].values())
-    done = subprocess.run([sys.executable, "-m", "spikinglab.cli", "bench", "loop", *map(str, (
+    done = subprocess.run([sys.executable, "-m", "spikinglab", "bench", "loop", *map(str, (
                            "--ticks", 300, "--agents", 300, "--batch-ticks", 80, "--large-agents", 600,
                            "--large-ticks", 20, "--repeats", 1))],
                           capture_output=True, text=True, timeout=300)

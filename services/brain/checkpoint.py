@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spikinglab.snapshots import write_npz
+from services.snapshots import write_npz
 
 from .circuit import Circuit
 from .engine import Engine

@@ -1,4 +1,4 @@
-"""Circuit files: a declarative description of a spiking network (circuits/*.toml).
+"""Circuit files: a declarative description of a spiking network (services/brain/circuits/*.toml).
 
 A circuit names its neuron types, neurons, input neurons, synapses, which sensor feeds which
 input neuron and which actuator neuron triggers which action. `load_circuit` validates the whole
@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
-CIRCUITS_DIR = Path(str(resources.files("spikinglab.circuits")))  # shipped with the package
+CIRCUITS_DIR = Path(str(resources.files("services.brain") / "circuits"))  # shipped with the package
 
 
 class CircuitError(ValueError):
@@ -155,7 +155,7 @@ def builtin_circuit_path(name: str) -> Path:
 
 
 def load_circuit(path_or_name: str | Path) -> Circuit:
-    """Load a circuit file; a bare name such as "insect" means circuits/insect.toml."""
+    """Load a circuit file; a bare name such as "insect" means services/brain/circuits/insect.toml."""
     path = Path(path_or_name)
     if path.suffix != ".toml" and not path.exists():
         path = builtin_circuit_path(str(path_or_name))

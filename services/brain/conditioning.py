@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spikinglab.options import Parser, at_least, positive
+from services.options import Parser, at_least, positive
 
 from .circuit import load_circuit
 from .engine import Engine

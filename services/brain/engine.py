@@ -31,9 +31,9 @@ import math
 import numpy as np
 from numba import get_num_threads, njit, prange
 
-from spikinglab.kernels import Kernel
-from spikinglab.params import LEARNING_FIELDS, PARALLEL_FROM, agent_columns
-from spikinglab.snapshots import copy_into
+from services.kernels import Kernel
+from services.params import LEARNING_FIELDS, PARALLEL_FROM, agent_columns
+from services.snapshots import copy_into
 
 from .circuit import Circuit
 from .stdp import stdp_table
@@ -356,7 +356,7 @@ def _netlogo_parallel(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spik
 def serial_tick(netlogo, feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
                 out_start, out_syn, order_key, rules):
     """One tick of either semantics on one thread, for compiled loops of many ticks (Engine.run,
-    spikinglab.loop's fused loop); the arguments after the feed are Engine.serial_args."""
+    services.loop's fused loop); the arguments after the feed are Engine.serial_args."""
     if netlogo:
         _netlogo_serial(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
                         out_start, out_syn, order_key, rules)
@@ -390,7 +390,7 @@ class Engine:
     NetLogo rules to switch off one at a time (NETLOGO_RULES; for ablations, not for use). `seed`
     may also be one seed per agent (an array [A]; agents taken from a larger population).
 
-    `params`: per-agent parameters (spikinglab.params, the brain's columns: A+, A-, tau+/-, w_max,
+    `params`: per-agent parameters (services.params, the brain's columns: A+, A-, tau+/-, w_max,
     initial weight, input gain), each a number or one value per agent; agents with the same
     values share one STDP table.
     """
@@ -461,7 +461,7 @@ class Engine:
             serial, parallel = _netlogo_serial, _netlogo_parallel
         else:  # the same arguments for both (a fused loop calls either): the phased engine ignores them
             self._args += (np.zeros(N + 1, np.uint64), np.zeros(0, np.uint64), np.zeros(A, np.uint64), 0)
-        self.serial_args = self._args  # a serial tick's arguments after the feed (spikinglab.loop fuses it)
+        self.serial_args = self._args  # a serial tick's arguments after the feed (services.loop fuses it)
         if agents >= PARALLEL_FROM:
             self._call, self._args = Kernel(parallel), self._args + (get_num_threads(),)
         else:

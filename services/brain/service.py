@@ -1,4 +1,4 @@
-"""The brain service: `spikinglab brain` / `python -m spikinglab.brain`.
+"""The brain service: `spikinglab brain` / `python -m services.brain`.
 
 Reads:  spikinglab/<group>/sensors (Sensors), spikinglab/<group>/control (Control)
 Writes: spikinglab/<group>/motor (Motor), liveliness spikinglab/<group>/alive/brain
@@ -22,12 +22,12 @@ from pathlib import Path
 
 import numpy as np
 
-from spikinglab import snapshots
-from spikinglab.bus import keys, schemas
-from spikinglab.bus.schemas import QUIET_S, Array, BrainLayout, BrainState, BusError, Control, Motor, Sensors, TickBatch
-from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
-from spikinglab.options import Parser, at_least, not_negative, number, positive, shard
-from spikinglab.params import file_rows, read_params, side_of
+from services import snapshots
+from services.bus import keys, schemas
+from services.bus.schemas import QUIET_S, Array, BrainLayout, BrainState, BusError, Control, Motor, Sensors, TickBatch
+from services.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
+from services.options import Parser, at_least, not_negative, number, positive, shard
+from services.params import file_rows, read_params, side_of
 
 from .brain import Brain, check_sensors
 from .checkpoint import load_weights, save_weights
@@ -42,7 +42,7 @@ CATCH_UP_S = 0.05  # free-running: a clock this far behind skips ahead instead o
 
 def parser() -> argparse.ArgumentParser:
     p = Parser(prog="spikinglab brain", description="The spiking-network brain, on the bus.")
-    p.add_argument("--circuit", default="insect", help="circuit name in circuits/ or a .toml path (default insect)")
+    p.add_argument("--circuit", default="insect", help="circuit name in services/brain/circuits/ or a .toml path (default insect)")
     p.add_argument("--a-plus", type=number, help="A+ = A- of the learning neurons (default: the circuit's)")
     p.add_argument("--no-training", action="store_true", help="weights stay as they are")
     p.add_argument("--params", type=Path, metavar="FILE.csv",
@@ -109,7 +109,7 @@ class BrainNode:
     def __init__(self, circuit, training: bool = True, weights: np.ndarray | None = None,
                  checkpoints: Path | None = None, quiet_s: float = QUIET_S, shard: tuple[int, int] = (1, 1),
                  params: dict | None = None, free_running: bool = False, **engine_options):
-        """`params`: per-agent parameter columns of the whole population (spikinglab.params.read_params);
+        """`params`: per-agent parameter columns of the whole population (services.params.read_params);
         `free_running`: on a clock (robot), state batches of FREE_STATE_BATCH ticks, not sized by agents."""
         self.circuit, self.training, self.initial_weights = circuit, training, weights
         self.params = side_of(params or {}, "brain")

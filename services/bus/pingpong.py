@@ -1,6 +1,6 @@
 """A bare Zenoh ping-pong between two processes: the bound the lock-step loop is measured against.
 
-`python -m spikinglab.bus.pingpong pong --listen EP [--cpu N]` answers every ping on
+`python -m services.bus.pingpong pong --listen EP [--cpu N]` answers every ping on
 spikinglab/bench/ping with the same bytes on spikinglab/bench/pong; `ping --connect EP --count N
 [--cpu N]` sends N pings one after the other, each after the last pong, and prints the round trips
 per second as JSON. Publishers and subscribers are set up as the lock-step ones are (express,
@@ -15,7 +15,7 @@ import time
 
 import zenoh
 
-from spikinglab.options import Parser, at_least
+from services.options import Parser, at_least
 
 from .session import add_bus_args, open_session
 
@@ -24,7 +24,7 @@ PAYLOAD = bytes(64)  # about a one-agent Sensors message's size class
 
 
 def main(argv=None) -> int:
-    p = Parser(prog="python -m spikinglab.bus.pingpong", description=__doc__.splitlines()[0])
+    p = Parser(prog="python -m services.bus.pingpong", description=__doc__.splitlines()[0])
     p.add_argument("role", choices=("ping", "pong"))
     p.add_argument("--count", type=at_least(1), default=20_000)
     add_bus_args(p)

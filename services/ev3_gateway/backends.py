@@ -176,8 +176,8 @@ class SimBackend(Backend):
 
     def __init__(self, seed: int = 0, patch_cm: float = 30.0, object_cm: float = 15.0, speed_cm_s: float = 20.0,
                  turn_deg_s: float = 50.0, link_ms: float = 5.0, map_path=None):
-        from spikinglab.world.physics import build_objects
-        from spikinglab.world.world import BLACK as W_BLACK, RED as W_RED, World, map_world, params_for
+        from services.world.physics import build_objects
+        from services.world.world import BLACK as W_BLACK, RED as W_RED, World, map_world, params_for
 
         if not 0 < object_cm <= patch_cm:
             raise ValueError(f"the objects ({object_cm} cm) must fit their squares ({patch_cm} cm)")
@@ -197,7 +197,7 @@ class SimBackend(Backend):
         self._last = time.monotonic()
 
     def _advance(self, now: float) -> None:
-        from spikinglab.world.physics import ray
+        from services.world.physics import ray
 
         kind, direction, until = self._motion
         dt = max(0.0, min(now, until) - self._last)
@@ -218,8 +218,8 @@ class SimBackend(Backend):
         self._last = now
 
     def read(self) -> Reading:
-        from spikinglab.world.physics import ray
-        from spikinglab.world.world import BLACK as W_BLACK, GREEN as W_GREEN, RED as W_RED
+        from services.world.physics import ray
+        from services.world.world import BLACK as W_BLACK, GREEN as W_GREEN, RED as W_RED
 
         if not self.connected:
             raise RobotLinkError("simulated EV3: not connected")

@@ -301,9 +301,9 @@ class FakeBrick:
 
 
 def parser():
-    from spikinglab.options import Parser
+    from services.options import Parser
 
-    p = Parser(prog="python -m spikinglab.ev3_gateway.fake_brick",
+    p = Parser(prog="python -m services.ev3_gateway.fake_brick",
                description="A fake EV3 brick on loopback for the gateway (--backend ev3) to find and drive.")
     p.add_argument("--colour", type=int, default=6, help="the colour sensor's reading (default 6: white)")
     p.add_argument("--distance-cm", type=float, default=100.0, help="the ultrasonic sensor's reading (default 100)")

@@ -1,4 +1,4 @@
-"""The EV3 gateway: `spikinglab gateway` / `python -m spikinglab.ev3_gateway`.
+"""The EV3 gateway: `spikinglab gateway` / `python -m services.ev3_gateway`.
 
 Reads:  spikinglab/<group>/motor (Motor events of a free-running brain), the brain's liveliness
 Writes: spikinglab/<group>/sensors (every reading), liveliness spikinglab/<group>/alive/gateway
@@ -33,10 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-from spikinglab.bus import keys
-from spikinglab.bus.schemas import INSECT_SENSORS, Array, BusError, Control, Motor, Sensors, new_run_id
-from spikinglab.bus.session import Bus, add_bus_args, guard_threads, open_session, thread_died
-from spikinglab.options import Parser, at_least, not_negative, number, positive
+from services.bus import keys
+from services.bus.schemas import INSECT_SENSORS, Array, BusError, Control, Motor, Sensors, new_run_id
+from services.bus.session import Bus, add_bus_args, guard_threads, open_session, thread_died
+from services.options import Parser, at_least, not_negative, number, positive
 
 from .backends import BLACK, GREEN, RED, EV3Backend, Reading, RobotLinkError, SimBackend, Wiring
 

@@ -25,7 +25,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from spikinglab.bus.schemas import (
+from services.bus.schemas import (
     BLACK,
     EMPTY,
     EV_LEARNED,

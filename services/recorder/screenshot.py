@@ -20,7 +20,7 @@ from pathlib import Path
 import rerun.experimental as rrx
 from rerun.chunk import RrdReader
 
-from spikinglab.options import Parser, at_least
+from services.options import Parser, at_least
 
 
 def viewer_command() -> list[str] | None:

@@ -1,4 +1,4 @@
-"""The recorder service: `spikinglab record` / `python -m spikinglab.recorder`.
+"""The recorder service: `spikinglab record` / `python -m services.recorder`.
 
 Reads:  spikinglab/<group>/state/** (the world's and the brain's state batches, the map, the
         brain's layout; one strict inbox), and the liveliness of the world and the brain
@@ -26,10 +26,10 @@ from pathlib import Path
 
 import rerun as rr
 
-from spikinglab.bus import keys
-from spikinglab.bus.schemas import QUIET_S, RUN_ID, BrainLayout, BrainState, BusError, WorldMap, WorldState
-from spikinglab.bus.session import Bus, add_bus_args, service_main
-from spikinglab.options import Parser, agent_list, at_least, port
+from services.bus import keys
+from services.bus.schemas import QUIET_S, RUN_ID, BrainLayout, BrainState, BusError, WorldMap, WorldState
+from services.bus.session import Bus, add_bus_args, service_main
+from services.options import Parser, agent_list, at_least, port
 
 from .recorder import Recorder, blueprint
 

@@ -1,4 +1,4 @@
-"""The world service: `spikinglab world` / `python -m spikinglab.world`.
+"""The world service: `spikinglab world` / `python -m services.world`.
 
 Reads:  spikinglab/<group>/motor (Motor), liveliness spikinglab/<group>/alive/brain
 Writes: spikinglab/<group>/sensors (Sensors), .../control (Control "end"), .../world/state and
@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from spikinglab import snapshots
-from spikinglab.bus import keys
-from spikinglab.bus.schemas import (
+from services import snapshots
+from services.bus import keys
+from services.bus.schemas import (
     EVENT_COLUMNS,
     RUN_ID,
     Array,
@@ -37,9 +37,9 @@ from spikinglab.bus.schemas import (
     new_run_id,
     state_batch,
 )
-from spikinglab.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
-from spikinglab.options import Parser, at_least
-from spikinglab.params import file_for_agents, side_of
+from services.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
+from services.options import Parser, at_least
+from services.params import file_for_agents, side_of
 
 from .world import PRESETS, SENSORS, MapError, World, map_world, params_for, world_actions
 

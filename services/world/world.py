@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit, prange
 
-from spikinglab.bus.schemas import (
+from services.bus.schemas import (
     BLACK,
     EMPTY,
     EV_ATE,
@@ -33,9 +33,9 @@ from spikinglab.bus.schemas import (
     INSECT_SENSORS,
     RED,
 )
-from spikinglab.kernels import Kernel
-from spikinglab.params import PARALLEL_FROM, agent_columns
-from spikinglab.snapshots import copy_into
+from services.kernels import Kernel
+from services.params import PARALLEL_FROM, agent_columns
+from services.snapshots import copy_into
 
 # Sensor columns the world publishes and action columns it takes (the bus's names; the circuit
 # binds them by name).
@@ -216,7 +216,7 @@ class World:
     Agent a is agent `numbers[a]` (default a) of the world of `seed`: its arena, its heading and its
     brain's netlogo order come from seed + numbers[a], so a population can hold the same insect
     several times (one per parameter setting). `agent_params`: the world's per-agent columns
-    (spikinglab.params: rotation and move steps), each a number or one value per agent."""
+    (services.params: rotation and move steps), each a number or one value per agent."""
 
     def __init__(self, params: WorldParams | None = None, agents: int = 1, seed: int = 0,
                  shared: bool = False, grid: np.ndarray | None = None, training: bool = True,

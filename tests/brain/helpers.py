@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from spikinglab.brain.circuit import build_circuit
-from spikinglab.brain.engine import Engine
+from services.brain.circuit import build_circuit
+from services.brain.engine import Engine
 
 
 def phased(circuit, **options) -> Engine:

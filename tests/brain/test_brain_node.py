@@ -5,10 +5,10 @@ import time
 import numpy as np
 import pytest
 
-from spikinglab.brain.brain import Brain
-from spikinglab.brain.circuit import load_circuit
-from spikinglab.brain.service import BrainNode
-from spikinglab.bus.schemas import INSECT_ACTIONS, INSECT_SENSORS, Array, BusError, Control, Sensors
+from services.brain.brain import Brain
+from services.brain.circuit import load_circuit
+from services.brain.service import BrainNode
+from services.bus.schemas import INSECT_ACTIONS, INSECT_SENSORS, Array, BusError, Control, Sensors
 
 AGENTS = 3
 CIRCUIT = load_circuit("insect")

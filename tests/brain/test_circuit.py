@@ -2,7 +2,7 @@
 
 import pytest
 
-from spikinglab.brain.circuit import CircuitError, load_circuit
+from services.brain.circuit import CircuitError, load_circuit
 
 INSECT_SYNAPSES = {
     # MODEL.md section 6: (weight, delay, inhibitory, plastic)

@@ -1,7 +1,7 @@
 """Classical conditioning on the paper's building blocks (fig. 2, fig. 4 and fig. 6)."""
 
-from spikinglab.brain.circuit import load_circuit
-from spikinglab.brain.conditioning import TRIAL, responds, train
+from services.brain.circuit import load_circuit
+from services.brain.conditioning import TRIAL, responds, train
 
 from .helpers import phased
 

@@ -6,7 +6,7 @@ so its pulse comes at t + floor(v) and, over its synapse of delay 0, reaches its
 
 import pytest
 
-from spikinglab.brain.circuit import build_circuit
+from services.brain.circuit import build_circuit
 
 from .helpers import phased, run_with_events
 

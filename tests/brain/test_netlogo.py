@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from spikinglab.brain.circuit import build_circuit, load_circuit
-from spikinglab.brain.engine import PARALLEL_FROM, Engine
+from services.brain.circuit import build_circuit, load_circuit
+from services.brain.engine import PARALLEL_FROM, Engine
 
 from .helpers import run_with_events
 from .test_batch import random_feeds

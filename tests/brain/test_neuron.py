@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from spikinglab.brain.circuit import build_circuit
+from services.brain.circuit import build_circuit
 
 from .helpers import phased, run_with_events
 
@@ -94,7 +94,7 @@ def test_arrival_tick_for_each_delay(delay):
 
 
 def test_pacemaker_oscillates_and_drives_reward():
-    from spikinglab.brain.circuit import load_circuit
+    from services.brain.circuit import load_circuit
 
     e = phased(load_circuit("insect"))
     spikes = run_with_events(e, 300, {})

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from spikinglab.brain.circuit import build_circuit
+from services.brain.circuit import build_circuit
 
 from .helpers import phased, relay_circuit, run_with_events
 
@@ -108,7 +108,7 @@ def test_training_off_freezes_weights():
 
 
 def test_learning_rate_override_reaches_plastic_targets_only():
-    from spikinglab.brain.circuit import load_circuit
+    from services.brain.circuit import load_circuit
 
     c = load_circuit("insect").with_learning_rate(0.04)
     rates = {n: (t.a_plus, t.a_minus) for n, t in zip(c.neuron_names, c.neuron_types)}

@@ -3,8 +3,8 @@
 import numpy as np
 import zenoh
 
-from spikinglab.bus.schemas import Array, BrainState, encode
-from spikinglab.bus.session import DROPPED, Inbox, make_config, wait_until
+from services.bus.schemas import Array, BrainState, encode
+from services.bus.session import DROPPED, Inbox, make_config, wait_until
 
 
 def test_a_reader_that_falls_behind_keeps_its_backlog_and_counts_the_rest():

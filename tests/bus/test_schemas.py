@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from spikinglab.bus import keys
-from spikinglab.bus.schemas import (
+from services.bus import keys
+from services.bus.schemas import (
     VERSION,
     Array,
     BrainLayout,

@@ -12,15 +12,15 @@ import pytest
 import zenoh
 from cryptography import x509
 
-from spikinglab import certs
-from spikinglab.brain.checkpoint import load_weights
-from spikinglab.brain.circuit import load_circuit
-from spikinglab.bus import keys
-from spikinglab.bus.schemas import Array, Control, Motor, Sensors, decode, encode
-from spikinglab.bus.session import make_config, zenoh_config_file
-from spikinglab.ev3_gateway.fake_brick import FakeBrick
-from spikinglab.loop import brain_for, closed_loop
-from spikinglab.world.world import World
+from services import certs
+from services.brain.checkpoint import load_weights
+from services.brain.circuit import load_circuit
+from services.bus import keys
+from services.bus.schemas import Array, Control, Motor, Sensors, decode, encode
+from services.bus.session import make_config, zenoh_config_file
+from services.ev3_gateway.fake_brick import FakeBrick
+from services.loop import brain_for, closed_loop
+from services.world.world import World
 
 from ..processes import finish, free_port, start, wait_for
 

@@ -6,7 +6,7 @@ import textwrap
 
 SERVICE = textwrap.dedent("""
     import logging, sys, threading, time
-    from spikinglab.bus.session import guard_threads, thread_died
+    from services.bus.session import guard_threads, thread_died
     logging.basicConfig(level=logging.INFO)
     guard_threads()
     def motor_commands():

@@ -6,9 +6,9 @@ import time
 
 import numpy as np
 
-from spikinglab.bus import keys
-from spikinglab.bus.schemas import INSECT_ACTIONS, Array, Motor, encode
-from spikinglab.ev3_gateway.fake_brick import FakeBrick
+from services.bus import keys
+from services.bus.schemas import INSECT_ACTIONS, Array, Motor, encode
+from services.ev3_gateway.fake_brick import FakeBrick
 
 from ..processes import Watcher, endpoint, finish, free_port, start, wait_for
 from ..recorder.test_recorder import read

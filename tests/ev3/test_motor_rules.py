@@ -5,8 +5,8 @@ import re
 import numpy as np
 import pytest
 
-from spikinglab.bus.schemas import INSECT_ACTIONS, Array, BusError, Motor
-from spikinglab.ev3_gateway.service import MotorCall, MotorRules, motor_actions
+from services.bus.schemas import INSECT_ACTIONS, Array, BusError, Motor
+from services.ev3_gateway.service import MotorCall, MotorRules, motor_actions
 
 ROTATE, MOVE, BOTH = {"rotate": 1, "move": 0}, {"rotate": 0, "move": 1}, {"rotate": 1, "move": 1}
 

@@ -51,7 +51,7 @@ def test_run_view_opens_the_rerun_viewer_on_a_display(tmp_path):
             assert screen.poll() is None, "Xvfb did not start"
             time.sleep(0.1)
         env = {**os.environ, "DISPLAY": f":{display}"}
-        run = subprocess.Popen([sys.executable, "-m", "spikinglab.cli", "run", "--view", "--ticks", "400000",
+        run = subprocess.Popen([sys.executable, "-m", "spikinglab", "run", "--view", "--ticks", "400000",
                                 "--quiet", "--runs", str(tmp_path), "--id", "native"], cwd=ROOT, env=env,
                                stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
         try:

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from spikinglab.brain.checkpoint import load_weights
-from spikinglab.brain.circuit import load_circuit
-from spikinglab.bus import keys
-from spikinglab.bus.schemas import state_batch
-from spikinglab.loop import brain_for, closed_loop
-from spikinglab.world.world import SENSORS, World, generate_map, params_for
+from services.brain.checkpoint import load_weights
+from services.brain.circuit import load_circuit
+from services.bus import keys
+from services.bus.schemas import state_batch
+from services.loop import brain_for, closed_loop
+from services.world.world import SENSORS, World, generate_map, params_for
 
 from ..processes import ROOT, Watcher, finish, start, ticks_in, wait_for
 
@@ -45,7 +45,7 @@ def read(path):
 @pytest.fixture(scope="module")
 def recorded_run(tmp_path_factory):
     runs = tmp_path_factory.mktemp("runs")
-    done = subprocess.run([sys.executable, "-m", "spikinglab.cli", "run", "--ticks", str(TICKS), "--seed", str(SEED),
+    done = subprocess.run([sys.executable, "-m", "spikinglab", "run", "--ticks", str(TICKS), "--seed", str(SEED),
                            "--a-plus", "0.04", "--runs", str(runs), "--id", "r", "--quiet"],
                           cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
@@ -114,7 +114,7 @@ def test_screenshot_of_the_replay_is_not_blank(recorded_run, tmp_path):
 
     folder = recorded_run[0]
     before = headless_viewers()
-    done = subprocess.run([sys.executable, "-m", "spikinglab.cli", "screenshot", str(folder / "recording.rrd"),
+    done = subprocess.run([sys.executable, "-m", "spikinglab", "screenshot", str(folder / "recording.rrd"),
                            "--out", str(tmp_path / "replay.png"), "--tick", "2500"],
                           cwd=ROOT, capture_output=True, text=True, timeout=180)
     assert done.returncode == 0, done.stderr[-2000:]
@@ -236,9 +236,9 @@ def test_brain_states_unlike_the_first_are_refused_whole_even_before_the_layout(
     import msgspec
     import rerun as rr
 
-    from spikinglab.brain.service import layout
-    from spikinglab.bus.schemas import Array, BrainState, BusError, new_run_id
-    from spikinglab.recorder.recorder import Recorder
+    from services.brain.service import layout
+    from services.bus.schemas import Array, BrainState, BusError, new_run_id
+    from services.recorder.recorder import Recorder
 
     circuit, run = load_circuit("insect"), new_run_id()
     nodes, neurons, synapses = len(circuit.node_names), len(circuit.neuron_names), len(circuit.synapses)

@@ -15,7 +15,7 @@ import numpy as np
 from PIL import Image
 from playwright.sync_api import sync_playwright
 
-from spikinglab.recorder.recorder import PATCH_COLOURS
+from services.recorder.recorder import PATCH_COLOURS
 
 from ..processes import ROOT, running_with
 
@@ -31,7 +31,7 @@ def test_run_view_serves_a_web_viewer_that_renders_the_run(tmp_path):
     chromium = shutil.which("chromium")
     assert chromium, "Debian's chromium is needed (scripts/test.sh installs it: apt-get install chromium)"
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    run = subprocess.Popen([sys.executable, "-m", "spikinglab.cli", "run", "--view", "--ticks", "400000", "--quiet",
+    run = subprocess.Popen([sys.executable, "-m", "spikinglab", "run", "--view", "--ticks", "400000", "--quiet",
                             "--runs", str(tmp_path), "--id", "live"], cwd=ROOT, env=env, stderr=subprocess.PIPE,
                            stdout=subprocess.DEVNULL, text=True)
     try:

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from spikinglab.world.physics import build_space, ray
-from spikinglab.world.world import EMPTY, SENSORS, World
+from services.world.physics import build_space, ray
+from services.world.world import EMPTY, SENSORS, World
 
 SMELLS = [SENSORS.index(s) for s in ("smell_black", "smell_red", "smell_green")]
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from spikinglab.world.world import (
+from services.world.world import (
     ACTIONS,
     BLACK,
     EMPTY,

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 import rerun as rr
 
-from spikinglab.bus.schemas import TickBatch, WorldState, decode, encode
-from spikinglab.recorder.recorder import Recorder
-from spikinglab.world.service import state_message
-from spikinglab.world.world import World
+from services.bus.schemas import TickBatch, WorldState, decode, encode
+from services.recorder.recorder import Recorder
+from services.world.service import state_message
+from services.world.world import World
 
 
 def test_a_run_ended_before_its_first_tick_still_sends_a_final_state():
@@ -22,7 +22,7 @@ def test_a_run_ended_before_its_first_tick_still_sends_a_final_state():
 
 
 def test_a_checkpoint_resumes_only_under_the_options_that_made_it(tmp_path):
-    from spikinglab.world.service import (
+    from services.world.service import (
         CHECKPOINT,
         PENDING,
         Trajectory,

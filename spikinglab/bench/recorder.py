@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from spikinglab.bench import steady_rate
-from spikinglab.bus.schemas import state_batch
-from spikinglab.launch import local_endpoints, spawn
-from spikinglab.options import Parser, at_least
+from services.bus.schemas import state_batch
+from services.launch import local_endpoints, spawn
+from services.options import Parser, at_least
 
 
 def one_run(ticks: int, record: bool, folder: Path) -> dict:
@@ -53,12 +53,12 @@ def alone(ticks: int) -> float:
     """Ticks/s the recorder decodes and writes when fed a run's state messages as fast as it takes them."""
     import rerun as rr
 
-    from spikinglab.brain.circuit import load_circuit
-    from spikinglab.brain.service import BrainNode, layout
-    from spikinglab.bus.schemas import Array, Sensors, TickBatch, WorldMap, decode, encode, new_run_id
-    from spikinglab.recorder.recorder import Recorder, blueprint
-    from spikinglab.world.service import keep_state, state_message
-    from spikinglab.world.world import SENSORS, World, world_actions
+    from services.brain.circuit import load_circuit
+    from services.brain.service import BrainNode, layout
+    from services.bus.schemas import Array, Sensors, TickBatch, WorldMap, decode, encode, new_run_id
+    from services.recorder.recorder import Recorder, blueprint
+    from services.world.service import keep_state, state_message
+    from services.world.world import SENSORS, World, world_actions
 
     circuit, world, run = load_circuit("insect"), World(seed=1), new_run_id()
     node = BrainNode(circuit)

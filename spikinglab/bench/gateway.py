@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from spikinglab.ev3_gateway.fake_brick import FakeBrick
-from spikinglab.launch import local_endpoints, spawn
-from spikinglab.options import Parser, at_least, positive
+from services.ev3_gateway.fake_brick import FakeBrick
+from services.launch import local_endpoints, spawn
+from services.options import Parser, at_least, positive
 
 
 def polls_per_s(seconds: float) -> float:

@@ -28,10 +28,10 @@ import numpy as np
 import rerun as rr
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from spikinglab.brain.circuit import load_circuit
-from spikinglab.brain.service import BrainNode, layout
-from spikinglab.bus import keys
-from spikinglab.bus.schemas import (
+from services.brain.circuit import load_circuit
+from services.brain.service import BrainNode, layout
+from services.bus import keys
+from services.bus.schemas import (
     INSECT_ACTIONS,
     INSECT_SENSORS,
     KINDS,
@@ -47,10 +47,10 @@ from spikinglab.bus.schemas import (
     decode,
     encode,
 )
-from spikinglab.ev3_gateway.service import motor_actions
-from spikinglab.options import Parser, at_least
-from spikinglab.recorder.recorder import Recorder
-from spikinglab.world.service import actions_from
+from services.ev3_gateway.service import motor_actions
+from services.options import Parser, at_least
+from services.recorder.recorder import Recorder
+from services.world.service import actions_from
 
 raw_encode, raw_decode = msgspec.msgpack.Encoder().encode, msgspec.msgpack.Decoder().decode
 CIRCUIT = load_circuit("insect")

@@ -30,12 +30,12 @@ import numpy as np
 from spikinglab.bench import steady_rate
 from spikinglab.bench.engine import best_rate, random_feeds
 from spikinglab.bench.recorder import one_run
-from spikinglab.brain.circuit import load_circuit
-from spikinglab.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, SEMANTICS, Engine
-from spikinglab.launch import local_endpoints, spawn
-from spikinglab.loop import brain_for, closed_loop
-from spikinglab.options import Parser, at_least
-from spikinglab.world.world import World
+from services.brain.circuit import load_circuit
+from services.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, SEMANTICS, Engine
+from services.launch import local_endpoints, spawn
+from services.loop import brain_for, closed_loop
+from services.options import Parser, at_least
+from services.world.world import World
 
 
 def inprocess(ticks: int, semantics: str, agents: int = 1) -> float:
@@ -61,9 +61,9 @@ def zenoh_roundtrips(count: int) -> float:
     with sockets, tempfile.TemporaryDirectory() as tmp:
         pin = [["--cpu", "0"], ["--cpu", "1"]] if os.cpu_count() >= 2 else [[], []]
         out = Path(tmp) / "ping.log"
-        pong = spawn("spikinglab.bus.pingpong", ["pong", "--listen", pong_ep] + pin[1], subprocess.DEVNULL)
+        pong = spawn("services.bus.pingpong", ["pong", "--listen", pong_ep] + pin[1], subprocess.DEVNULL)
         try:
-            ping = spawn("spikinglab.bus.pingpong", ["ping", "--connect", pong_ep, "--count", count] + pin[0], out)
+            ping = spawn("services.bus.pingpong", ["ping", "--connect", pong_ep, "--count", count] + pin[0], out)
             if ping.wait(300) != 0:
                 raise SystemExit(f"the ping-pong failed: {out.read_text()[-500:]}")
         finally:

@@ -18,8 +18,8 @@ import tempfile
 from pathlib import Path
 
 from spikinglab.bench import steady_rate
-from spikinglab.launch import local_endpoints, spawn
-from spikinglab.options import Parser, at_least
+from services.launch import local_endpoints, spawn
+from services.options import Parser, at_least
 
 
 def sharded(agents: int, shards: int, ticks: int) -> float:

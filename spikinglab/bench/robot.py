@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from spikinglab.launch import local_endpoints, spawn, stop
-from spikinglab.options import Parser, at_least, positive
+from services.launch import local_endpoints, spawn, stop
+from services.options import Parser, at_least, positive
 
 CONDITIONS = {  # name -> brain options
     "learning, A = 0.08 (the paper's robot)": ["--a-plus", 0.08],

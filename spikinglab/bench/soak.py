@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from spikinglab.bus.schemas import encode
-from spikinglab.bus.session import make_config
-from spikinglab.launch import local_endpoints, spawn
-from spikinglab.options import Parser, at_least, positive
+from services.bus.schemas import encode
+from services.bus.session import make_config
+from services.launch import local_endpoints, spawn
+from services.options import Parser, at_least, positive
 
 from .fuzz import EXAMPLES, KEY_OF
 

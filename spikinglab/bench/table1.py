@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from spikinglab.learning import DEFAULT_DEFINITION, DEFINITIONS, PAPER, all_definitions, plot_table1, tick_text
-from spikinglab.options import Parser, at_least, positive
+from services.learning import DEFAULT_DEFINITION, DEFINITIONS, PAPER, all_definitions, plot_table1, tick_text
+from services.options import Parser, at_least, positive
 
 A_VALUES = (0.01, 0.02, 0.03, 0.04, 0.08)
 STEPS = {"paper": "paper", "demo": "netlogo"}  # -> world preset
@@ -48,10 +48,10 @@ ABLATION = {  # factor -> what it is switched to
 
 def run_population(setting: dict, a: float, seeds: int, ticks: int) -> dict:
     """One population: `seeds` insects of one setting at A+ = A- = a; collision ticks per insect."""
-    from spikinglab.brain.circuit import load_circuit
-    from spikinglab.learning import noxious_ticks
-    from spikinglab.loop import brain_for
-    from spikinglab.world.world import World, params_for
+    from services.brain.circuit import load_circuit
+    from services.learning import noxious_ticks
+    from services.loop import brain_for
+    from services.world.world import World, params_for
 
     params = params_for(STEPS[setting["steps"]], view_distance=setting["view_distance"], push=setting["push"])
     world = World(params, agents=seeds, seed=0)

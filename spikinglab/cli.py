@@ -6,17 +6,17 @@ import importlib
 import sys
 
 COMMANDS = {
-    "run": ("spikinglab.run", "train the insect: world, brain and recorder as processes on the bus (the main job)"),
-    "launch": ("spikinglab.launch", "start the services a launch file names (simulation, robot, remote-...)"),
-    "brain": ("spikinglab.brain.service", "the brain service on the bus"),
-    "world": ("spikinglab.world.service", "the world service on the bus"),
-    "gateway": ("spikinglab.ev3_gateway.service", "the robot side: a LEGO EV3 (or a simulated one) on the bus"),
-    "record": ("spikinglab.recorder.service", "record a run to a Rerun file (.rrd)"),
-    "screenshot": ("spikinglab.recorder.screenshot", "a PNG of a recording's replay, rendered headless"),
-    "router": ("spikinglab.router", "a Zenoh router, for brain and world on different machines"),
-    "certs": ("spikinglab.certs", "certificates and configs for a bus with mutual TLS and access control"),
-    "sweep": ("spikinglab.sweep", "the paper's Table 1: learning time for A+ = A- over seeds"),
-    "conditioning": ("spikinglab.brain.conditioning", "classical conditioning demo on fig. 2 and fig. 4"),
+    "run": ("services.run", "train the insect: world, brain and recorder as processes on the bus (the main job)"),
+    "launch": ("services.launch", "start the services a launch file names (simulation, robot, remote-...)"),
+    "brain": ("services.brain.service", "the brain service on the bus"),
+    "world": ("services.world.service", "the world service on the bus"),
+    "gateway": ("services.ev3_gateway.service", "the robot side: a LEGO EV3 (or a simulated one) on the bus"),
+    "record": ("services.recorder.service", "record a run to a Rerun file (.rrd)"),
+    "screenshot": ("services.recorder.screenshot", "a PNG of a recording's replay, rendered headless"),
+    "router": ("services.router", "a Zenoh router, for brain and world on different machines"),
+    "certs": ("services.certs", "certificates and configs for a bus with mutual TLS and access control"),
+    "sweep": ("services.sweep", "the paper's Table 1: learning time for A+ = A- over seeds"),
+    "conditioning": ("services.brain.conditioning", "classical conditioning demo on fig. 2 and fig. 4"),
     "bench": (None, "benchmarks and experiments: bench engine | loop | scale | recorder | gateway | table1 | robot | "
                     "fuzz | soak"),
 }

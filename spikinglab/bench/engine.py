@@ -16,9 +16,9 @@ import time
 
 import numpy as np
 
-from spikinglab.brain.circuit import load_circuit
-from spikinglab.brain.engine import SEMANTICS, Engine
-from spikinglab.options import Parser, at_least
+from services.brain.circuit import load_circuit
+from services.brain.engine import SEMANTICS, Engine
+from services.options import Parser, at_least
 
 FEED_PROBABILITY = 0.3  # chance per tick that a sensor feeds its input neuron a value in [0, 4)
 

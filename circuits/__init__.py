@@ -1,1 +1,0 @@
-"""The circuit files shipped with spikinglab (package data): insect, conditioning, association, two_actions."""
