@@ -39,8 +39,7 @@ def main():
     p.add_argument("--population", type=int, default=8, help="candidates per generation")
     args = p.parse_args()
     start = (np.array([0.02, 15.0]) - LOW) / (HIGH - LOW)  # the model's values
-    es = cma.CMAEvolutionStrategy(start, 0.3, {"bounds": [0, 1], "popsize": args.population, "seed": 1,
-                                               "verbose": -9})
+    es = cma.CMAEvolutionStrategy(start, 0.3, {"bounds": [0, 1], "popsize": args.population, "seed": 1, "verbose": -9})
     best = (np.inf, None)
     for generation in range(1, args.generations + 1):
         points = es.ask()
@@ -51,11 +50,16 @@ def main():
         k = int(np.argmin(costs))
         if costs[k] < best[0]:
             best = (costs[k], (a_plus[k], w_max[k], result["learning_time"][k]))
-        print(f"generation {generation}: {len(points)} candidates x {args.seeds} seeds, best cost {costs[k]:,.0f} "
-              f"at A+ = A- = {a_plus[k]:.4f}, w_max = {w_max[k]:.2f}", flush=True)
+        print(
+            f"generation {generation}: {len(points)} candidates x {args.seeds} seeds, best cost {costs[k]:,.0f} "
+            f"at A+ = A- = {a_plus[k]:.4f}, w_max = {w_max[k]:.2f}",
+            flush=True,
+        )
     value, (a, w, times) = best
-    print(f"best: A+ = A- = {a:.4f}, w_max = {w:.2f}, cost {value:,.0f}, learning times "
-          f"{', '.join(f'{t:,}' if t >= 0 else 'not yet' for t in times)}")
+    print(
+        f"best: A+ = A- = {a:.4f}, w_max = {w:.2f}, cost {value:,.0f}, learning times "
+        f"{', '.join(f'{t:,}' if t >= 0 else 'not yet' for t in times)}"
+    )
 
 
 if __name__ == "__main__":

@@ -46,13 +46,18 @@ READ = {  # what every role may do: subscribe to any key of any group and be sen
 
 
 def _name(common_name: str) -> x509.Name:
-    return x509.Name([x509.NameAttribute(NameOID.ORGANIZATION_NAME, "spikinglab"),
-                      x509.NameAttribute(NameOID.COMMON_NAME, common_name)])
+    return x509.Name(
+        [
+            x509.NameAttribute(NameOID.ORGANIZATION_NAME, "spikinglab"),
+            x509.NameAttribute(NameOID.COMMON_NAME, common_name),
+        ]
+    )
 
 
 def _write_key(path: Path, key) -> None:
-    path.write_bytes(key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
-                                       serialization.NoEncryption()))
+    path.write_bytes(
+        key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption())
+    )
     path.chmod(0o600)
 
 
@@ -68,16 +73,33 @@ def _alternative_names(hosts: list[str]) -> x509.SubjectAlternativeName:
 
 def make_ca(folder: Path, days: int):
     key = ec.generate_private_key(ec.SECP256R1())
-    now = datetime.datetime.now(datetime.timezone.utc)
-    cert = (x509.CertificateBuilder().subject_name(_name("spikinglab CA")).issuer_name(_name("spikinglab CA"))
-            .public_key(key.public_key()).serial_number(x509.random_serial_number())
-            .not_valid_before(now - datetime.timedelta(minutes=5)).not_valid_after(now + datetime.timedelta(days=days))
-            .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
-            .add_extension(x509.KeyUsage(digital_signature=True, key_cert_sign=True, crl_sign=True,
-                                         content_commitment=False, key_encipherment=False, data_encipherment=False,
-                                         key_agreement=False, encipher_only=False, decipher_only=False), critical=True)
-            .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
-            .sign(key, hashes.SHA256()))
+    now = datetime.datetime.now(datetime.UTC)
+    cert = (
+        x509.CertificateBuilder()
+        .subject_name(_name("spikinglab CA"))
+        .issuer_name(_name("spikinglab CA"))
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - datetime.timedelta(minutes=5))
+        .not_valid_after(now + datetime.timedelta(days=days))
+        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+        .add_extension(
+            x509.KeyUsage(
+                digital_signature=True,
+                key_cert_sign=True,
+                crl_sign=True,
+                content_commitment=False,
+                key_encipherment=False,
+                data_encipherment=False,
+                key_agreement=False,
+                encipher_only=False,
+                decipher_only=False,
+            ),
+            critical=True,
+        )
+        .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
+        .sign(key, hashes.SHA256())
+    )
     _write_key(folder / "ca.key", key)
     (folder / "ca.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
     return key, cert
@@ -92,57 +114,103 @@ def make_certificate(folder: Path, role: str, hosts: list[str], ca_key, ca_cert,
     """<role>.pem and <role>.key: common name = the role (what the router's rules match), valid as a
     server and as a client for `hosts` (the router's must name the address the others dial)."""
     key = ec.generate_private_key(ec.SECP256R1())
-    now = datetime.datetime.now(datetime.timezone.utc)
-    cert = (x509.CertificateBuilder().subject_name(_name(role)).issuer_name(ca_cert.subject)
-            .public_key(key.public_key()).serial_number(x509.random_serial_number())
-            .not_valid_before(now - datetime.timedelta(minutes=5)).not_valid_after(now + datetime.timedelta(days=days))
-            .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-            .add_extension(_alternative_names(hosts), critical=False)
-            .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
-                           critical=False)
-            .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
-            .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()), critical=False)
-            .sign(ca_key, hashes.SHA256()))
+    now = datetime.datetime.now(datetime.UTC)
+    cert = (
+        x509.CertificateBuilder()
+        .subject_name(_name(role))
+        .issuer_name(ca_cert.subject)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - datetime.timedelta(minutes=5))
+        .not_valid_after(now + datetime.timedelta(days=days))
+        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+        .add_extension(_alternative_names(hosts), critical=False)
+        .add_extension(
+            x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]), critical=False
+        )
+        .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
+        .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()), critical=False)
+        .sign(ca_key, hashes.SHA256())
+    )
     _write_key(folder / f"{role}.key", key)
     (folder / f"{role}.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
 
 
 def access_control() -> dict:
     """The router's rules: deny by default; everyone reads; each role puts its own keys only."""
-    rules = [{"id": f"read {flow}", "permission": "allow", "flows": [flow], "messages": messages,
-              "key_exprs": [f"{EVERY_GROUP}/**"]} for flow, messages in READ.items()]
+    rules = [
+        {
+            "id": f"read {flow}",
+            "permission": "allow",
+            "flows": [flow],
+            "messages": messages,
+            "key_exprs": [f"{EVERY_GROUP}/**"],
+        }
+        for flow, messages in READ.items()
+    ]
     subjects, policies = [], []
     for role, puts in PUTS.items():
         subjects.append({"id": role, "cert_common_names": [role]})
         own = [f"{EVERY_GROUP}/{key}" for key in puts]
         role_rules = ["read ingress", "read egress"]
-        rules.append({"id": f"{role} alive", "permission": "allow", "flows": ["ingress"],
-                      "messages": ["liveliness_token"], "key_exprs": [f"{EVERY_GROUP}/alive/{role}"]})
+        rules.append(
+            {
+                "id": f"{role} alive",
+                "permission": "allow",
+                "flows": ["ingress"],
+                "messages": ["liveliness_token"],
+                "key_exprs": [f"{EVERY_GROUP}/alive/{role}"],
+            }
+        )
         role_rules.append(f"{role} alive")
         if own:
-            rules.append({"id": f"{role} puts", "permission": "allow", "flows": ["ingress"], "messages": ["put"],
-                          "key_exprs": own})
+            rules.append(
+                {
+                    "id": f"{role} puts",
+                    "permission": "allow",
+                    "flows": ["ingress"],
+                    "messages": ["put"],
+                    "key_exprs": own,
+                }
+            )
             role_rules.append(f"{role} puts")
         policies.append({"id": role, "rules": role_rules, "subjects": [role]})
-    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
-            "policies": policies}
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
 def router_config(folder: Path) -> dict:
-    return {"mode": "router", "scouting": {"multicast": {"enabled": False}},
-            "transport": {"link": {"tls": {"root_ca_certificate": str(folder / "ca.pem"),
-                                           "listen_certificate": str(folder / "router.pem"),
-                                           "listen_private_key": str(folder / "router.key"),
-                                           "enable_mtls": True}}},
-            "access_control": access_control()}
+    return {
+        "mode": "router",
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {
+            "link": {
+                "tls": {
+                    "root_ca_certificate": str(folder / "ca.pem"),
+                    "listen_certificate": str(folder / "router.pem"),
+                    "listen_private_key": str(folder / "router.key"),
+                    "enable_mtls": True,
+                }
+            }
+        },
+        "access_control": access_control(),
+    }
 
 
 def client_config(folder: Path, role: str) -> dict:
-    return {"mode": "client", "scouting": {"multicast": {"enabled": False}},
-            "transport": {"link": {"tls": {"root_ca_certificate": str(folder / "ca.pem"),
-                                           "connect_certificate": str(folder / f"{role}.pem"),
-                                           "connect_private_key": str(folder / f"{role}.key"),
-                                           "enable_mtls": True}}}}
+    return {
+        "mode": "client",
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {
+            "link": {
+                "tls": {
+                    "root_ca_certificate": str(folder / "ca.pem"),
+                    "connect_certificate": str(folder / f"{role}.pem"),
+                    "connect_private_key": str(folder / f"{role}.key"),
+                    "enable_mtls": True,
+                }
+            }
+        },
+    }
 
 
 def write_configs(folder: Path) -> None:
@@ -155,12 +223,20 @@ def write_configs(folder: Path) -> None:
 def parser() -> Parser:
     p = Parser(prog="spikinglab certs", description=__doc__.splitlines()[0])
     p.add_argument("folder", type=Path, metavar="DIR", help="where to write them (made if missing)")
-    p.add_argument("--host", action="append", default=[], metavar="NAME",
-                   help="a name or address the router is reached at, besides localhost and 127.0.0.1 "
-                        "(repeatable; e.g. --host 192.168.1.10 --host lab-pc.local)")
+    p.add_argument(
+        "--host",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="a name or address the router is reached at, besides localhost and 127.0.0.1 "
+        "(repeatable; e.g. --host 192.168.1.10 --host lab-pc.local)",
+    )
     p.add_argument("--days", type=at_least(1), default=365, help="how long the certificates are valid (default 365)")
-    p.add_argument("--new-ca", action="store_true", help="make a new CA even if DIR has one (every machine then "
-                                                           "needs the new files)")
+    p.add_argument(
+        "--new-ca",
+        action="store_true",
+        help="make a new CA even if DIR has one (every machine then needs the new files)",
+    )
     return p
 
 

@@ -114,8 +114,13 @@ def options_for(service: str, args: argparse.Namespace) -> dict:
     return {name: value for name, value in vars(args).items() if name in own}
 
 
-def spawn(service: str, argv: list, output: Path | int | None = None, cwd: Path | None = None,
-          env: dict[str, str] | None = None) -> subprocess.Popen:
+def spawn(
+    service: str,
+    argv: list,
+    output: Path | int | None = None,
+    cwd: Path | None = None,
+    env: dict[str, str] | None = None,
+) -> subprocess.Popen:
     """`python -m <service's module> argv` in a session of its own: Ctrl-C in the terminal reaches
     only the launcher, which ends the services in order (the world first, so that it writes the
     ticks done). Output (stdout and stderr) goes to the file `output`, to the terminal as it is
@@ -123,9 +128,14 @@ def spawn(service: str, argv: list, output: Path | int | None = None, cwd: Path 
     out = open(output, "a") if isinstance(output, Path) else output
     env = dict(os.environ, PYTHONUNBUFFERED="1", **(env or {}))
     try:
-        return subprocess.Popen([sys.executable, "-m", SERVICES.get(service, service), *map(str, argv)], stdout=out,
-                                stderr=None if out is None else subprocess.STDOUT, env=env, cwd=cwd,
-                                start_new_session=True)
+        return subprocess.Popen(
+            [sys.executable, "-m", SERVICES.get(service, service), *map(str, argv)],
+            stdout=out,
+            stderr=None if out is None else subprocess.STDOUT,
+            env=env,
+            cwd=cwd,
+            start_new_session=True,
+        )
     finally:
         if isinstance(output, Path):
             out.close()  # the child has its own copy
@@ -221,16 +231,24 @@ class Launcher:
                     log.info("the %s ended (exit %s)", name, code)
                 if name in optional:
                     if code != 0:
-                        log.error("the %s stopped (exit %s); the others go on without it. Its last lines:\n%s",
-                                  name, code, child.tail())
+                        log.error(
+                            "the %s stopped (exit %s); the others go on without it. Its last lines:\n%s",
+                            name,
+                            code,
+                            child.tail(),
+                        )
                     continue
                 early = until is not None and name != until and self.running(until)
                 if code != 0 or early and time.monotonic() - ended_at[name] > ENDING_S:
                     why = f"the {name} stopped (exit {code})" + (f" before the {until} ended" if early else "")
                     log.error("%s; stopping the others. Its last lines:\n%s", why, child.tail())
                     return why
-            if until is not None and not self.running(until) or until is None and not any(
-                    self.running(n) for n in self.children):
+            if (
+                until is not None
+                and not self.running(until)
+                or until is None
+                and not any(self.running(n) for n in self.children)
+            ):
                 return None
             time.sleep(poll_s)
 
@@ -306,13 +324,16 @@ def check_brains_fit_worlds(path: Path, processes: list[Process], parsed: dict[s
         args, where = parsed[brain.name], f"{path}, [{brain.name}]"
         world_name = next((name for name, w in worlds.items() if w.group == args.group), None)
         if world_name is None:
-            raise LaunchError(f"{where}: group {args.group!r} is no world's in this file (theirs: "
-                              f"{', '.join(sorted({w.group for w in worlds.values()}))}): the brain would wait for "
-                              f"sensors that never come")
+            raise LaunchError(
+                f"{where}: group {args.group!r} is no world's in this file (theirs: "
+                f"{', '.join(sorted({w.group for w in worlds.values()}))}): the brain would wait for "
+                f"sensors that never come"
+            )
         world, (i, n) = worlds[world_name], args.shard
         if n != world.shards:
-            raise LaunchError(f"{where}: shard = \"{i}/{n}\", but [{world_name}] runs the brain as shards = "
-                              f"{world.shards}")
+            raise LaunchError(
+                f'{where}: shard = "{i}/{n}", but [{world_name}] runs the brain as shards = {world.shards}'
+            )
         if (args.group, i) in shards_taken:
             raise LaunchError(f"{where}: shard {i}/{n} is also [{shards_taken[args.group, i]}]'s")
         shards_taken[args.group, i] = brain.name
@@ -335,16 +356,20 @@ def launch_file(text: str) -> Path:
     if path.suffix == "" and not path.exists() and text in shipped():
         return shipped()[text]
     if not path.is_file():
-        raise argparse.ArgumentTypeError(f"no launch file {text!r} (a .toml path, or one of the shipped: "
-                                         f"{', '.join(shipped())})")
+        raise argparse.ArgumentTypeError(
+            f"no launch file {text!r} (a .toml path, or one of the shipped: {', '.join(shipped())})"
+        )
     return path
 
 
 def parser() -> argparse.ArgumentParser:
-    p = Parser(prog="spikinglab launch", description="Start the services a launch file names, show their logs, "
-                                                     "end them together (docs/launch.md).")
-    p.add_argument("file", type=launch_file, nargs="?",
-                   help=f"a launch file (.toml), or a shipped one: {', '.join(shipped())}")
+    p = Parser(
+        prog="spikinglab launch",
+        description="Start the services a launch file names, show their logs, end them together (docs/launch.md).",
+    )
+    p.add_argument(
+        "file", type=launch_file, nargs="?", help=f"a launch file (.toml), or a shipped one: {', '.join(shipped())}"
+    )
     p.add_argument("--list", action="store_true", help="name the shipped launch files and where they are")
     p.add_argument("--logs", type=Path, help="also write each process's output to LOGS/<name>.log")
     p.add_argument("--no-colour", action="store_true", help="no colours in the prefixes")
@@ -374,8 +399,11 @@ def main(argv=None) -> int:
         try:
             for process in processes:
                 launcher.start(process)
-            log.info("started %s%s", ", ".join(p.name for p in processes),
-                     f"; until the {until} ends" if until else "; Ctrl-C ends them")
+            log.info(
+                "started %s%s",
+                ", ".join(p.name for p in processes),
+                f"; until the {until} ends" if until else "; Ctrl-C ends them",
+            )
             failure = launcher.watch(until)
             if failure is None:
                 launcher.finish()

@@ -48,7 +48,7 @@ def noxious_ticks(world, brain, ticks: int, on_tick: Callable[[int], None] | Non
         fed = np.zeros((ticks, world.agents), np.uint8)
         for start in range(0, ticks, BIN):
             stretch = range(start, min(start + BIN, ticks))
-            fused_loop(world, brain, len(stretch), fed[stretch.start:stretch.stop])
+            fused_loop(world, brain, len(stretch), fed[stretch.start : stretch.stop])
             for t in stretch if on_tick else ():  # the same calls as tick by tick, after the stretch
                 on_tick(t)
         return [np.flatnonzero(fed[:, a]).tolist() for a in range(world.agents)]
@@ -59,6 +59,7 @@ def noxious_ticks(world, brain, ticks: int, on_tick: Callable[[int], None] | Non
             noxious[agent].append(t)
         if on_tick is not None:
             on_tick(t)
+
     closed_loop(world, brain, ticks, keep)
     return noxious
 
@@ -83,8 +84,14 @@ def stats(times: list[int | None], ticks: int) -> dict:
     t = np.array([np.inf if x is None else x for x in times], dtype=float)
     q1, median, q3 = (float(np.quantile(t, q, method="inverted_cdf")) for q in (0.25, 0.5, 0.75))
     out = lambda x: None if np.isinf(x) else x  # noqa: E731
-    return {"median": out(median), "q1": out(q1), "q3": out(q3), "reached": int(np.isfinite(t).sum()),
-            "seeds": len(times), "ticks": ticks}
+    return {
+        "median": out(median),
+        "q1": out(q1),
+        "q3": out(q3),
+        "reached": int(np.isfinite(t).sum()),
+        "seeds": len(times),
+        "ticks": ticks,
+    }
 
 
 def all_definitions(collision_ticks_per_agent: list, ticks: int) -> dict[str, dict]:
@@ -103,6 +110,7 @@ def tick_text(x: float | None, ticks: int) -> str:
 def plot_table1(rows: list[dict], definition: str, path) -> None:
     """Learning time against A+ = A- per setting (median, quartiles) beside the paper's Table 1."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -115,12 +123,17 @@ def plot_table1(rows: list[dict], definition: str, path) -> None:
         med = [r["definitions"][definition]["median"] or ticks * 1.05 for r in mine]
         lo = [r["definitions"][definition]["q1"] or ticks * 1.05 for r in mine]
         hi = [r["definitions"][definition]["q3"] or ticks * 1.05 for r in mine]
-        ax.errorbar(x, med, yerr=[np.subtract(med, lo), np.subtract(hi, med)], marker="o", ms=4, capsize=3,
-                    lw=1, label=name)
+        ax.errorbar(
+            x, med, yerr=[np.subtract(med, lo), np.subtract(hi, med)], marker="o", ms=4, capsize=3, lw=1, label=name
+        )
     ax.plot(list(PAPER), list(PAPER.values()), "k*", ms=14, label="paper, Table 1")
     ax.axhline(rows[0]["ticks"], color="gray", ls=":", lw=1)
-    ax.set(xlabel="A+ = A-", ylabel=f"learning time, ticks ({definition} collision-free)", yscale="log",
-           title="Table 1 against the paper: median and quartiles over seeds (top line: end of run)")
+    ax.set(
+        xlabel="A+ = A-",
+        ylabel=f"learning time, ticks ({definition} collision-free)",
+        yscale="log",
+        title="Table 1 against the paper: median and quartiles over seeds (top line: end of run)",
+    )
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7, ncol=2)
     fig.tight_layout()

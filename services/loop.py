@@ -24,8 +24,16 @@ from services.world.world import ACTIONS, BIN, PAIN, SENSORS, World, _act, _sens
 def brain_for(world: World, circuit: Circuit, params: Mapping | None = None, **engine_options) -> Brain:
     """A brain for the world's agents; agent a's netlogo order is drawn from the world's seed +
     numbers[a] (as its arena). `params`: the brain's per-agent columns (services.params)."""
-    return Brain(circuit, SENSORS, tuple(circuit.actuators), agents=world.agents, training=world.training,
-                 seed=world.seed + world.numbers, params=params, **engine_options)
+    return Brain(
+        circuit,
+        SENSORS,
+        tuple(circuit.actuators),
+        agents=world.agents,
+        training=world.training,
+        seed=world.seed + world.numbers,
+        params=params,
+        **engine_options,
+    )
 
 
 def closed_loop(world: World, brain: Brain, ticks: int, on_tick: Callable[[int], None] | None = None) -> None:
@@ -55,11 +63,40 @@ def fused_loop(world: World, brain: Brain, ticks: int, noxious: np.ndarray | Non
     done = 0
     while done < ticks:
         n = min(ticks - done, BIN - world.tick % BIN)
-        _fused(n, engine.semantics == "netlogo", world.tick, world.training, world.grid, world.arena_of, world.pos,
-               world.heading, world.fpar, world.steps, world.kind, world.sensors, world.last_patch, world.events,
-               world.eaten, m.collisions, m.collisions_by_colour, m.food, m.distance, m.last_collision,
-               m.last_noxious, m.learned_at, world._bin, m.resets, actions, brain._sensor_cols, brain._input_cols,
-               world_cols, actuators, brain.feed, noxious[done:done + n], *engine.serial_args)
+        _fused(
+            n,
+            engine.semantics == "netlogo",
+            world.tick,
+            world.training,
+            world.grid,
+            world.arena_of,
+            world.pos,
+            world.heading,
+            world.fpar,
+            world.steps,
+            world.kind,
+            world.sensors,
+            world.last_patch,
+            world.events,
+            world.eaten,
+            m.collisions,
+            m.collisions_by_colour,
+            m.food,
+            m.distance,
+            m.last_collision,
+            m.last_noxious,
+            m.learned_at,
+            world._bin,
+            m.resets,
+            actions,
+            brain._sensor_cols,
+            brain._input_cols,
+            world_cols,
+            actuators,
+            brain.feed,
+            noxious[done : done + n],
+            *engine.serial_args,
+        )
         world.tick += n
         done += n
         if world.tick % BIN == 0:
@@ -69,45 +106,152 @@ def fused_loop(world: World, brain: Brain, ticks: int, noxious: np.ndarray | Non
 
 
 @njit(cache=True)
-def _fused(ticks, netlogo, t0, world_training, grid, arena_of, pos, heading, fpar, steps, kind, sensors, last_patch,
-           events, eaten, collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins,
-           resets, actions, sensor_cols, input_cols, world_cols, actuators, feed, noxious, clock, syn, npar, lrn, inpar,
-           v, w, state, last_spike, hist, ring, spiked, out_start, out_syn, order_key, rules):
+def _fused(
+    ticks,
+    netlogo,
+    t0,
+    world_training,
+    grid,
+    arena_of,
+    pos,
+    heading,
+    fpar,
+    steps,
+    kind,
+    sensors,
+    last_patch,
+    events,
+    eaten,
+    collisions,
+    by_colour,
+    food,
+    distance,
+    last_collision,
+    last_noxious,
+    learned_at,
+    bins,
+    resets,
+    actions,
+    sensor_cols,
+    input_cols,
+    world_cols,
+    actuators,
+    feed,
+    noxious,
+    clock,
+    syn,
+    npar,
+    lrn,
+    inpar,
+    v,
+    w,
+    state,
+    last_spike,
+    hist,
+    ring,
+    spiked,
+    out_start,
+    out_syn,
+    order_key,
+    rules,
+):
     for k in range(ticks):
         _sense(grid, arena_of, pos, heading, fpar, kind, sensors)
         if noxious.shape[0] > 0:
             for a in range(sensors.shape[0]):
                 noxious[k, a] = sensors[a, PAIN] == sensors[a, PAIN]  # fed: not NaN
         bind(sensors, sensor_cols, input_cols, feed)
-        serial_tick(netlogo, feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
-                    out_start, out_syn, order_key, rules)
+        serial_tick(
+            netlogo,
+            feed,
+            clock,
+            syn,
+            npar,
+            lrn,
+            inpar,
+            v,
+            w,
+            state,
+            last_spike,
+            hist,
+            ring,
+            spiked,
+            out_start,
+            out_syn,
+            order_key,
+            rules,
+        )
         for a in range(feed.shape[0]):  # not bind(spiked.T, ...): the kernel's own [nodes, agents], 5-10 % faster
             for j in range(world_cols.shape[0]):
                 actions[a, world_cols[j]] = spiked[actuators[j], a]
-        _touch(grid, arena_of, pos, heading, fpar, kind, world_training, t0 + k, last_patch, events, eaten,
-               collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins)
+        _touch(
+            grid,
+            arena_of,
+            pos,
+            heading,
+            fpar,
+            kind,
+            world_training,
+            t0 + k,
+            last_patch,
+            events,
+            eaten,
+            collisions,
+            by_colour,
+            food,
+            distance,
+            last_collision,
+            last_noxious,
+            learned_at,
+            bins,
+        )
         _act(grid.shape[1], grid.shape[2], pos, heading, fpar, steps, actions, events, distance, resets)
 
 
-def population(params: Mapping, seeds, *, circuit: str | Circuit = "insect", preset: str = "paper",
-               learned_after: int = 5000, semantics: str = DEFAULT_SEMANTICS,
-               order: str = "random") -> tuple[World, Brain]:
+def population(
+    params: Mapping,
+    seeds,
+    *,
+    circuit: str | Circuit = "insect",
+    preset: str = "paper",
+    learned_after: int = 5000,
+    semantics: str = DEFAULT_SEMANTICS,
+    order: str = "random",
+) -> tuple[World, Brain]:
     """World and brain of every parameter setting on every seed, as one population: agent
     k * len(seeds) + j is setting k on seed j (`evaluate` has the arguments' meaning)."""
     seeds = np.asarray(list(seeds), np.int64)
     n = setting_count(params)
     per_agent = {k: np.repeat(v, len(seeds)) for k, v in agent_columns(n, params).items()}  # a setting's seeds together
     side = {s: {k: v for k, v in per_agent.items() if AGENT_PARAMS[k].side == s} for s in ("world", "brain")}
-    world = World(params_for(preset, learned_after=learned_after), agents=n * len(seeds), seed=0,
-                  numbers=np.tile(seeds, n), agent_params=side["world"])
-    brain = brain_for(world, load_circuit(circuit) if not isinstance(circuit, Circuit) else circuit,
-                      params=side["brain"], semantics=semantics, order=order)
+    world = World(
+        params_for(preset, learned_after=learned_after),
+        agents=n * len(seeds),
+        seed=0,
+        numbers=np.tile(seeds, n),
+        agent_params=side["world"],
+    )
+    brain = brain_for(
+        world,
+        load_circuit(circuit) if not isinstance(circuit, Circuit) else circuit,
+        params=side["brain"],
+        semantics=semantics,
+        order=order,
+    )
     return world, brain
 
 
-def evaluate(params: Mapping, ticks: int, seeds=range(4), *, circuit: str | Circuit = "insect",
-             preset: str = "paper", learned_after: int = 5000, semantics: str = DEFAULT_SEMANTICS,
-             order: str = "random") -> dict[str, np.ndarray]:
+def evaluate(
+    params: Mapping,
+    ticks: int,
+    seeds=range(4),
+    *,
+    circuit: str | Circuit = "insect",
+    preset: str = "paper",
+    learned_after: int = 5000,
+    semantics: str = DEFAULT_SEMANTICS,
+    order: str = "random",
+) -> dict[str, np.ndarray]:
     """Train every parameter setting on every seed for `ticks` ticks, all as one population.
 
     `params`: per-agent parameters (services.params.AGENT_PARAMS, e.g. {"a_plus": [0.01, 0.02],
@@ -117,13 +261,18 @@ def evaluate(params: Mapping, ticks: int, seeds=range(4), *, circuit: str | Circ
     tick on a noxious patch before `learned_after` ticks off them; -1: not within `ticks`),
     "collisions", "food", and "collisions_last_quarter" (of the run's collision bins)."""
     seeds = list(seeds)
-    world, brain = population(params, seeds, circuit=circuit, preset=preset, learned_after=learned_after,
-                              semantics=semantics, order=order)
+    world, brain = population(
+        params, seeds, circuit=circuit, preset=preset, learned_after=learned_after, semantics=semantics, order=order
+    )
     closed_loop(world, brain, ticks)
     n, agents = setting_count(params), world.agents
     m = world.metrics
     bins = np.array(m.bins, np.int64).reshape(-1, agents)
-    last_quarter = bins[-max(len(bins) // 4, 1):].sum(axis=0) if len(bins) else np.zeros(agents, np.int64)
+    last_quarter = bins[-max(len(bins) // 4, 1) :].sum(axis=0) if len(bins) else np.zeros(agents, np.int64)
     shape = (n, len(seeds))
-    return {"learning_time": m.learned_at.reshape(shape), "collisions": m.collisions.reshape(shape),
-            "food": m.food.reshape(shape), "collisions_last_quarter": last_quarter.reshape(shape)}
+    return {
+        "learning_time": m.learned_at.reshape(shape),
+        "collisions": m.collisions.reshape(shape),
+        "food": m.food.reshape(shape),
+        "collisions_last_quarter": last_quarter.reshape(shape),
+    }

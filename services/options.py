@@ -37,11 +37,13 @@ def whole_number(text: str, what: str = "a whole number") -> int:
 
 def at_least(minimum: int):
     """An int option of at least `minimum`."""
+
     def check(text: str) -> int:
         value = whole_number(text)
         if value < minimum:
             raise argparse.ArgumentTypeError(f"must be at least {minimum:,}, got {value:,}")
         return value
+
     return check
 
 
@@ -85,15 +87,16 @@ def agent_list(text: str) -> tuple[int, ...]:
     try:
         agents = tuple(int(a) for a in text.split(",") if a.strip())
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected agent numbers separated by commas, e.g. 0,3,7; got {text!r}") \
-            from None
+        raise argparse.ArgumentTypeError(
+            f"expected agent numbers separated by commas, e.g. 0,3,7; got {text!r}"
+        ) from None
     if any(a < 0 for a in agents):
         raise argparse.ArgumentTypeError(f"agent numbers start at 0, got {text!r}")
     return agents
 
 
 def shard(text: str) -> tuple[int, int]:
-    """"I/N": shard I of N (1 <= I <= N)."""
+    """ "I/N": shard I of N (1 <= I <= N)."""
     i, slash, n = text.partition("/")
     try:
         i, n = int(i), int(n)

@@ -24,18 +24,25 @@ class AgentParam:
     positive: bool = True  # > 0 (else >= 0)
 
 
-AGENT_PARAMS = {p.name: p for p in (
-    AgentParam("a_plus", "brain", "A+: potentiation of the learning neurons' plastic synapses", positive=False),
-    AgentParam("a_minus", "brain", "A-: depression of the learning neurons' plastic synapses", positive=False),
-    AgentParam("tau_plus", "brain", "tau+: the potentiation window's time constant, ticks"),
-    AgentParam("tau_minus", "brain", "tau-: the depression window's time constant, ticks"),
-    AgentParam("w_max", "brain", "the largest weight of a plastic synapse"),
-    AgentParam("initial_weight", "brain", "the weight every plastic synapse starts with"),
-    AgentParam("input_gain", "brain", "factor on the weight of every sensor-fed input neuron's synapse: "
-                                      "how hard a sensed value drives its neuron"),
-    AgentParam("rotation_step", "world", "degrees turned per ROTATE spike"),
-    AgentParam("move_step", "world", "patches moved per MOVE spike"),
-)}
+AGENT_PARAMS = {
+    p.name: p
+    for p in (
+        AgentParam("a_plus", "brain", "A+: potentiation of the learning neurons' plastic synapses", positive=False),
+        AgentParam("a_minus", "brain", "A-: depression of the learning neurons' plastic synapses", positive=False),
+        AgentParam("tau_plus", "brain", "tau+: the potentiation window's time constant, ticks"),
+        AgentParam("tau_minus", "brain", "tau-: the depression window's time constant, ticks"),
+        AgentParam("w_max", "brain", "the largest weight of a plastic synapse"),
+        AgentParam("initial_weight", "brain", "the weight every plastic synapse starts with"),
+        AgentParam(
+            "input_gain",
+            "brain",
+            "factor on the weight of every sensor-fed input neuron's synapse: "
+            "how hard a sensed value drives its neuron",
+        ),
+        AgentParam("rotation_step", "world", "degrees turned per ROTATE spike"),
+        AgentParam("move_step", "world", "patches moved per MOVE spike"),
+    )
+}
 PARALLEL_FROM = 256  # agents; from here, engine and world kernels run across cores (below, thread start-up costs more)
 # the NeuronType fields the learning columns set, on every neuron a plastic synapse targets
 LEARNING_FIELDS = ("a_plus", "a_minus", "tau_plus", "tau_minus", "w_max")
@@ -56,13 +63,17 @@ def agent_columns(agents: int, params: Mapping | None, side: str | None = None) 
         try:
             column = np.broadcast_to(np.asarray(values, dtype=np.float64), (agents,)).copy()
         except ValueError:
-            raise ValueError(f"per-agent parameter {name}: {np.shape(values)} values for {agents} agents "
-                             f"(give one, or one per agent)") from None
+            raise ValueError(
+                f"per-agent parameter {name}: {np.shape(values)} values for {agents} agents "
+                f"(give one, or one per agent)"
+            ) from None
         bad = ~np.isfinite(column) | ((column <= 0) if p.positive else (column < 0))
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"per-agent parameter {name}: agent {k} has {column[k]}, it must be a finite number "
-                             f"{'>' if p.positive else '>='} 0")
+            raise ValueError(
+                f"per-agent parameter {name}: agent {k} has {column[k]}, it must be a finite number "
+                f"{'>' if p.positive else '>='} 0"
+            )
         out[name] = column
     return out
 
@@ -88,15 +99,20 @@ def read_params(path: Path) -> dict[str, np.ndarray]:
     are skipped. The columns, each as long as the rows; ValueError names the file, line and fault."""
     try:
         with open(path, newline="") as f:
-            lines = [(n, row) for n, row in enumerate(csv.reader(f), 1)
-                     if row and "".join(row).strip() and not row[0].lstrip().startswith("#")]
+            lines = [
+                (n, row)
+                for n, row in enumerate(csv.reader(f), 1)
+                if row and "".join(row).strip() and not row[0].lstrip().startswith("#")
+            ]
     except OSError as e:
         raise ValueError(f"parameter file {path}: cannot read it ({e.strerror or e})") from None
     except (UnicodeDecodeError, csv.Error) as e:
         raise ValueError(f"parameter file {path}: not a CSV text file ({e})") from None
     if len(lines) < 2:
-        raise ValueError(f"parameter file {path}: expected a header of parameter names and at least one row of "
-                         f"values (e.g. a_plus,w_max / 0.02,15)")
+        raise ValueError(
+            f"parameter file {path}: expected a header of parameter names and at least one row of "
+            f"values (e.g. a_plus,w_max / 0.02,15)"
+        )
     (_, header), rows = lines[0], lines[1:]
     names = [name.strip() for name in header]
     if len(set(names)) < len(names):
@@ -109,8 +125,9 @@ def read_params(path: Path) -> dict[str, np.ndarray]:
             try:
                 values[k, j] = float(text)
             except ValueError:
-                raise ValueError(f"parameter file {path}, line {n}: {names[j]} is {text.strip()!r}, not a number") \
-                    from None
+                raise ValueError(
+                    f"parameter file {path}, line {n}: {names[j]} is {text.strip()!r}, not a number"
+                ) from None
     try:
         return agent_columns(len(rows), dict(zip(names, values.T)))
     except ValueError as e:
@@ -133,6 +150,8 @@ def file_for_agents(path: Path, agents: int, said_by: str = "--agents") -> dict[
     columns = read_params(path)
     rows = file_rows(columns)
     if rows not in (1, agents):
-        raise ValueError(f"parameter file {path}: {rows} rows of values for {agents} agents ({said_by}): give one "
-                         f"row for all of them, or one per agent")
+        raise ValueError(
+            f"parameter file {path}: {rows} rows of values for {agents} agents ({said_by}): give one "
+            f"row for all of them, or one per agent"
+        )
     return columns

@@ -31,7 +31,6 @@ from services.brain.checkpoint import load_weights
 from services.brain.circuit import CircuitError, load_circuit
 from services.brain.engine import PARALLEL_FROM
 from services.brain.service import add_engine_args, brain_params
-from spikinglab.cli import version
 from services.launch import STOP_S, Launcher, Process, local_endpoints, options_for
 from services.learning import PAPER
 from services.options import Parser, agent_list, at_least, positive
@@ -40,6 +39,7 @@ from services.recorder.screenshot import last_tick, repair, viewer_command
 from services.recorder.service import free_port, viewer_answers, web_viewer_url
 from services.world.service import CHECKPOINT, add_world_args, world_from_args
 from services.world.world import BIN, SENSORS, MapError
+from spikinglab.cli import version
 
 log = logging.getLogger("spikinglab.run")
 LIVE_VIEW_WITHIN_S = 60.0  # the recorder's viewer servers are up well within this (a few seconds here)
@@ -53,26 +53,48 @@ def parser() -> argparse.ArgumentParser:
     p = Parser(prog="spikinglab run", description=__doc__.splitlines()[0])
     add_world_args(p)
     p.set_defaults(ticks=100_000)
-    p.add_argument("--circuit", default="insect", help="circuit name in services/brain/circuits/ or a .toml path (default insect)")
-    p.add_argument("--a-plus", type=positive, default=None,
-                   help="A+ = A- of the learning neurons (default: the circuit's, 0.02 for the insect)")
+    p.add_argument(
+        "--circuit", default="insect", help="circuit name in services/brain/circuits/ or a .toml path (default insect)"
+    )
+    p.add_argument(
+        "--a-plus",
+        type=positive,
+        default=None,
+        help="A+ = A- of the learning neurons (default: the circuit's, 0.02 for the insect)",
+    )
     add_engine_args(p)
     p.add_argument("--load", type=Path, help="start the brain from these weights (.npz checkpoint)")
     p.add_argument("--runs", type=Path, default=Path("runs"), help="where run folders go (default runs/)")
     p.add_argument("--id", help="name of the run folder (default: date, time and seed)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-record", action="store_true", help="no Rerun recording (recording.rrd)")
-    p.add_argument("--view", action="store_true",
-                   help="watch the run live: the Rerun viewer when there is a display, else the Rerun web viewer "
-                        "(its address is printed: open it in a browser)")
-    p.add_argument("--detail", default="0", type=agent_list,
-                   help="agents recorded in detail, e.g. 0,3: raster, potentials, ... (default 0)")
-    p.add_argument("--checkpoint-every", type=at_least(1), default=10_000, metavar="TICKS",
-                   help="ticks between the checkpoints world and brain keep in runs/<id>/checkpoint/ while the run "
-                        "lasts (default %(default)s)")
-    p.add_argument("--resume", type=Path, metavar="FOLDER",
-                   help="go on with the interrupted run in FOLDER (e.g. runs/<id>) from its last checkpoint, with "
-                        "the options it was started with (--quiet, --no-record and --view may differ)")
+    p.add_argument(
+        "--view",
+        action="store_true",
+        help="watch the run live: the Rerun viewer when there is a display, else the Rerun web viewer "
+        "(its address is printed: open it in a browser)",
+    )
+    p.add_argument(
+        "--detail",
+        default="0",
+        type=agent_list,
+        help="agents recorded in detail, e.g. 0,3: raster, potentials, ... (default 0)",
+    )
+    p.add_argument(
+        "--checkpoint-every",
+        type=at_least(1),
+        default=10_000,
+        metavar="TICKS",
+        help="ticks between the checkpoints world and brain keep in runs/<id>/checkpoint/ while the run "
+        "lasts (default %(default)s)",
+    )
+    p.add_argument(
+        "--resume",
+        type=Path,
+        metavar="FOLDER",
+        help="go on with the interrupted run in FOLDER (e.g. runs/<id>) from its last checkpoint, with "
+        "the options it was started with (--quiet, --no-record and --view may differ)",
+    )
     return p
 
 
@@ -89,8 +111,10 @@ def arguments(p: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace
     defaults = vars(p.parse_args([]))
     given = {k for k, v in vars(args).items() if v != defaults[k]} - {"resume", *RESUME_MAY_CHANGE}
     if given:
-        p.error(f"argument --resume: the run goes on with the options it was started with ({shlex.join(started)}); "
-                f"leave out {', '.join('--' + k.replace('_', '-') for k in sorted(given))}")
+        p.error(
+            f"argument --resume: the run goes on with the options it was started with ({shlex.join(started)}); "
+            f"leave out {', '.join('--' + k.replace('_', '-') for k in sorted(given))}"
+        )
     watching = [f"--{k.replace('_', '-')}" for k in RESUME_MAY_CHANGE if getattr(args, k)]
     resumed = p.parse_args([*started, *watching])
     resumed.runs, resumed.id, resumed.resume = folder.parent, folder.name, folder
@@ -136,13 +160,20 @@ def main(argv=None) -> int:
     folder = args.runs / run_id
     resume_at = checkpoint_tick(folder)
     if args.resume and resume_at is None:
-        log.error("spikinglab run: nothing to resume in %s: no checkpoint (the run finished, or stopped before its "
-                  "first at tick %s)", folder, f"{args.checkpoint_every:,}")
+        log.error(
+            "spikinglab run: nothing to resume in %s: no checkpoint (the run finished, or stopped before its "
+            "first at tick %s)",
+            folder,
+            f"{args.checkpoint_every:,}",
+        )
         return 2
     if not args.resume and any((folder / name).exists() for name in (STARTED_WITH, "summary.json", "weights.npz")):
         # never over the learning of another run
-        log.error("spikinglab run: %s holds a run already%s: choose another --id", folder,
-                  f" (interrupted; go on with it: spikinglab run --resume {folder})" if resume_at is not None else "")
+        log.error(
+            "spikinglab run: %s holds a run already%s: choose another --id",
+            folder,
+            f" (interrupted; go on with it: spikinglab run --resume {folder})" if resume_at is not None else "",
+        )
         return 2
     folder.mkdir(parents=True, exist_ok=True)
     if args.resume:
@@ -155,20 +186,40 @@ def main(argv=None) -> int:
     kept = folder / "checkpoint"
     (world_ep, brain_ep), sockets = local_endpoints("world", "brain")
 
-    world = Process("world", "world", options_for("world", args), log=folder / "world.log" if args.quiet else None,
-                    raw=True)
-    world.options.update(listen=world_ep, out=folder, progress=not args.quiet, publish_state=not args.no_record,
-                         checkpoint=kept, checkpoint_every=args.checkpoint_every)
+    world = Process(
+        "world", "world", options_for("world", args), log=folder / "world.log" if args.quiet else None, raw=True
+    )
+    world.options.update(
+        listen=world_ep,
+        out=folder,
+        progress=not args.quiet,
+        publish_state=not args.no_record,
+        checkpoint=kept,
+        checkpoint_every=args.checkpoint_every,
+    )
     brain = Process("brain", "brain", options_for("brain", args), log=folder / "brain.log")
-    brain.options.update(listen=brain_ep, connect=world_ep, once=True, save=folder / "weights.npz",
-                         stats=folder / "brain-stats.json", publish_state=not args.no_record,
-                         checkpoint=kept)  # they wait for the recorder to listen
+    brain.options.update(
+        listen=brain_ep,
+        connect=world_ep,
+        once=True,
+        save=folder / "weights.npz",
+        stats=folder / "brain-stats.json",
+        publish_state=not args.no_record,
+        checkpoint=kept,
+    )  # they wait for the recorder to listen
     # a resumed run's recording goes beside the first: the viewer shows the files as one recording
     recording_file = folder / ("recording.rrd" if resume_at is None else f"recording-from-tick{resume_at}.rrd")
-    recorder = Process("recorder", "record", {"connect": [world_ep, brain_ep], "out": recording_file,
-                                              "detail": ",".join(map(str, args.detail))}, log=folder / "recorder.log")
-    native = args.view and bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) \
+    recorder = Process(
+        "recorder",
+        "record",
+        {"connect": [world_ep, brain_ep], "out": recording_file, "detail": ",".join(map(str, args.detail))},
+        log=folder / "recorder.log",
+    )
+    native = (
+        args.view
+        and bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
         and viewer_command() is not None
+    )
     if args.view:  # the recorder serves the run; a viewer window, or a web viewer, shows it
         recorder.options.update(serve=True, grpc_port=free_port(9876), web=not native)
         if not native:
@@ -176,10 +227,19 @@ def main(argv=None) -> int:
     if args.agents < PARALLEL_FROM and len(os.sched_getaffinity(0)) >= 2:
         # lock-step latency: world and brain on a core each (a population keeps the brain's threads)
         world.options["cpu"], brain.options["cpu"] = sorted(os.sched_getaffinity(0))[:2]
-    log.info("run %s: %d ticks, seed %d, %d agent(s), A+ = A- = %s, world %s%s%s, %s semantics%s", run_id, args.ticks,
-             args.seed, args.agents, learning_rate(circuit), args.preset, f", map {args.map}" if args.map else "",
-             f", per-agent parameters {', '.join(columns)} from {args.params}" if columns else "",
-             args.semantics, f"; resumed at tick {resume_at:,}" if resume_at is not None else "")
+    log.info(
+        "run %s: %d ticks, seed %d, %d agent(s), A+ = A- = %s, world %s%s%s, %s semantics%s",
+        run_id,
+        args.ticks,
+        args.seed,
+        args.agents,
+        learning_rate(circuit),
+        args.preset,
+        f", map {args.map}" if args.map else "",
+        f", per-agent parameters {', '.join(columns)} from {args.params}" if columns else "",
+        args.semantics,
+        f"; resumed at tick {resume_at:,}" if resume_at is not None else "",
+    )
     started = time.time()
     launcher = Launcher()
     signal.signal(signal.SIGTERM, signal.default_int_handler)  # SIGTERM ends the run as Ctrl-C does
@@ -213,8 +273,9 @@ def main(argv=None) -> int:
     if json.loads((folder / "metrics.json").read_text())["ticks"] == 0:  # stopped while the kernels compiled
         failed(folder, "interrupted before the first tick")
         return 130
-    recording = None if args.no_record else recording_status(launcher.children["recorder"].popen.returncode,
-                                                               recording_file)
+    recording = (
+        None if args.no_record else recording_status(launcher.children["recorder"].popen.returncode, recording_file)
+    )
     summary = summarise(folder, args, circuit, run_id, time.time() - started, recording)
     if not summary["headline"]["partial"]:  # the run is whole: its learning is in weights.npz
         shutil.rmtree(kept, ignore_errors=True)
@@ -238,8 +299,9 @@ def show_live(launcher: Launcher, options: dict, native: bool) -> None:
             return
         time.sleep(0.2)
     if native:
-        subprocess.Popen([*viewer_command(), source], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                         start_new_session=True)
+        subprocess.Popen(
+            [*viewer_command(), source], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+        )
         log.info("live view: the Rerun viewer shows %s", source)
     else:
         log.info("live view (no display here): open %s in a browser; it ends with the run, the recording stays", page)
@@ -282,10 +344,11 @@ def learning_rate(circuit, which: str = "a_plus") -> float | list[float]:
     return rates.pop() if len(rates) == 1 else sorted(rates)
 
 
-def summarise(folder: Path, args, circuit, run_id: str, wall_s: float,
-              recording: dict | None = None) -> dict:
+def summarise(folder: Path, args, circuit, run_id: str, wall_s: float, recording: dict | None = None) -> dict:
     metrics = json.loads((folder / "metrics.json").read_text())
-    brain_stats = json.loads((folder / "brain-stats.json").read_text()) if (folder / "brain-stats.json").exists() else {}
+    brain_stats = (
+        json.loads((folder / "brain-stats.json").read_text()) if (folder / "brain-stats.json").exists() else {}
+    )
     weights = load_weights(folder / "weights.npz", circuit)
     plastic = circuit.plastic_synapses
     columns = read_params(args.params) if args.params else {}
@@ -313,12 +376,21 @@ def summarise(folder: Path, args, circuit, run_id: str, wall_s: float,
         "spikinglab": version(),
         "command": " ".join(["spikinglab", "run", *sys.argv[2:]]) if sys.argv[1:2] == ["run"] else " ".join(sys.argv),
         "run": run_id,
-        "parameters": {"ticks": args.ticks, "seed": args.seed, "agents": args.agents, **rates,
-                       "circuit": circuit.source, "preset": args.preset,
-                       "map": str(args.map) if args.map else None, "shared_arena": args.shared,
-                       "training": not args.no_training, "learned_after": args.learned_after,
-                       "semantics": args.semantics, "order": args.order,
-                       "per_agent": per_agent},  # the --params file's columns ({}: none)
+        "parameters": {
+            "ticks": args.ticks,
+            "seed": args.seed,
+            "agents": args.agents,
+            **rates,
+            "circuit": circuit.source,
+            "preset": args.preset,
+            "map": str(args.map) if args.map else None,
+            "shared_arena": args.shared,
+            "training": not args.no_training,
+            "learned_after": args.learned_after,
+            "semantics": args.semantics,
+            "order": args.order,
+            "per_agent": per_agent,
+        },  # the --params file's columns ({}: none)
         "wall_time_s": round(wall_s, 1),
         "ticks_per_s": metrics["ticks_per_s"],
         "learning_time": metrics["learning_time"],
@@ -329,7 +401,10 @@ def summarise(folder: Path, args, circuit, run_id: str, wall_s: float,
         "food": metrics["food"],
         "all_final_weights": {circuit.synapse_label(k): weights[:, k].tolist() for k in range(weights.shape[1])},
         "world": metrics["world"],
-        "rejected_messages": {"world": metrics.get("rejected_messages", {}), "brain": brain_stats.get("rejected_messages", {})},
+        "rejected_messages": {
+            "world": metrics.get("rejected_messages", {}),
+            "brain": brain_stats.get("rejected_messages", {}),
+        },
     }
     if recording is not None:  # whether recording.rrd holds the whole run
         summary["recording"] = recording
@@ -345,6 +420,7 @@ def paper_time(parameters: dict) -> int | None:
 
 def plot(folder: Path, summary: dict) -> None:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -358,17 +434,25 @@ def plot(folder: Path, summary: dict) -> None:
         window = min(5, len(mean))  # a rolling mean over 5,000 ticks shows the trend through the noise
         smooth = np.convolve(mean, np.ones(window) / window, mode="valid")
         who = f"mean of {bins.shape[0]} agents" if len(bins) > 1 else "one insect"
-        ax.plot(x[window - 1:], smooth, color="tab:red", lw=2.5, label=f"{who}, rolling mean over {window},000 ticks")
+        ax.plot(x[window - 1 :], smooth, color="tab:red", lw=2.5, label=f"{who}, rolling mean over {window},000 ticks")
     p = summary["parameters"]
     learned = [t for t in summary["learning_time"][:20] if t is not None]
     for k, t in enumerate(learned):  # the criterion: the last collision before p["learned_after"] free ticks
-        ax.axvline(t, color="tab:green", ls="--", lw=1, label=None if k else
-                   f"learned: last collision before {p['learned_after']:,} collision-free ticks")
+        ax.axvline(
+            t,
+            color="tab:green",
+            ls="--",
+            lw=1,
+            label=None if k else f"learned: last collision before {p['learned_after']:,} collision-free ticks",
+        )
     paper = paper_time(p)
     if paper:
         ax.axvline(paper, color="black", ls=":", lw=1.5, label=f"the paper's learning time at this A: {paper:,}")
-    ax.set(xlabel="tick", ylabel="collision events per 1,000 ticks",
-           title=f"Insect learning to avoid walls and predators (A+ = A- = {p['a_plus']}, seed {p['seed']})")
+    ax.set(
+        xlabel="tick",
+        ylabel="collision events per 1,000 ticks",
+        title=f"Insect learning to avoid walls and predators (A+ = A- = {p['a_plus']}, seed {p['seed']})",
+    )
     ax.grid(alpha=0.3)
     ax.legend(loc="upper right")
     fig.tight_layout()
@@ -379,6 +463,7 @@ def plot(folder: Path, summary: dict) -> None:
 def plot_trajectory(folder: Path, summary: dict) -> None:
     """trajectory.png: agent 0's path early and late in the run on its map (the paper's fig. 8)."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.colors import ListedColormap
@@ -389,11 +474,22 @@ def plot_trajectory(folder: Path, summary: dict) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(10, 7), dpi=100)
     n = len(data["early"])
     for ax, path, grid, title in (
-            (axes[0], data["early"], data["grid_early"], f"ticks 0 - {n:,}: early in training"),
-            (axes[1], data["late"], data["grid_late"],
-             f"ticks {int(data['late_from']):,} - {int(data['late_from']) + n:,}: late")):
-        ax.imshow(grid.T, origin="lower", cmap=colours, vmin=0, vmax=3,
-                  extent=(x0 - 0.5, x0 + grid.shape[0] - 0.5, y0 - 0.5, y0 + grid.shape[1] - 0.5))
+        (axes[0], data["early"], data["grid_early"], f"ticks 0 - {n:,}: early in training"),
+        (
+            axes[1],
+            data["late"],
+            data["grid_late"],
+            f"ticks {int(data['late_from']):,} - {int(data['late_from']) + n:,}: late",
+        ),
+    ):
+        ax.imshow(
+            grid.T,
+            origin="lower",
+            cmap=colours,
+            vmin=0,
+            vmax=3,
+            extent=(x0 - 0.5, x0 + grid.shape[0] - 0.5, y0 - 0.5, y0 + grid.shape[1] - 0.5),
+        )
         jumps = np.flatnonzero(np.hypot(*np.diff(path, axis=0).T) > 2) + 1  # put back at the start: no line
         for piece in np.split(path, jumps):
             ax.plot(piece[:, 0], piece[:, 1], color="tab:blue", lw=1)
@@ -422,28 +518,37 @@ def report(folder: Path, summary: dict) -> None:
     w = summary["final_weights"]
     mean = {k: float(np.mean(v)) for k, v in w.items()}
     if head["partial"]:
-        print(f"\nPARTIAL: interrupted after {head['ticks_done']:,} of {summary['parameters']['ticks']:,} ticks"
-              + resume_hint(folder))
-    print(f"\ncollisions: {head['collisions_first_quarter']:.0f} in the first quarter, "
-          f"{head['collisions_last_quarter']:.0f} in the last quarter "
-          f"({head['ticks_done']:,} ticks, {summary['ticks_per_s']:,.0f} ticks/s)")
+        print(
+            f"\nPARTIAL: interrupted after {head['ticks_done']:,} of {summary['parameters']['ticks']:,} ticks"
+            + resume_hint(folder)
+        )
+    print(
+        f"\ncollisions: {head['collisions_first_quarter']:.0f} in the first quarter, "
+        f"{head['collisions_last_quarter']:.0f} in the last quarter "
+        f"({head['ticks_done']:,} ticks, {summary['ticks_per_s']:,.0f} ticks/s)"
+    )
     times = summary["learning_time"]
     p = summary["parameters"]
     paper = paper_time(p)
-    print(f"learned: {head['learned']}"
-          f" (criterion: {p['learned_after']:,} ticks off noxious patches); learning time: "
-          + ", ".join("not reached" if t is None else f"tick {t:,}" for t in times[:8])
-          + (f" (paper, A+ = A- = {p['a_plus']}: {paper:,}; docs/results.md compares)" if paper else ""))
+    print(
+        f"learned: {head['learned']}"
+        f" (criterion: {p['learned_after']:,} ticks off noxious patches); learning time: "
+        + ", ".join("not reached" if t is None else f"tick {t:,}" for t in times[:8])
+        + (f" (paper, A+ = A- = {p['a_plus']}: {paper:,}; docs/results.md compares)" if paper else "")
+    )
     print("weights:", ", ".join(f"{k} {v:.2f}" for k, v in mean.items()))
     # the first part first: recording.rrd, then recording-from-tickN.rrd by N
     recordings = sorted(folder.glob("recording*.rrd"), key=lambda path: (len(path.name), path.name))
-    files = ", ".join(["summary.json, collisions.png, trajectory.png, metrics.json, weights.npz",
-                       *(path.name for path in recordings)])
+    files = ", ".join(
+        ["summary.json, collisions.png, trajectory.png, metrics.json, weights.npz", *(path.name for path in recordings)]
+    )
     print(f"\nwritten to {folder}/: {files}")
     recording = summary.get("recording", {})
     if not recording.get("complete", True):
-        print(f"recording: PARTIAL, {recording['why']}; it holds ticks {head['resumed_at'] or 0:,} to "
-              f"{recording.get('last_tick', 0):,}")
+        print(
+            f"recording: PARTIAL, {recording['why']}; it holds ticks {head['resumed_at'] or 0:,} to "
+            f"{recording.get('last_tick', 0):,}"
+        )
     if recordings:  # the parts of a resumed run are one recording in the viewer
         print(f"replay it: {viewer_shown()} {' '.join(map(str, recordings))}")
 

@@ -49,7 +49,9 @@ def copy_into(targets: dict[str, np.ndarray], arrays: dict[str, np.ndarray], wha
     for name, target in targets.items():
         got = arrays[name]
         if got.shape != target.shape or got.dtype != target.dtype:
-            raise ValueError(f"{what}: {name} is {got.dtype}{list(got.shape)}, this run has "
-                             f"{target.dtype}{list(target.shape)} (other agents, circuit or map)")
+            raise ValueError(
+                f"{what}: {name} is {got.dtype}{list(got.shape)}, this run has "
+                f"{target.dtype}{list(target.shape)} (other agents, circuit or map)"
+            )
     for name, target in targets.items():
         target[...] = arrays[name]

@@ -22,12 +22,26 @@ from services.options import Parser, at_least, positive
 from services.world.world import BIN, PRESETS
 
 
-def sweep(a_values: list[float], seeds: int, ticks: int, preset: str, learned_after: int, progress=None,
-          semantics: str = DEFAULT_SEMANTICS, order: str = "random") -> list[dict]:
+def sweep(
+    a_values: list[float],
+    seeds: int,
+    ticks: int,
+    preset: str,
+    learned_after: int,
+    progress=None,
+    semantics: str = DEFAULT_SEMANTICS,
+    order: str = "random",
+) -> list[dict]:
     """Every A+ = A- value on seeds 0..N-1, all as one population (agent = value-major, then seed);
     a row per value."""
-    world, brain = population({"a_plus": a_values, "a_minus": a_values}, range(seeds), preset=preset,
-                              learned_after=learned_after, semantics=semantics, order=order)
+    world, brain = population(
+        {"a_plus": a_values, "a_minus": a_values},
+        range(seeds),
+        preset=preset,
+        learned_after=learned_after,
+        semantics=semantics,
+        order=order,
+    )
     noxious = noxious_ticks(world, brain, ticks, (lambda t: progress.update(1)) if progress else None)
     all_bins = np.array(world.metrics.bins).T  # [agents, ticks / 1000]
     rows = []
@@ -38,52 +52,74 @@ def sweep(a_values: list[float], seeds: int, ticks: int, preset: str, learned_af
         definitions = all_definitions(noxious[mine], ticks)
         times = [int(t) if t >= 0 else None for t in world.metrics.learned_at[mine]]  # the world's own counter
         main = {"times": times, **stats(times, ticks)}
-        rows.append({
-            "name": f"{semantics} semantics, {preset} steps", "a": a_plus, "a_plus": a_plus, "seeds": seeds,
-            "ticks": ticks, "learning_time": main["times"], "reached": main["reached"], "median": main["median"],
-            "quartiles": [main["q1"], main["q3"]], "definitions": {**definitions, "project": main},
-            "collisions_first_quarter": bins[:, :q].sum(axis=1).tolist(),
-            "collisions_last_quarter": bins[:, -q:].sum(axis=1).tolist(),
-            "collisions_per_1000_ticks_mean": bins.mean(axis=0).round(2).tolist(),
-        })
+        rows.append(
+            {
+                "name": f"{semantics} semantics, {preset} steps",
+                "a": a_plus,
+                "a_plus": a_plus,
+                "seeds": seeds,
+                "ticks": ticks,
+                "learning_time": main["times"],
+                "reached": main["reached"],
+                "median": main["median"],
+                "quartiles": [main["q1"], main["q3"]],
+                "definitions": {**definitions, "project": main},
+                "collisions_first_quarter": bins[:, :q].sum(axis=1).tolist(),
+                "collisions_last_quarter": bins[:, -q:].sum(axis=1).tolist(),
+                "collisions_per_1000_ticks_mean": bins.mean(axis=0).round(2).tolist(),
+            }
+        )
     return rows
 
 
 def table(rows: list[dict], learned_after: int) -> str:
-    lines = ["| A+ = A- | paper | median learning time | quartiles | reached | collisions, first -> last quarter |",
-             "|---|---|---|---|---|---|"]
+    lines = [
+        "| A+ = A- | paper | median learning time | quartiles | reached | collisions, first -> last quarter |",
+        "|---|---|---|---|---|---|",
+    ]
+
     def tick(x, ticks):
         return f"{x:,.0f}" if x is not None else f"> {ticks:,}"
 
     for r in rows:
         paper = PAPER.get(r["a_plus"])
         first, last = np.mean(r["collisions_first_quarter"]), np.mean(r["collisions_last_quarter"])
-        lines.append(f"| {r['a_plus']} | {'' if paper is None else f'{paper:,}'} | {tick(r['median'], r['ticks'])} | "
-                     f"{tick(r['quartiles'][0], r['ticks'])} - {tick(r['quartiles'][1], r['ticks'])} | "
-                     f"{r['reached']}/{r['seeds']} | {first:.0f} -> {last:.0f} |")
-    lines.append(f"\nLearning time: the last tick on a noxious patch before the first {learned_after:,} ticks off "
-                 f"them. Median and quartiles over all seeds; a seed that did not get there within "
-                 f"{rows[0]['ticks']:,} ticks counts as later than that. Collisions: mean per seed.")
+        lines.append(
+            f"| {r['a_plus']} | {'' if paper is None else f'{paper:,}'} | {tick(r['median'], r['ticks'])} | "
+            f"{tick(r['quartiles'][0], r['ticks'])} - {tick(r['quartiles'][1], r['ticks'])} | "
+            f"{r['reached']}/{r['seeds']} | {first:.0f} -> {last:.0f} |"
+        )
+    lines.append(
+        f"\nLearning time: the last tick on a noxious patch before the first {learned_after:,} ticks off "
+        f"them. Median and quartiles over all seeds; a seed that did not get there within "
+        f"{rows[0]['ticks']:,} ticks counts as later than that. Collisions: mean per seed."
+    )
     return "\n".join(lines)
 
 
 def plot(rows: list[dict], path: Path) -> None:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(8, 4.5), dpi=110)
     for r in rows:
         y = r["collisions_per_1000_ticks_mean"]
-        line, = ax.plot((np.arange(len(y)) + 1) * 1000, y, lw=1.5, label=f"A+ = A- = {r['a_plus']} ({r['seeds']} seeds)")
+        (line,) = ax.plot(
+            (np.arange(len(y)) + 1) * 1000, y, lw=1.5, label=f"A+ = A- = {r['a_plus']} ({r['seeds']} seeds)"
+        )
         if r["median"] is not None:  # the median learning time (dashed) and the paper's (dotted), in its colour
             ax.axvline(r["median"], color=line.get_color(), ls="--", lw=1)
         if PAPER.get(r["a_plus"]):
             ax.axvline(PAPER[r["a_plus"]], color=line.get_color(), ls=":", lw=1.5)
     ax.plot([], [], color="gray", ls="--", label="median learning time")
     ax.plot([], [], color="gray", ls=":", label="the paper's learning time (Table 1)")
-    ax.set(xlabel="tick", ylabel="collision events per 1,000 ticks (mean over seeds)",
-           title="Learning speed against the learning rate (paper Table 1)")
+    ax.set(
+        xlabel="tick",
+        ylabel="collision events per 1,000 ticks (mean over seeds)",
+        title="Learning speed against the learning rate (paper Table 1)",
+    )
     ax.grid(alpha=0.3)
     ax.legend()
     fig.tight_layout()
@@ -95,8 +131,12 @@ def main(argv=None) -> int:
     p = Parser(prog="spikinglab sweep", description=__doc__.splitlines()[0])
     p.add_argument("--a-plus", type=positive, nargs="+", default=[0.01, 0.02, 0.03, 0.04])
     p.add_argument("--seeds", type=at_least(1), default=16, help="seeds (arenas 0..N-1) per value (default 16)")
-    p.add_argument("--ticks", type=at_least(BIN), default=150_000,
-                   help=f"ticks per seed, at least one bin of {BIN:,} (default 150,000)")
+    p.add_argument(
+        "--ticks",
+        type=at_least(BIN),
+        default=150_000,
+        help=f"ticks per seed, at least one bin of {BIN:,} (default 150,000)",
+    )
     p.add_argument("--preset", choices=sorted(PRESETS), default="paper")
     p.add_argument("--learned-after", type=at_least(1), default=5000)
     add_engine_args(p)
@@ -109,16 +149,19 @@ def main(argv=None) -> int:
     folder.mkdir(parents=True, exist_ok=True)
     with tqdm(total=args.ticks, unit="tick", unit_scale=True, mininterval=1) as bar:
         bar.set_postfix_str(f"{len(args.a_plus) * args.seeds} insects: A+ = A- in {args.a_plus} x {args.seeds} seeds")
-        rows = sweep(args.a_plus, args.seeds, args.ticks, args.preset, args.learned_after, bar, args.semantics,
-                     args.order)
+        rows = sweep(
+            args.a_plus, args.seeds, args.ticks, args.preset, args.learned_after, bar, args.semantics, args.order
+        )
     text = table(rows, args.learned_after)
     (folder / "table.md").write_text(text + "\n")
     (folder / "table.json").write_text(json.dumps(rows, indent=1))
     plot(rows, folder / "learning.png")
     plot_table1(rows, "project", folder / "table1.png")
     print(text)
-    print(f"\nwritten to {folder}/: table.md, table.json, learning.png (collisions over time), "
-          f"table1.png (against the paper)")
+    print(
+        f"\nwritten to {folder}/: table.md, table.json, learning.png (collisions over time), "
+        f"table1.png (against the paper)"
+    )
     return 0
 
 

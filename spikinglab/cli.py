@@ -17,8 +17,10 @@ COMMANDS = {
     "certs": ("services.certs", "certificates and configs for a bus with mutual TLS and access control"),
     "sweep": ("services.sweep", "the paper's Table 1: learning time for A+ = A- over seeds"),
     "conditioning": ("services.brain.conditioning", "classical conditioning demo on fig. 2 and fig. 4"),
-    "bench": (None, "benchmarks and experiments: bench engine | loop | scale | recorder | gateway | table1 | robot | "
-                    "fuzz | soak"),
+    "bench": (
+        None,
+        "benchmarks and experiments: bench engine | loop | scale | recorder | gateway | table1 | robot | fuzz | soak",
+    ),
 }
 BENCHMARKS = {
     "engine": "spikinglab.bench.engine",
@@ -43,8 +45,10 @@ def version() -> str:
 
 
 def usage() -> str:
-    lines = ["usage: spikinglab <command> [options]   (spikinglab <command> --help for its options; "
-             "spikinglab --version)", ""]
+    lines = [
+        "usage: spikinglab <command> [options]   (spikinglab <command> --help for its options; spikinglab --version)",
+        "",
+    ]
     lines += [f"  {name:14s} {about}" for name, (_, about) in COMMANDS.items()]
     return "\n".join(lines)
 

@@ -58,6 +58,7 @@ class Watcher:
                 self.messages[key].append(decode(sample.payload.to_bytes()))
             except BusError as e:
                 self.bad.append(str(e))
+
         return on_sample
 
     def close(self) -> None:

@@ -14,8 +14,13 @@ def test_every_api_name_loads():
 
 
 def test_the_example_trains_a_population():
-    done = subprocess.run([sys.executable, ROOT / "examples" / "train_population.py", "30000"], cwd=ROOT,
-                          capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        [sys.executable, ROOT / "examples" / "train_population.py", "30000"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stderr
     lines = done.stdout.splitlines()
     rows = [line.split() for line in lines[1:7]]

@@ -26,10 +26,10 @@ def files(tmp_path_factory):
     np.savez(folder / "foreign.npz", x=np.arange(3))
     (folder / "nostart.txt").write_text("#####\n#...#\n#####\n")
     (folder / "not.rrd").write_text("not a recording\n")
-    (folder / "typo.toml").write_text('[world]\ntick = 2000\n')
-    (folder / "badvalue.toml").write_text('[world]\nticks = 0\n')
-    (folder / "noservice.toml").write_text('[mind]\nonce = true\n')
-    (folder / "broken.toml").write_text('[world\nticks = 2000\n')
+    (folder / "typo.toml").write_text("[world]\ntick = 2000\n")
+    (folder / "badvalue.toml").write_text("[world]\nticks = 0\n")
+    (folder / "noservice.toml").write_text("[mind]\nonce = true\n")
+    (folder / "broken.toml").write_text("[world\nticks = 2000\n")
     (folder / "broken.json5").write_text('{mode: "client",, }\n')
     (folder / "badmode.json5").write_text('{mode: "boss"}\n')
     (folder / "list.json5").write_text('["tls/127.0.0.1:7447"]\n')
@@ -40,9 +40,10 @@ def files(tmp_path_factory):
     (folder / "low.csv").write_text("w_max\n3\n")
     unfit = {"rows": f'params = "{folder / "rows.csv"}"', "shards": 'shard = "2/2"', "group": 'group = "other"'}
     for name, brain in unfit.items():  # a brain each that could never serve its world: refused before anything starts
-        (folder / f"unfit-{name}.toml").write_text(f'[world]\nagents = 2\n[brain]\nonce = true\n{brain}\n')
-    (folder / "bad.toml").write_text('[neurons]\nA = "regular"\n[[synapses]]\nfrom = "A"\nto = "B"\nweight = 5\n'
-                                     'delay = 1\n')
+        (folder / f"unfit-{name}.toml").write_text(f"[world]\nagents = 2\n[brain]\nonce = true\n{brain}\n")
+    (folder / "bad.toml").write_text(
+        '[neurons]\nA = "regular"\n[[synapses]]\nfrom = "A"\nto = "B"\nweight = 5\ndelay = 1\n'
+    )
     return folder
 
 
@@ -59,22 +60,46 @@ CASES = [  # id, arguments ({f}: the input files, {busy}: a port in use), exit c
     ("run ticks below one bin", "run --ticks 500", 2, "argument --ticks: must be at least one bin of collisions"),
     ("run agents 0", "run --agents 0", 2, "argument --agents: must be at least 1, got 0"),
     ("run negative A", "run --a-plus -0.1", 2, "argument --a-plus: must be a number above 0, got -0.1"),
-    ("run circuit for another body", "run --circuit conditioning", 2,
-     "circuit 'conditioning' binds sensors ['c', 'u'] that the world does not publish"),
+    (
+        "run circuit for another body",
+        "run --circuit conditioning",
+        2,
+        "circuit 'conditioning' binds sensors ['c', 'u'] that the world does not publish",
+    ),
     ("run broken circuit file", "run --circuit {f}/bad.toml", 2, "synapses[0] (A -> B): to: unknown neuron 'B'"),
     ("run detail not agents", "run --detail x", 2, "argument --detail: expected agent numbers separated by commas"),
-    ("run truncated checkpoint", "run --load {f}/truncated.npz", 2,
-     "truncated.npz: not a weights checkpoint (not an .npz archive: truncated, or another kind of file"),
-    ("run foreign npz", "run --load {f}/foreign.npz", 2,
-     "foreign.npz: not a weights checkpoint (an .npz without the arrays weights and synapses"),
+    (
+        "run truncated checkpoint",
+        "run --load {f}/truncated.npz",
+        2,
+        "truncated.npz: not a weights checkpoint (not an .npz archive: truncated, or another kind of file",
+    ),
+    (
+        "run foreign npz",
+        "run --load {f}/foreign.npz",
+        2,
+        "foreign.npz: not a weights checkpoint (an .npz without the arrays weights and synapses",
+    ),
     ("run missing checkpoint", "run --load {f}/missing.npz", 2, "missing.npz: cannot read it (No such file"),
     ("run map without start", "run --map {f}/nostart.txt", 2, "nostart.txt: no start 'S' in the map"),
-    ("run params unknown column", "run --params {f}/typo.csv", 2,
-     "typo.csv: unknown per-agent parameter 'a_plsu' (known: a_plus, "),
-    ("run params rows not agents", "run --agents 2 --params {f}/rows.csv", 2,
-     "rows.csv: 3 rows of values for 2 agents (--agents): give one row for all of them, or one per agent"),
-    ("run params not a number", "run --agents 2 --params {f}/word.csv", 2,
-     "word.csv, line 3: move_step is 'fast', not a number"),
+    (
+        "run params unknown column",
+        "run --params {f}/typo.csv",
+        2,
+        "typo.csv: unknown per-agent parameter 'a_plsu' (known: a_plus, ",
+    ),
+    (
+        "run params rows not agents",
+        "run --agents 2 --params {f}/rows.csv",
+        2,
+        "rows.csv: 3 rows of values for 2 agents (--agents): give one row for all of them, or one per agent",
+    ),
+    (
+        "run params not a number",
+        "run --agents 2 --params {f}/word.csv",
+        2,
+        "word.csv, line 3: move_step is 'fast', not a number",
+    ),
     ("brain params the circuit refuses", "brain --params {f}/low.csv", 2, "low.csv: /"),  # names the circuit too
     ("world params missing", "world --params {f}/none.csv", 2, "none.csv: cannot read it (No such file or directory)"),
     ("run abbreviated option", "run --tick 5", 2, "unrecognized arguments: --tick 5"),
@@ -88,27 +113,55 @@ CASES = [  # id, arguments ({f}: the input files, {busy}: a port in use), exit c
     ("run negative seed", "run --seed -1", 2, "argument --seed: must be at least 0, got -1"),
     ("brain negative clock", "brain --clock -5", 2, "argument --clock: must be 0 or more, got -5"),
     ("brain clock not a number", "brain --clock nan", 2, "argument --clock: expected a finite number, got nan"),
-    ("gateway spin of 0 ms (the brick's 'until stopped')", "gateway --spin-ms 0", 2,
-     "argument --spin-ms: must be at least 1, got 0"),
-    ("gateway command age below 0", "gateway --max-command-age -1", 2,
-     "argument --max-command-age: must be a number above 0, got -1"),
+    (
+        "gateway spin of 0 ms (the brick's 'until stopped')",
+        "gateway --spin-ms 0",
+        2,
+        "argument --spin-ms: must be at least 1, got 0",
+    ),
+    (
+        "gateway command age below 0",
+        "gateway --max-command-age -1",
+        2,
+        "argument --max-command-age: must be a number above 0, got -1",
+    ),
     ("record flushing every 0 ticks", "record --flush-every 0", 2, "argument --flush-every: must be at least 1, got 0"),
     ("bench loop no repeats", "bench loop --repeats 0", 2, "argument --repeats: must be at least 1, got 0"),
     ("record viewer not a URL", "record --viewer nothing", 2, "argument --viewer: 'nothing' is not a viewer URL"),
-    ("record viewer where none runs", f"record --viewer rerun+http://127.0.0.1:{CLOSED}/proxy --out {{f}}/r.rrd", 1,
-     f"no viewer answers at rerun+http://127.0.0.1:{CLOSED}/proxy"),
-    ("malformed endpoint", "brain --connect localhost:7447", 2, "argument --connect: 'localhost:7447' is not an endpoint"),
+    (
+        "record viewer where none runs",
+        f"record --viewer rerun+http://127.0.0.1:{CLOSED}/proxy --out {{f}}/r.rrd",
+        1,
+        f"no viewer answers at rerun+http://127.0.0.1:{CLOSED}/proxy",
+    ),
+    (
+        "malformed endpoint",
+        "brain --connect localhost:7447",
+        2,
+        "argument --connect: 'localhost:7447' is not an endpoint",
+    ),
     ("endpoint without port", "world --listen tcp/127.0.0.1", 2, "a tcp endpoint needs host:port"),
-    ("brain shard beyond its count", "brain --shard 4/3", 2,
-     "argument --shard: must be I/N with 1 <= I <= N (e.g. 2/3), got '4/3'"),
-    ("sharded brain for the recorder", "brain --shard 1/2 --publish-state", 2,
-     "a sharded brain serves a world in lock-step and does not publish its state"),
+    (
+        "brain shard beyond its count",
+        "brain --shard 4/3",
+        2,
+        "argument --shard: must be I/N with 1 <= I <= N (e.g. 2/3), got '4/3'",
+    ),
+    (
+        "sharded brain for the recorder",
+        "brain --shard 1/2 --publish-state",
+        2,
+        "a sharded brain serves a world in lock-step and does not publish its state",
+    ),
     ("more shards than agents", "world --shards 3 --agents 2", 2, "--shards 3: more brain shards than agents (2)"),
     ("port in use", "brain --listen tcp/127.0.0.1:{busy}", 1, "Address already in use"),
-    ("zenoh config missing", "world --zenoh-config certs/world.json5", 2,
-     "argument --zenoh-config: cannot read certs/world.json5: No such file or directory (`spikinglab certs DIR`"),
-    ("zenoh config not JSON5", "brain --zenoh-config {f}/broken.json5", 2,
-     "broken.json5 is not a JSON5 config"),
+    (
+        "zenoh config missing",
+        "world --zenoh-config certs/world.json5",
+        2,
+        "argument --zenoh-config: cannot read certs/world.json5: No such file or directory (`spikinglab certs DIR`",
+    ),
+    ("zenoh config not JSON5", "brain --zenoh-config {f}/broken.json5", 2, "broken.json5 is not a JSON5 config"),
     ("zenoh config not an object", "brain --zenoh-config {f}/list.json5", 2, "should hold one JSON5 object"),
     ("zenoh config Zenoh refuses", "brain --zenoh-config {f}/badmode.json5", 1, "badmode.json5: "),
     ("certs where a file is", "certs {f}/occupied", 2, "occupied is a file, not a folder for the certificates"),
@@ -116,14 +169,30 @@ CASES = [  # id, arguments ({f}: the input files, {busy}: a port in use), exit c
     ("launch file missing", "launch {f}/none.toml", 2, "no launch file"),
     ("launch file not TOML", "launch {f}/broken.toml", 2, "broken.toml is not valid TOML"),
     ("launch file misspelt option", "launch {f}/typo.toml", 2, "typo.toml, [world]: unrecognized arguments: --tick"),
-    ("launch file bad value", "launch {f}/badvalue.toml", 2,
-     "badvalue.toml, [world]: argument --ticks: must be at least 1, got 0"),
-    ("launch brain params for other agents", "launch {f}/unfit-rows.toml", 2,
-     "unfit-rows.toml, [brain]: parameter file {f}/rows.csv: 3 rows of values for 2 agents (agents of [world])"),
-    ("launch brain shards unlike the world's", "launch {f}/unfit-shards.toml", 2,
-     'unfit-shards.toml, [brain]: shard = "2/2", but [world] runs the brain as shards = 1'),
-    ("launch brain in another group", "launch {f}/unfit-group.toml", 2,
-     "unfit-group.toml, [brain]: group 'other' is no world's in this file"),
+    (
+        "launch file bad value",
+        "launch {f}/badvalue.toml",
+        2,
+        "badvalue.toml, [world]: argument --ticks: must be at least 1, got 0",
+    ),
+    (
+        "launch brain params for other agents",
+        "launch {f}/unfit-rows.toml",
+        2,
+        "unfit-rows.toml, [brain]: parameter file {f}/rows.csv: 3 rows of values for 2 agents (agents of [world])",
+    ),
+    (
+        "launch brain shards unlike the world's",
+        "launch {f}/unfit-shards.toml",
+        2,
+        'unfit-shards.toml, [brain]: shard = "2/2", but [world] runs the brain as shards = 1',
+    ),
+    (
+        "launch brain in another group",
+        "launch {f}/unfit-group.toml",
+        2,
+        "unfit-group.toml, [brain]: group 'other' is no world's in this file",
+    ),
     ("launch file unknown service", "launch {f}/noservice.toml", 2, "noservice.toml, [mind]: unknown service 'mind'"),
 ]
 
@@ -135,8 +204,9 @@ def test_bad_input(case, command, code, says, files, busy_port, tmp_path):
         argv += ["--runs", str(tmp_path / "runs")]
     elif argv[0] == "conditioning":
         argv += ["--out", str(tmp_path / "figures")]
-    done = subprocess.run([sys.executable, "-m", "spikinglab", *argv], cwd=tmp_path, capture_output=True,
-                          text=True, timeout=120)
+    done = subprocess.run(
+        [sys.executable, "-m", "spikinglab", *argv], cwd=tmp_path, capture_output=True, text=True, timeout=120
+    )
     lines = [line for line in done.stderr.splitlines() if line.strip()]
     assert done.returncode == code, done.stderr
     assert lines and says.format(f=files) in lines[-1], done.stderr
@@ -165,10 +235,26 @@ def test_a_brain_that_refuses_every_reading_is_named_by_the_world(files, tmp_pat
     every sensors message and says why; the world waits for it (a brain may be fixed and
     restarted) and says, within 10 s, that it is on the bus but does not answer."""
     port = free_port()
-    world = start("world", "--listen", f"tcp/127.0.0.1:{port}", "--agents", 2, "--group", tmp_path.name,
-                  log=tmp_path / "world.log")
-    brain = start("brain", "--connect", f"tcp/127.0.0.1:{port}", "--group", tmp_path.name, "--params",
-                  files / "rows.csv", log=tmp_path / "brain.log")
+    world = start(
+        "world",
+        "--listen",
+        f"tcp/127.0.0.1:{port}",
+        "--agents",
+        2,
+        "--group",
+        tmp_path.name,
+        log=tmp_path / "world.log",
+    )
+    brain = start(
+        "brain",
+        "--connect",
+        f"tcp/127.0.0.1:{port}",
+        "--group",
+        tmp_path.name,
+        "--params",
+        files / "rows.csv",
+        log=tmp_path / "brain.log",
+    )
     try:
         started, said = time.monotonic(), ""
         while "on the bus but no answer" not in said and time.monotonic() - started < 25:

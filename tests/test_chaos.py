@@ -42,9 +42,26 @@ def pid_of(marker: str, module: str) -> int:
 
 
 def training_run(tmp_path, *options) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "spikinglab", "run", "--ticks", "20000", "--quiet", "--runs",
-                             str(tmp_path / "runs"), "--id", "chaos", *map(str, options)], cwd=tmp_path,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "spikinglab",
+            "run",
+            "--ticks",
+            "20000",
+            "--quiet",
+            "--runs",
+            str(tmp_path / "runs"),
+            "--id",
+            "chaos",
+            *map(str, options),
+        ],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 def kill_mid_run(tmp_path, module: str) -> float:
@@ -101,8 +118,13 @@ def test_kill_9_of_the_world_or_brain_ends_the_run_saying_where_it_stopped(tmp_p
     assert not running_with(str(tmp_path))
     resume = f"spikinglab run --resume {folder}"
     assert resume in failure
-    resumed = subprocess.run([sys.executable, "-m", "spikinglab", *resume.split()[1:]], cwd=tmp_path,
-                             capture_output=True, text=True, timeout=240)
+    resumed = subprocess.run(
+        [sys.executable, "-m", "spikinglab", *resume.split()[1:]],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
     assert resumed.returncode == 0, resumed.stdout + resumed.stderr
     head = json.loads((folder / "summary.json").read_text())["headline"]
     assert head["ticks_done"] == 20000 and 0 < head["resumed_at"] <= tick and not (folder / "FAILED.txt").exists()
@@ -113,8 +135,18 @@ def test_kill_9_of_the_gateway_the_brain_says_so_and_goes_on(tmp_path):
     gateway_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
     with FakeBrick() as brick:
         gateway = start("gateway", "--listen", gateway_ep, log=tmp_path / "gateway.log")
-        brain = start("brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", 1000, "--save",
-                      tmp_path / "w.npz", log=tmp_path / "brain.log")
+        brain = start(
+            "brain",
+            "--listen",
+            brain_ep,
+            "--connect",
+            gateway_ep,
+            "--clock",
+            1000,
+            "--save",
+            tmp_path / "w.npz",
+            log=tmp_path / "brain.log",
+        )
         try:
             wait_for(lambda: len(brick.commands) > 5, 60, "the robot to move")
             gateway.kill()
@@ -149,8 +181,14 @@ def test_kill_9_of_the_router_the_run_resumes_where_it_stopped(tmp_path):
         time.sleep(1.0)
         router.kill()
         router.wait()
-        wait_for(lambda: "the brain left the bus" in (tmp_path / "world.log").read_text()
-                 and "the world left the bus" in (tmp_path / "brain.log").read_text(), 2, "both to say so")
+        wait_for(
+            lambda: (
+                "the brain left the bus" in (tmp_path / "world.log").read_text()
+                and "the world left the bus" in (tmp_path / "brain.log").read_text()
+            ),
+            2,
+            "both to say so",
+        )
         time.sleep(1.0)
         router = start("router", "--listen", router_ep, log=tmp_path / "router2.log")
         assert finish(p_world, 120, tmp_path / "world.log") == 0
@@ -176,12 +214,33 @@ def test_kill_9_then_the_same_commands_resume_the_run_tick_for_tick(tmp_path, vi
     path = np.zeros((ticks, 2))
     closed_loop(world, brain, ticks, lambda t: path.__setitem__(t, world.pos[0]))
     world_ep = endpoint(free_port())
-    world_args = ("--listen", world_ep, "--ticks", ticks, "--seed", seed, "--out", tmp_path, "--checkpoint",
-                  tmp_path / "world-kept", "--checkpoint-every", every)
-    brain_args = ("--connect", world_ep, "--once", "--save", tmp_path / "w.npz", "--checkpoint",
-                  tmp_path / "brain-kept")
-    processes = {"world": start("world", *world_args, log=tmp_path / "world1.log"),
-                 "brain": start("brain", *brain_args, log=tmp_path / "brain1.log")}
+    world_args = (
+        "--listen",
+        world_ep,
+        "--ticks",
+        ticks,
+        "--seed",
+        seed,
+        "--out",
+        tmp_path,
+        "--checkpoint",
+        tmp_path / "world-kept",
+        "--checkpoint-every",
+        every,
+    )
+    brain_args = (
+        "--connect",
+        world_ep,
+        "--once",
+        "--save",
+        tmp_path / "w.npz",
+        "--checkpoint",
+        tmp_path / "brain-kept",
+    )
+    processes = {
+        "world": start("world", *world_args, log=tmp_path / "world1.log"),
+        "brain": start("brain", *brain_args, log=tmp_path / "brain1.log"),
+    }
     try:
         kept = tmp_path / "world-kept" / "world.npz"
         wait_for(lambda: kept.exists() and snapshots.read(kept)[1]["tick"] >= 2 * every, 120, "a second checkpoint")
@@ -190,8 +249,9 @@ def test_kill_9_then_the_same_commands_resume_the_run_tick_for_tick(tmp_path, vi
             processes[victim].wait()
         resumed_at = snapshots.read(kept)[1]["tick"]
         for victim in victims:
-            processes[victim] = start(victim, *(world_args if victim == "world" else brain_args),
-                                      log=tmp_path / f"{victim}2.log")
+            processes[victim] = start(
+                victim, *(world_args if victim == "world" else brain_args), log=tmp_path / f"{victim}2.log"
+            )
         assert finish(processes["world"], 120, tmp_path / "world2.log") == 0
         assert finish(processes["brain"], 30, tmp_path / "brain2.log") == 0
     finally:
@@ -216,12 +276,34 @@ def test_a_frozen_recorder_never_holds_the_run_back(tmp_path):
     drop rather than wait; before, the world stalled); on SIGCONT the recorder says the run's end
     never came and writes a file that opens, up to where it got."""
     world_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
-    world = start("world", "--listen", world_ep, "--ticks", 20000, "--agents", 20, "--publish-state", "--out", tmp_path,
-                  log=tmp_path / "world.log")
-    brain = start("brain", "--listen", brain_ep, "--connect", world_ep, "--once", "--publish-state",
-                  log=tmp_path / "brain.log")
-    recorder = start("record", "--connect", world_ep, "--connect", brain_ep, "--out", tmp_path / "run.rrd",
-                     "--backlog-mb", 1, log=tmp_path / "recorder.log")
+    world = start(
+        "world",
+        "--listen",
+        world_ep,
+        "--ticks",
+        20000,
+        "--agents",
+        20,
+        "--publish-state",
+        "--out",
+        tmp_path,
+        log=tmp_path / "world.log",
+    )
+    brain = start(
+        "brain", "--listen", brain_ep, "--connect", world_ep, "--once", "--publish-state", log=tmp_path / "brain.log"
+    )
+    recorder = start(
+        "record",
+        "--connect",
+        world_ep,
+        "--connect",
+        brain_ep,
+        "--out",
+        tmp_path / "run.rrd",
+        "--backlog-mb",
+        1,
+        log=tmp_path / "recorder.log",
+    )
     try:
         wait_for(lambda: " run " in (tmp_path / "world.log").read_text(), 120, "the run to start")
         time.sleep(1.0)
@@ -242,7 +324,9 @@ def test_a_frozen_recorder_never_holds_the_run_back(tmp_path):
     assert written and (int(written.group(1)) < 19999 or written.group(2) != "none"), said[-2000:]
     assert "left without the run's end" in said
     pace = json.loads((tmp_path / "metrics.json").read_text())["ticks_per_s"]
-    print(f"frozen recorder: the run went on to its end at {pace:,.0f} ticks/s; recorded ticks 0..{written.group(1)} "
-          f"of 20,000; ticks missing within: {written.group(2)}; rejected or dropped: {written.group(3)}")
+    print(
+        f"frozen recorder: the run went on to its end at {pace:,.0f} ticks/s; recorded ticks 0..{written.group(1)} "
+        f"of 20,000; ticks missing within: {written.group(2)}; rejected or dropped: {written.group(3)}"
+    )
     verified = subprocess.run([*viewer_command(), "rrd", "verify", str(tmp_path / "run.rrd")], capture_output=True)
     assert verified.returncode == 0, verified.stderr

@@ -24,6 +24,7 @@ def inprocess_run(semantics):
         pos.append(world.pos.copy())
         sensed.append(world.sensors.copy())
         spikes.append(brain.engine.spiked.copy())
+
     closed_loop(world, brain, TICKS, keep)
     return np.array(pos), np.array(sensed), np.array(spikes), brain.engine.get_weights(), world.metrics
 
@@ -34,15 +35,43 @@ def test_same_seed_same_run_in_one_process_and_across_the_bus(tmp_path, semantic
     assert metrics.collisions.sum() > 0 and spikes.sum() > 0  # something happened
 
     world_port, brain_port = free_port(), free_port()
-    watcher = Watcher([endpoint(world_port), endpoint(brain_port)],
-                      [keys.world_state("det"), keys.brain_state("det")])
+    watcher = Watcher([endpoint(world_port), endpoint(brain_port)], [keys.world_state("det"), keys.brain_state("det")])
     try:
-        world = start("world", "--group", "det", "--listen", endpoint(world_port), "--ticks", TICKS, "--seed", SEED,
-                      "--agents", AGENTS, "--publish-state", "--out", tmp_path, log=tmp_path / "world.log")
-        brain = start("brain", "--group", "det", "--listen", endpoint(brain_port), "--connect", endpoint(world_port),
-                      "--a-plus", 0.04, "--publish-state", "--once", "--save", tmp_path / "weights.npz",
-                      "--semantics", semantics,  # the order's seed comes from the world's messages
-                      log=tmp_path / "brain.log")
+        world = start(
+            "world",
+            "--group",
+            "det",
+            "--listen",
+            endpoint(world_port),
+            "--ticks",
+            TICKS,
+            "--seed",
+            SEED,
+            "--agents",
+            AGENTS,
+            "--publish-state",
+            "--out",
+            tmp_path,
+            log=tmp_path / "world.log",
+        )
+        brain = start(
+            "brain",
+            "--group",
+            "det",
+            "--listen",
+            endpoint(brain_port),
+            "--connect",
+            endpoint(world_port),
+            "--a-plus",
+            0.04,
+            "--publish-state",
+            "--once",
+            "--save",
+            tmp_path / "weights.npz",
+            "--semantics",
+            semantics,  # the order's seed comes from the world's messages
+            log=tmp_path / "brain.log",
+        )
         assert finish(world, 120, tmp_path / "world.log") == 0
         assert finish(brain, 30, tmp_path / "brain.log") == 0
     finally:

@@ -10,8 +10,13 @@ import pytest
 from services.launch import SERVICES
 
 ROOT = Path(__file__).resolve().parents[1]
-README_OF = {"world": "world", "brain": "brain", "record": "recorder", "gateway": "ev3_gateway",
-             "fake-brick": "ev3_gateway"}
+README_OF = {
+    "world": "world",
+    "brain": "brain",
+    "record": "recorder",
+    "gateway": "ev3_gateway",
+    "fake-brick": "ev3_gateway",
+}
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted((ROOT / "services").glob("*/README.md"))]
 
 
@@ -37,8 +42,9 @@ def test_service_readme_names_no_option_that_is_gone(folder):
 def test_docs_cite_only_files_that_exist():
     cited = {}
     for doc in DOCS:
-        for path in re.findall(r"\b((?:services|spikinglab|docs|tests|examples|scripts)/[\w./-]*\w(?:\.\w+|/(?![\w*{<])))",
-                               doc.read_text()):
+        for path in re.findall(
+            r"\b((?:services|spikinglab|docs|tests|examples|scripts)/[\w./-]*\w(?:\.\w+|/(?![\w*{<])))", doc.read_text()
+        ):
             if not path.endswith("circuits/mine.toml"):  # docs/circuits.md: a user's own file in its error examples
                 cited.setdefault(path, doc.relative_to(ROOT))
     missing = {path: str(doc) for path, doc in cited.items() if not (ROOT / path).exists()}

@@ -24,8 +24,19 @@ from .processes import Watcher, endpoint, finish, free_port, start, ticks_in, wa
 def test_brain_killed_mid_run_world_waits_then_continues(tmp_path):
     world_port, brain_port = free_port(), free_port()
     watcher = Watcher([endpoint(world_port)], [keys.world_state("k")])
-    world = start("world", "--group", "k", "--listen", endpoint(world_port), "--ticks", 6000, "--publish-state",
-                  "--out", tmp_path, log=tmp_path / "world.log")
+    world = start(
+        "world",
+        "--group",
+        "k",
+        "--listen",
+        endpoint(world_port),
+        "--ticks",
+        6000,
+        "--publish-state",
+        "--out",
+        tmp_path,
+        log=tmp_path / "world.log",
+    )
     brain_args = ("--group", "k", "--listen", endpoint(brain_port), "--connect", endpoint(world_port), "--once")
     brain = start("brain", *brain_args, log=tmp_path / "brain1.log")
     try:
@@ -60,10 +71,24 @@ def garbage(tick: int) -> list[bytes]:
     payloads = [
         good[: len(good) // 2],
         b"\xc1\xc1 not a message",
-        raw({"kind": "sensors", "tick": tick, "version": VERSION + 7, "names": ["a"],
-             "values": {"dtype": "<f8", "shape": [1, 0], "data": b""}}),
-        raw({"kind": "motor", "tick": tick, "version": VERSION, "names": ["move"],
-             "actions": {"dtype": "|u1", "shape": [1, 1], "data": b""}}),
+        raw(
+            {
+                "kind": "sensors",
+                "tick": tick,
+                "version": VERSION + 7,
+                "names": ["a"],
+                "values": {"dtype": "<f8", "shape": [1, 0], "data": b""},
+            }
+        ),
+        raw(
+            {
+                "kind": "motor",
+                "tick": tick,
+                "version": VERSION,
+                "names": ["move"],
+                "actions": {"dtype": "|u1", "shape": [1, 1], "data": b""},
+            }
+        ),
         encode(Control(tick=tick, command="self-destruct")),
         raw({"kind": "sensors", "tick": "now"}),
         b"\x81\xa4kind\xa2\xff\xfe",
@@ -92,31 +117,71 @@ def test_malformed_messages_on_every_topic_are_rejected_and_the_run_goes_on(tmp_
     closed_loop(world, brain, ticks)  # the run as it must come out, undisturbed
 
     world_port, brain_port = free_port(), free_port()
-    p_world = start("world", "--listen", endpoint(world_port), "--ticks", ticks, "--seed", seed, "--out", tmp_path,
-                    "--publish-state", log=tmp_path / "world.log")
-    p_brain = start("brain", "--listen", endpoint(brain_port), "--connect", endpoint(world_port), "--once",
-                    "--save", tmp_path / "weights.npz", "--stats", tmp_path / "brain.json", "--publish-state",
-                    log=tmp_path / "brain.log")
-    p_recorder = start("record", "--connect", endpoint(world_port), "--connect", endpoint(brain_port),
-                       "--out", tmp_path / "run.rrd", log=tmp_path / "recorder.log")
+    p_world = start(
+        "world",
+        "--listen",
+        endpoint(world_port),
+        "--ticks",
+        ticks,
+        "--seed",
+        seed,
+        "--out",
+        tmp_path,
+        "--publish-state",
+        log=tmp_path / "world.log",
+    )
+    p_brain = start(
+        "brain",
+        "--listen",
+        endpoint(brain_port),
+        "--connect",
+        endpoint(world_port),
+        "--once",
+        "--save",
+        tmp_path / "weights.npz",
+        "--stats",
+        tmp_path / "brain.json",
+        "--publish-state",
+        log=tmp_path / "brain.log",
+    )
+    p_recorder = start(
+        "record",
+        "--connect",
+        endpoint(world_port),
+        "--connect",
+        endpoint(brain_port),
+        "--out",
+        tmp_path / "run.rrd",
+        log=tmp_path / "recorder.log",
+    )
     injector = Watcher([endpoint(world_port), endpoint(brain_port)], [])
     stop = threading.Event()
-    topics = [keys.sensors("insect"), keys.motor("insect"), keys.control("insect"),
-              keys.world_state("insect"), keys.brain_state("insect"), keys.world_map("insect")]
+    topics = [
+        keys.sensors("insect"),
+        keys.motor("insect"),
+        keys.control("insect"),
+        keys.world_state("insect"),
+        keys.brain_state("insect"),
+        keys.world_map("insect"),
+    ]
     publishers = {k: injector.session.declare_publisher(k) for k in topics}
     # well formed, but not for this run (they do not name it): motor for no agents and for two
-    misfits = [encode(Motor(tick=t, names=("rotate", "move"), actions=Array.of(np.ones((a, 2), np.uint8))))
-               for t in range(0, ticks, 97) for a in (0, 2)]
+    misfits = [
+        encode(Motor(tick=t, names=("rotate", "move"), actions=Array.of(np.ones((a, 2), np.uint8))))
+        for t in range(0, ticks, 97)
+        for a in (0, 2)
+    ]
 
     def inject():
         k = 0
         while not stop.is_set():
             payloads = garbage(k)
-            for key, pub in publishers.items():
+            for pub in publishers.values():
                 pub.put(payloads[k % len(payloads)], attachment=b"injector")
             publishers[keys.motor("insect")].put(misfits[k % len(misfits)], attachment=b"injector")
             k += 1
             time.sleep(0.002)
+
     thread = threading.Thread(target=inject)
     thread.start()
     try:
@@ -149,8 +214,9 @@ def test_brain_and_world_meet_only_through_a_router(tmp_path):
     router_port = free_port()
     router = start("router", "--listen", endpoint(router_port), log=tmp_path / "router.log")
     try:
-        world = start("world", "--connect", endpoint(router_port), "--ticks", 1500, "--out", tmp_path,
-                      log=tmp_path / "world.log")
+        world = start(
+            "world", "--connect", endpoint(router_port), "--ticks", 1500, "--out", tmp_path, log=tmp_path / "world.log"
+        )
         brain = start("brain", "--connect", endpoint(router_port), "--once", log=tmp_path / "brain.log")
         assert finish(world, 60, tmp_path / "world.log") == 0
         assert finish(brain, 30, tmp_path / "brain.log") == 0

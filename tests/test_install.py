@@ -13,10 +13,17 @@ from .processes import ROOT
 
 def test_the_wheel_installs_and_runs_from_any_directory(tmp_path):
     source, dist = tmp_path / "source", tmp_path / "dist"  # a copy: the build writes build/ beside the sources
-    shutil.copytree(ROOT, source, ignore=shutil.ignore_patterns(".*", "runs", "build", "dist", "*.egg-info",
-                                                                "__pycache__", "bench-results"))
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", dist, source], check=True,
-                   capture_output=True, timeout=300)
+    shutil.copytree(
+        ROOT,
+        source,
+        ignore=shutil.ignore_patterns(".*", "runs", "build", "dist", "*.egg-info", "__pycache__", "bench-results"),
+    )
+    subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", dist, source],
+        check=True,
+        capture_output=True,
+        timeout=300,
+    )
     (wheel,) = dist.glob("spikinglab-*.whl")
     venv.create(tmp_path / "venv", with_pip=True)
     bin_dir = tmp_path / "venv" / "bin"
@@ -26,15 +33,21 @@ def test_the_wheel_installs_and_runs_from_any_directory(tmp_path):
     elsewhere.mkdir()
 
     def spikinglab(*args):
-        done = subprocess.run([bin_dir / "spikinglab", *map(str, args)], cwd=elsewhere, capture_output=True, text=True,
-                              timeout=300)
+        done = subprocess.run(
+            [bin_dir / "spikinglab", *map(str, args)], cwd=elsewhere, capture_output=True, text=True, timeout=300
+        )
         assert done.returncode == 0, done.stderr
         return done
 
     release = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
     assert spikinglab("--version").stdout.strip() == f"spikinglab {release}"
-    located = subprocess.run([bin_dir / "python", "-c", "import spikinglab; print(spikinglab.__file__)"], cwd=elsewhere,
-                             capture_output=True, text=True, check=True).stdout
+    located = subprocess.run(
+        [bin_dir / "python", "-c", "import spikinglab; print(spikinglab.__file__)"],
+        cwd=elsewhere,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
     assert str(tmp_path / "venv") in located  # the installed package, not the checkout
     done = spikinglab("run", "--ticks", 2000, "--quiet", "--id", "r")  # the circuit comes from the package
     run = elsewhere / "runs" / "r"

@@ -28,8 +28,13 @@ def launch_file(name: str, folder, **replace) -> str:
 
 
 def launch(folder, *args, stdout=subprocess.PIPE) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "spikinglab", "launch", *map(str, args), "--no-colour"],
-                            cwd=folder, stdout=stdout, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        [sys.executable, "-m", "spikinglab", "launch", *map(str, args), "--no-colour"],
+        cwd=folder,
+        stdout=stdout,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 def test_simulation_runs_world_brain_and_recorder_with_prefixed_logs(tmp_path):
@@ -57,8 +62,9 @@ def test_robot_runs_the_gateway_on_a_fake_brick_and_ends_with_the_gateway(tmp_pa
 
 def test_remote_brain_joins_the_world_through_the_router(tmp_path):
     port = free_port()
-    world_side = launch(tmp_path, launch_file("remote-world", tmp_path, **{"7447": port,
-                                                                          "ticks = 20000": "ticks = 3000"}))
+    world_side = launch(
+        tmp_path, launch_file("remote-world", tmp_path, **{"7447": port, "ticks = 20000": "ticks = 3000"})
+    )
     brain_side = launch(tmp_path, launch_file("remote-brain", tmp_path, **{"7447": port}))
     out, err = world_side.communicate(timeout=180)
     assert world_side.returncode == 0, out + err
@@ -70,28 +76,36 @@ def test_remote_brain_joins_the_world_through_the_router(tmp_path):
 
 
 def test_sharded_simulation_runs_three_brain_shards_each_with_its_slice(tmp_path):
-    run = launch(tmp_path, launch_file("sharded-simulation", tmp_path, **{"ticks = 20000": "ticks = 2000",
-                                                                          "agents = 3000": "agents = 30"}))
+    run = launch(
+        tmp_path,
+        launch_file(
+            "sharded-simulation", tmp_path, **{"ticks = 20000": "ticks = 2000", "agents = 3000": "agents = 30"}
+        ),
+    )
     out, err = run.communicate(timeout=180)
     assert run.returncode == 0, out + err
     result = tmp_path / "runs" / "launch-sharded"
     assert json.loads((result / "metrics.json").read_text())["agents"] == 30
     for i in (1, 2, 3):
-        assert any(line.strip().startswith(f"brain-{i} |") and f"shard {i} of 3" in line
-                   for line in out.splitlines()), out
+        assert any(
+            line.strip().startswith(f"brain-{i} |") and f"shard {i} of 3" in line for line in out.splitlines()
+        ), out
         with np.load(result / f"weights-{i}of3.npz") as saved:
             assert saved["weights"].shape[0] == 10
     assert not running_with(str(tmp_path))
 
 
 def test_secure_launch_files_run_over_mutual_tls_once_certs_are_made(tmp_path):
-    files = [launch_file("secure-simulation", tmp_path, **{"ticks = 20000": "ticks = 2000"}),
-             launch_file("secure-robot", tmp_path, **{"duration = 60": "duration = 4"})]
+    files = [
+        launch_file("secure-simulation", tmp_path, **{"ticks = 20000": "ticks = 2000"}),
+        launch_file("secure-robot", tmp_path, **{"duration = 60": "duration = 4"}),
+    ]
     refused = launch(tmp_path, files[0])  # before `spikinglab certs`: refused, and told what to do
     out, err = refused.communicate(timeout=60)
     assert refused.returncode == 2 and "cannot read certs/router.json5" in err and "spikinglab certs" in err, err
-    made = subprocess.run([sys.executable, "-m", "spikinglab", "certs", "certs"], cwd=tmp_path, capture_output=True,
-                          text=True)
+    made = subprocess.run(
+        [sys.executable, "-m", "spikinglab", "certs", "certs"], cwd=tmp_path, capture_output=True, text=True
+    )
     assert made.returncode == 0, made.stderr
     for file in files:
         run = launch(tmp_path, file)
@@ -106,8 +120,10 @@ def test_secure_launch_files_run_over_mutual_tls_once_certs_are_made(tmp_path):
 
 def test_a_service_that_dies_ends_the_launch_and_is_named(tmp_path):
     file = tmp_path / "broken.toml"
-    file.write_text(f'[launch]\nuntil = "world"\n[world]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n'
-                    f'ticks = 1000000\n[brain]\ncircuit = "{tmp_path}/missing.toml"\n')
+    file.write_text(
+        f'[launch]\nuntil = "world"\n[world]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n'
+        f'ticks = 1000000\n[brain]\ncircuit = "{tmp_path}/missing.toml"\n'
+    )
     started = time.monotonic()
     run = launch(tmp_path, file)
     out, err = run.communicate(timeout=60)

@@ -18,8 +18,10 @@ def test_insect_learns_to_avoid_walls_and_predators():
     first, last = bins[:10].sum(axis=0), bins[-10:].sum(axis=0)
     assert (first > 20).all()  # it did collide early on
     assert (last <= first / 2).all(), f"first quarter {first}, last quarter {last}"
-    w = {name: brain.engine.w[:, circuit.synapse_index(*name.split("->"))] for name in
-         ("BLACK->PAIN", "RED->PAIN", "GREEN->PAIN", "BLACK->REWARD")}
+    w = {
+        name: brain.engine.w[:, circuit.synapse_index(*name.split("->"))]
+        for name in ("BLACK->PAIN", "RED->PAIN", "GREEN->PAIN", "BLACK->REWARD")
+    }
     assert (w["BLACK->PAIN"] > 5).all() and (w["RED->PAIN"] > 5).all()
     assert (w["GREEN->PAIN"] < 5).all()
     assert (w["BLACK->PAIN"] > w["BLACK->REWARD"]).all()  # black now drives turning, not moving on

@@ -49,6 +49,7 @@ def test_the_compiled_loop_keeps_the_same_noxious_ticks_as_reading_the_pain_sens
         def keep(t, world=world, kept=kept):
             for agent in np.flatnonzero(~np.isnan(world.sensors[:, PAIN])):
                 kept[agent].append(t)
+
         closed_loop(world, brain, 2500, keep)
         runs.append(kept)
     assert runs[0] == runs[1] and all(runs[0])

@@ -18,17 +18,33 @@ from .processes import ROOT
 TICKS = 6000  # the insects collide and learn within it: weights and paths diverge between settings
 
 
-def run_alone(ticks, a_plus=0.02, w_max=15.0, tau_plus=11.0, initial_weight=None, input_gain=1.0, rotation=5.0,
-              move=1.0, numbers=(0, 1), python_loop=False):
+def run_alone(
+    ticks,
+    a_plus=0.02,
+    w_max=15.0,
+    tau_plus=11.0,
+    initial_weight=None,
+    input_gain=1.0,
+    rotation=5.0,
+    move=1.0,
+    numbers=(0, 1),
+    python_loop=False,
+):
     """The old way: one population per setting, the setting in the circuit and the world's params."""
-    circuit = load_circuit("insect").with_learning_params(a_plus=a_plus, a_minus=a_plus, w_max=w_max,
-                                                          tau_plus=tau_plus)
+    circuit = load_circuit("insect").with_learning_params(a_plus=a_plus, a_minus=a_plus, w_max=w_max, tau_plus=tau_plus)
     n_net = len(circuit.synapses) - len(circuit.inputs)
     sensed = {n_net + k for k in circuit.sensors.values()}  # not the pacemaker's kick
-    circuit = dataclasses.replace(circuit, synapses=tuple(
-        dataclasses.replace(s, weight=initial_weight) if s.plastic and initial_weight is not None
-        else dataclasses.replace(s, weight=s.weight * input_gain) if k in sensed else s
-        for k, s in enumerate(circuit.synapses)))
+    circuit = dataclasses.replace(
+        circuit,
+        synapses=tuple(
+            dataclasses.replace(s, weight=initial_weight)
+            if s.plastic and initial_weight is not None
+            else dataclasses.replace(s, weight=s.weight * input_gain)
+            if k in sensed
+            else s
+            for k, s in enumerate(circuit.synapses)
+        ),
+    )
     world = World(params_for("paper", rotation_step=rotation, move_step=move), agents=2, seed=0, numbers=numbers)
     brain = brain_for(world, circuit)
     closed_loop(world, brain, ticks, (lambda t: None) if python_loop else None)
@@ -36,16 +52,23 @@ def run_alone(ticks, a_plus=0.02, w_max=15.0, tau_plus=11.0, initial_weight=None
 
 
 SETTINGS = [  # each row: one setting a study might vary; the population holds them all
-    dict(a_plus=0.02), dict(a_plus=0.04), dict(w_max=5.5), dict(tau_plus=20.0), dict(initial_weight=3.0),
-    dict(input_gain=0.6), dict(rotation=8.0), dict(move=0.6),
+    dict(a_plus=0.02),
+    dict(a_plus=0.04),
+    dict(w_max=5.5),
+    dict(tau_plus=20.0),
+    dict(initial_weight=3.0),
+    dict(input_gain=0.6),
+    dict(rotation=8.0),
+    dict(move=0.6),
 ]
 COLUMN = {"rotation": "rotation_step", "move": "move_step"}
 
 
 def test_a_population_of_settings_runs_each_insect_as_it_runs_alone():
     names = sorted({k for s in SETTINGS for k in s})
-    defaults = dict(a_plus=0.02, w_max=15.0, tau_plus=11.0, initial_weight=np.nan, input_gain=1.0, rotation=5.0,
-                    move=1.0)
+    defaults = dict(
+        a_plus=0.02, w_max=15.0, tau_plus=11.0, initial_weight=np.nan, input_gain=1.0, rotation=5.0, move=1.0
+    )
     rows = [{**defaults, **s} for s in SETTINGS]
     columns = {COLUMN.get(k, k): np.repeat([r[k] for r in rows], 2) for k in names}
     columns["a_minus"] = columns["a_plus"]
@@ -53,11 +76,13 @@ def test_a_population_of_settings_runs_each_insect_as_it_runs_alone():
     circuit = load_circuit("insect")
     plastic = circuit.plastic_synapses
     # an agent without an initial weight of its own keeps the circuit's: its first plastic weight
-    columns["initial_weight"] = np.where(np.isnan(columns["initial_weight"]), circuit.synapses[plastic[0]].weight,
-                                         columns["initial_weight"])
+    columns["initial_weight"] = np.where(
+        np.isnan(columns["initial_weight"]), circuit.synapses[plastic[0]].weight, columns["initial_weight"]
+    )
     assert len({circuit.synapses[k].weight for k in plastic}) == 1  # so that holds for every plastic synapse
-    world = World(params_for("paper"), agents=2 * len(rows), seed=0, numbers=np.tile([0, 1], len(rows)),
-                  agent_params=world_cols)
+    world = World(
+        params_for("paper"), agents=2 * len(rows), seed=0, numbers=np.tile([0, 1], len(rows)), agent_params=world_cols
+    )
     brain = brain_for(world, circuit, params=columns)
     closed_loop(world, brain, TICKS)
     finals = brain.engine.get_weights().reshape(len(rows), 2, -1)
@@ -88,8 +113,9 @@ def test_the_fused_loop_is_the_tick_by_tick_loop(semantics):
     np.testing.assert_array_equal(fused.pos, stepped.pos)
     np.testing.assert_array_equal(fused.grid, stepped.grid)  # food eaten
     for f in dataclasses.fields(fused.metrics):
-        np.testing.assert_array_equal(np.array(getattr(fused.metrics, f.name)),
-                                      np.array(getattr(stepped.metrics, f.name)), err_msg=f.name)
+        np.testing.assert_array_equal(
+            np.array(getattr(fused.metrics, f.name)), np.array(getattr(stepped.metrics, f.name)), err_msg=f.name
+        )
     np.testing.assert_array_equal(fused_brain.actions, stepped_brain.actions)
 
 
@@ -104,22 +130,26 @@ def test_evaluate_gives_metrics_per_setting_and_seed_as_the_insects_alone():
         np.testing.assert_array_equal(result["collisions"][k], alone.metrics.collisions)
         np.testing.assert_array_equal(result["food"][k], alone.metrics.food)
         np.testing.assert_array_equal(result["learning_time"][k], alone.metrics.learned_at)
-        last = np.array(alone.metrics.bins)[-(TICKS // 1000 // 4 or 1):].sum(axis=0)
+        last = np.array(alone.metrics.bins)[-(TICKS // 1000 // 4 or 1) :].sum(axis=0)
         np.testing.assert_array_equal(result["collisions_last_quarter"][k], last)
 
 
-@pytest.mark.parametrize("params, problem", [
-    ({"a_plsu": 0.02}, "unknown per-agent parameter"),
-    ({"w_max": [10.0, 12.0, 14.0]}, "w_max: (3,) values for 2 agents"),
-    ({"tau_plus": [11.0, 0.0]}, "tau_plus: agent 1 has 0.0, it must be a finite number > 0"),
-    ({"a_plus": [0.02, np.nan]}, "a_plus: agent 1 has nan"),
-    ({"w_max": [15.0, 4.0]}, "out of range [1.0, 4.0]"),  # below the circuit's initial plastic weights
-    ({"move_step": 0.5}, "per-agent parameter move_step is the world's, not the brain's"),
-])
+@pytest.mark.parametrize(
+    "params, problem",
+    [
+        ({"a_plsu": 0.02}, "unknown per-agent parameter"),
+        ({"w_max": [10.0, 12.0, 14.0]}, "w_max: (3,) values for 2 agents"),
+        ({"tau_plus": [11.0, 0.0]}, "tau_plus: agent 1 has 0.0, it must be a finite number > 0"),
+        ({"a_plus": [0.02, np.nan]}, "a_plus: agent 1 has nan"),
+        ({"w_max": [15.0, 4.0]}, "out of range [1.0, 4.0]"),  # below the circuit's initial plastic weights
+        ({"move_step": 0.5}, "per-agent parameter move_step is the world's, not the brain's"),
+    ],
+)
 def test_a_wrong_column_is_refused_naming_it(params, problem):
     world = World(agents=2)
-    with pytest.raises(ValueError, match=problem.replace("(", r"\(").replace(")", r"\)").replace("[", r"\[")
-                       .replace("]", r"\]")):
+    with pytest.raises(
+        ValueError, match=problem.replace("(", r"\(").replace(")", r"\)").replace("[", r"\[").replace("]", r"\]")
+    ):
         brain_for(world, load_circuit("insect"), params=params)
 
 
@@ -130,8 +160,24 @@ def test_every_column_is_documented():
 
 
 def test_the_optimiser_example_runs_and_prints_the_best():
-    done = subprocess.run([sys.executable, ROOT / "examples" / "optimise.py", "--generations", "2", "--ticks", "3000",
-                           "--seeds", "2", "--population", "4"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        [
+            sys.executable,
+            ROOT / "examples" / "optimise.py",
+            "--generations",
+            "2",
+            "--ticks",
+            "3000",
+            "--seeds",
+            "2",
+            "--population",
+            "4",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stderr
     lines = done.stdout.splitlines()
     assert sum(line.startswith("generation") for line in lines) == 2

@@ -17,12 +17,15 @@ from .processes import ROOT, running_with
 
 
 def spikinglab(*args, timeout=180):
-    return subprocess.run([sys.executable, "-m", "spikinglab", *map(str, args)], cwd=ROOT, capture_output=True,
-                          text=True, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "spikinglab", *map(str, args)], cwd=ROOT, capture_output=True, text=True, timeout=timeout
+    )
 
 
 def test_run_writes_summary_plot_and_weights(tmp_path):
-    done = spikinglab("run", "--ticks", 3000, "--seed", 4, "--a-plus", 0.04, "--runs", tmp_path, "--id", "r1", "--quiet")
+    done = spikinglab(
+        "run", "--ticks", 3000, "--seed", 4, "--a-plus", 0.04, "--runs", tmp_path, "--id", "r1", "--quiet"
+    )
     assert done.returncode == 0, done.stderr
     folder = tmp_path / "r1"
     summary = json.loads((folder / "summary.json").read_text())
@@ -43,8 +46,21 @@ def test_per_agent_parameters_from_a_file_reach_world_and_brain(tmp_path):
     file is kept in the run folder and its columns are in the summary."""
     study = tmp_path / "study.csv"
     study.write_text("# two insects\na_plus,a_minus,move_step\n0.04,0.04,1\n0,0,0.5\n")
-    done = spikinglab("run", "--ticks", 3000, "--agents", 2, "--params", study, "--runs", tmp_path, "--id", "p",
-                      "--no-record", "--quiet")
+    done = spikinglab(
+        "run",
+        "--ticks",
+        3000,
+        "--agents",
+        2,
+        "--params",
+        study,
+        "--runs",
+        tmp_path,
+        "--id",
+        "p",
+        "--no-record",
+        "--quiet",
+    )
     assert done.returncode == 0, done.stderr
     folder = tmp_path / "p"
     per_agent = json.loads((folder / "summary.json").read_text())["parameters"]["per_agent"]
@@ -59,12 +75,25 @@ def test_per_agent_parameters_from_a_file_reach_world_and_brain(tmp_path):
 
 
 def test_a_trained_insect_runs_with_training_off(tmp_path):
-    assert spikinglab("run", "--ticks", 2000, "--runs", tmp_path, "--id", "train", "--a-plus", 0.08,
-                      "--quiet").returncode == 0
+    assert (
+        spikinglab("run", "--ticks", 2000, "--runs", tmp_path, "--id", "train", "--a-plus", 0.08, "--quiet").returncode
+        == 0
+    )
     trained = load_weights(tmp_path / "train" / "weights.npz", load_circuit("insect"))
     assert not np.array_equal(trained, load_weights_initial())
-    done = spikinglab("run", "--ticks", 2000, "--runs", tmp_path, "--id", "test", "--no-training",
-                      "--load", tmp_path / "train" / "weights.npz", "--quiet")
+    done = spikinglab(
+        "run",
+        "--ticks",
+        2000,
+        "--runs",
+        tmp_path,
+        "--id",
+        "test",
+        "--no-training",
+        "--load",
+        tmp_path / "train" / "weights.npz",
+        "--quiet",
+    )
     assert done.returncode == 0, done.stderr
     np.testing.assert_array_equal(load_weights(tmp_path / "test" / "weights.npz", load_circuit("insect")), trained)
 
@@ -92,9 +121,15 @@ def test_benchmarks_run_and_end_with_json():
     done = spikinglab("bench", "engine", "--ticks", 2000, "--batch-ticks", 20, "--repeats", 1, "--rounds", 2)
     assert done.returncode == 0, done.stderr
     figures = json.loads(done.stdout.strip().splitlines()[-1])
-    assert set(figures) == {"single_ticks_per_s", "single_run_ticks_per_s", "batch1000_agent_ticks_per_s",
-                            "netlogo_single_ticks_per_s", "netlogo_single_run_ticks_per_s",
-                            "netlogo_batch1000_agent_ticks_per_s", "netlogo_over_phased_batch1000_median"}
+    assert set(figures) == {
+        "single_ticks_per_s",
+        "single_run_ticks_per_s",
+        "batch1000_agent_ticks_per_s",
+        "netlogo_single_ticks_per_s",
+        "netlogo_single_run_ticks_per_s",
+        "netlogo_batch1000_agent_ticks_per_s",
+        "netlogo_over_phased_batch1000_median",
+    }
     assert all(v > 0 for v in figures.values())
     assert spikinglab("bench", "nothing").returncode != 0
     fuzz = spikinglab("bench", "fuzz", "--examples", 10)
@@ -111,8 +146,13 @@ def test_benchmarks_run_and_end_with_json():
 
 
 def start_run(tmp_path, *args):
-    return subprocess.Popen([sys.executable, "-m", "spikinglab", "run", "--runs", tmp_path, "--id", "r", "--quiet",
-                             *map(str, args)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        [sys.executable, "-m", "spikinglab", "run", "--runs", tmp_path, "--id", "r", "--quiet", *map(str, args)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 def wait_for_ticks(folder, timeout=60):
@@ -153,8 +193,12 @@ def test_a_dead_service_ends_the_run_and_is_named(tmp_path):
 
 def test_a_run_stopped_in_its_first_thousand_ticks_still_plots(tmp_path):
     from services.run import plot
-    summary = {"collisions_per_1000_ticks": [[]], "learning_time": [None],
-               "parameters": {"a_plus": 0.02, "seed": 0, "learned_after": 5000}}
+
+    summary = {
+        "collisions_per_1000_ticks": [[]],
+        "learning_time": [None],
+        "parameters": {"a_plus": 0.02, "seed": 0, "learned_after": 5000},
+    }
     plot(tmp_path, summary)  # no finished bin yet: an empty plot, not a traceback after Ctrl-C
     assert (tmp_path / "collisions.png").stat().st_size > 0
 
@@ -184,8 +228,9 @@ def test_an_interrupted_run_goes_on_with_resume_and_ends_as_an_uninterrupted_one
     study.write_text("a_plus,a_minus,move_step\n0.01,0.01,1.2\n")  # the run goes on with the values it began with
     resumed = spikinglab("run", "--resume", tmp_path / "r", "--quiet")
     assert resumed.returncode == 0, resumed.stderr
-    got, want = (json.loads((folder / "summary.json").read_text())
-                 for folder in (tmp_path / "r", tmp_path / "whole" / "r"))
+    got, want = (
+        json.loads((folder / "summary.json").read_text()) for folder in (tmp_path / "r", tmp_path / "whole" / "r")
+    )
     assert got["headline"]["resumed_at"] == 4000 and not got["headline"]["partial"]
     for key in ("collisions_per_1000_ticks", "collisions", "food", "learning_time", "all_final_weights"):
         assert got[key] == want[key], key
@@ -196,6 +241,7 @@ def test_an_interrupted_run_goes_on_with_resume_and_ends_as_an_uninterrupted_one
 
 def test_the_replay_line_names_a_viewer_that_exists_from_any_folder(tmp_path, monkeypatch):
     from services.run import viewer_shown
+
     monkeypatch.chdir(tmp_path)  # a user who runs spikinglab outside the checkout (it printed .venv/bin/rerun)
     shown = viewer_shown()
     assert os.path.isfile(shown) and os.access(shown, os.X_OK), shown

@@ -22,17 +22,54 @@ TICKS, SEED, AGENTS = 3000, 3, 7  # 7 agents in 3 shards: slices of 2, 2 and 3
 def test_three_shards_run_bit_for_bit_as_one_brain(tmp_path):
     """With a parameter file of a row per agent, read whole by world and shards: each shard takes
     its slice of the brain's columns."""
-    columns = {"a_plus": 0.01 * (1 + np.arange(AGENTS) % 4), "w_max": 10.0 + np.arange(AGENTS),
-               "move_step": 1 - 0.05 * np.arange(AGENTS)}
+    columns = {
+        "a_plus": 0.01 * (1 + np.arange(AGENTS) % 4),
+        "w_max": 10.0 + np.arange(AGENTS),
+        "move_step": 1 - 0.05 * np.arange(AGENTS),
+    }
     study = tmp_path / "study.csv"
     np.savetxt(study, np.column_stack(list(columns.values())), delimiter=",", header=",".join(columns), comments="")
     world_port = free_port()
-    world = start("world", "--group", "sh", "--listen", endpoint(world_port), "--ticks", TICKS, "--seed", SEED,
-                  "--agents", AGENTS, "--shards", 3, "--params", study, "--out", tmp_path, log=tmp_path / "world.log")
-    shards = [start("brain", "--group", "sh", "--connect", endpoint(world_port), "--shard", f"{i}/3", "--once",
-                    "--a-plus", 0.04, "--params", study, "--save", tmp_path / f"weights{i}.npz",
-                    log=tmp_path / f"brain{i}.log")
-              for i in (1, 2, 3)]
+    world = start(
+        "world",
+        "--group",
+        "sh",
+        "--listen",
+        endpoint(world_port),
+        "--ticks",
+        TICKS,
+        "--seed",
+        SEED,
+        "--agents",
+        AGENTS,
+        "--shards",
+        3,
+        "--params",
+        study,
+        "--out",
+        tmp_path,
+        log=tmp_path / "world.log",
+    )
+    shards = [
+        start(
+            "brain",
+            "--group",
+            "sh",
+            "--connect",
+            endpoint(world_port),
+            "--shard",
+            f"{i}/3",
+            "--once",
+            "--a-plus",
+            0.04,
+            "--params",
+            study,
+            "--save",
+            tmp_path / f"weights{i}.npz",
+            log=tmp_path / f"brain{i}.log",
+        )
+        for i in (1, 2, 3)
+    ]
     try:
         assert finish(world, 120, tmp_path / "world.log") == 0
         for i, shard in enumerate(shards, 1):
@@ -62,8 +99,23 @@ def test_three_shards_run_bit_for_bit_as_one_brain(tmp_path):
 def test_a_dead_shard_is_named_and_waited_for(tmp_path):
     world_port = free_port()
     watcher = Watcher([endpoint(world_port)], [keys.world_state("sd")])
-    world = start("world", "--group", "sd", "--listen", endpoint(world_port), "--ticks", 6000, "--agents", 4,
-                  "--shards", 2, "--publish-state", "--out", tmp_path, log=tmp_path / "world.log")
+    world = start(
+        "world",
+        "--group",
+        "sd",
+        "--listen",
+        endpoint(world_port),
+        "--ticks",
+        6000,
+        "--agents",
+        4,
+        "--shards",
+        2,
+        "--publish-state",
+        "--out",
+        tmp_path,
+        log=tmp_path / "world.log",
+    )
     shard = ("--group", "sd", "--connect", endpoint(world_port), "--once")
     first = start("brain", *shard, "--shard", "1/2", log=tmp_path / "brain1.log")
     second = start("brain", *shard, "--shard", "2/2", log=tmp_path / "brain2.log")
@@ -72,8 +124,11 @@ def test_a_dead_shard_is_named_and_waited_for(tmp_path):
         wait_for(lambda: len(ticks_in(states)) > 1000, 60, "the run to pass tick 1000")
         second.kill()
         second.wait()
-        wait_for(lambda: "brain shard 2/2 lost at tick" in (tmp_path / "world.log").read_text(), 10,
-                 "the world to name the dead shard")
+        wait_for(
+            lambda: "brain shard 2/2 lost at tick" in (tmp_path / "world.log").read_text(),
+            10,
+            "the world to name the dead shard",
+        )
         stalled_at = len(ticks_in(states))
         time.sleep(1.5)
         assert len(ticks_in(states)) == stalled_at  # no tick without every shard
@@ -95,20 +150,69 @@ def test_a_dead_shard_is_named_and_waited_for(tmp_path):
 
 
 def test_the_scale_and_loop_benchmarks_print_their_figures():
-    done = subprocess.run([sys.executable, "-m", "spikinglab", "bench", "scale", "--agents", "40", "--shards", "1",
-                           "2", "--ticks", "100"], capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "spikinglab",
+            "bench",
+            "scale",
+            "--agents",
+            "40",
+            "--shards",
+            "1",
+            "2",
+            "--ticks",
+            "100",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stderr
     figures = json.loads(done.stdout.strip().splitlines()[-1])
     assert figures["agents"] == 40 and set(figures["shards"]) == {"1", "2"}
     assert all(v > 0 for v in figures["shards"].values())
-    done = subprocess.run([sys.executable, "-m", "spikinglab", "bench", "loop", *map(str, (
-                           "--ticks", 300, "--agents", 300, "--batch-ticks", 80, "--large-agents", 600,
-                           "--large-ticks", 20, "--repeats", 1))],
-                          capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "spikinglab",
+            "bench",
+            "loop",
+            *map(
+                str,
+                (
+                    "--ticks",
+                    300,
+                    "--agents",
+                    300,
+                    "--batch-ticks",
+                    80,
+                    "--large-agents",
+                    600,
+                    "--large-ticks",
+                    20,
+                    "--repeats",
+                    1,
+                ),
+            ),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stderr
     figures = json.loads(done.stdout.strip().splitlines()[-1])
-    assert set(figures) == {"zenoh_roundtrips_per_s", "inprocess_ticks_per_s", "bus_ticks_per_s",
-                            "engine_batch300_agent_ticks_per_s", "inprocess_batch300_agent_ticks_per_s",
-                            "bus_batch300_agent_ticks_per_s", "inprocess_batch600_agent_ticks_per_s",
-                            "bus_batch600_agent_ticks_per_s", "recording_ticks_per_s"}
+    assert set(figures) == {
+        "zenoh_roundtrips_per_s",
+        "inprocess_ticks_per_s",
+        "bus_ticks_per_s",
+        "engine_batch300_agent_ticks_per_s",
+        "inprocess_batch300_agent_ticks_per_s",
+        "bus_batch300_agent_ticks_per_s",
+        "inprocess_batch600_agent_ticks_per_s",
+        "bus_batch600_agent_ticks_per_s",
+        "recording_ticks_per_s",
+    }
     assert all(v > 0 for v in figures.values())

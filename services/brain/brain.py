@@ -13,8 +13,10 @@ def check_sensors(circuit: Circuit, sensors) -> None:
     """ValueError unless every sensor the circuit binds is among `sensors` (what the world publishes)."""
     unknown = sorted(set(circuit.sensors) - set(sensors))
     if unknown:
-        raise ValueError(f"circuit {circuit.name!r} binds sensors {unknown} that the world does not "
-                         f"publish (it publishes {list(sensors)})")
+        raise ValueError(
+            f"circuit {circuit.name!r} binds sensors {unknown} that the world does not "
+            f"publish (it publishes {list(sensors)})"
+        )
 
 
 class Brain:
@@ -22,8 +24,15 @@ class Brain:
     the engine, and reports which actions fired. Sensors the circuit does not bind are ignored;
     actions it does not bind never fire."""
 
-    def __init__(self, circuit: Circuit, sensors: tuple[str, ...], actions: tuple[str, ...],
-                 agents: int = 1, training: bool = True, **engine_options):
+    def __init__(
+        self,
+        circuit: Circuit,
+        sensors: tuple[str, ...],
+        actions: tuple[str, ...],
+        agents: int = 1,
+        training: bool = True,
+        **engine_options,
+    ):
         """`engine_options`: the Engine's semantics, order, seed (and without, for ablations)."""
         self.circuit, self.sensor_names, self.action_names = circuit, tuple(sensors), tuple(actions)
         check_sensors(circuit, sensors)
@@ -32,8 +41,9 @@ class Brain:
         self._sensor_cols = np.array([sensors.index(s) for s in bound], dtype=np.int64)
         self._input_cols = np.array(list(bound.values()), dtype=np.int64)
         self._action_cols = np.array([actions.index(a) for a in circuit.actuators if a in actions], dtype=np.int64)
-        self._actuators = np.array([circuit.neuron_index(n) for a, n in circuit.actuators.items() if a in actions],
-                                   dtype=np.int64)
+        self._actuators = np.array(
+            [circuit.neuron_index(n) for a, n in circuit.actuators.items() if a in actions], dtype=np.int64
+        )
         self.feed = np.full((agents, len(circuit.inputs)), np.nan)
         self.actions = np.zeros((agents, len(actions)), dtype=np.uint8)
 

@@ -24,11 +24,14 @@ def load_weights(path: Path, circuit: Circuit) -> np.ndarray:
         with np.load(path) as data:
             weights, labels = data["weights"], [str(x) for x in data["synapses"]]
     except (ValueError, zipfile.BadZipFile, EOFError) as e:  # numpy took it for a pickle: not an .npz at all
-        raise ValueError(f"{path}: not a weights checkpoint (not an .npz archive: truncated, or another kind "
-                         f"of file; {type(e).__name__})") from None
+        raise ValueError(
+            f"{path}: not a weights checkpoint (not an .npz archive: truncated, or another kind "
+            f"of file; {type(e).__name__})"
+        ) from None
     except KeyError:
-        raise ValueError(f"{path}: not a weights checkpoint (an .npz without the arrays weights and synapses that "
-                         "--save writes)") from None
+        raise ValueError(
+            f"{path}: not a weights checkpoint (an .npz without the arrays weights and synapses that --save writes)"
+        ) from None
     except OSError as e:
         raise ValueError(f"{path}: cannot read it ({e.strerror or e})") from None
     expected = [circuit.synapse_label(k) for k in range(len(circuit.synapses))]

@@ -47,8 +47,16 @@ class NeuronType:
 BUILTIN_TYPES = {
     "regular": NeuronType("regular"),
     "pacemaker": NeuronType(
-        "pacemaker", refractory_potential=-70.0, refractory_period=1, floor=-70.0,
-        a_plus=0.09, a_minus=0.09, tau_plus=8.0, tau_minus=15.0, window_neg=-25, window_pos=55,
+        "pacemaker",
+        refractory_potential=-70.0,
+        refractory_period=1,
+        floor=-70.0,
+        a_plus=0.09,
+        a_minus=0.09,
+        tau_plus=8.0,
+        tau_minus=15.0,
+        window_neg=-25,
+        window_pos=55,
     ),
 }
 
@@ -123,7 +131,7 @@ class Circuit:
     def plastic_synapses(self) -> list[int]:
         return [k for k, s in enumerate(self.synapses) if s.plastic]
 
-    def with_learning_rate(self, a_plus: float, a_minus: float | None = None) -> "Circuit":
+    def with_learning_rate(self, a_plus: float, a_minus: float | None = None) -> Circuit:
         """Set A+ (and A-, default = A+) of every neuron type that is the target of a plastic synapse."""
         a_minus = a_plus if a_minus is None else a_minus
         for value, label in ((a_plus, "A+"), (a_minus, "A-")):
@@ -131,7 +139,7 @@ class Circuit:
                 raise CircuitError(f"{self.source}: {label} must be a finite number >= 0, got {value}")
         return self.with_learning_params(a_plus=a_plus, a_minus=a_minus)
 
-    def with_learning_params(self, **fields) -> "Circuit":
+    def with_learning_params(self, **fields) -> Circuit:
         """Set NeuronType fields (w_max, tau_plus, ...) of every neuron that a plastic synapse targets."""
         learning = {self.synapses[k].post for k in self.plastic_synapses}
         types = []
@@ -189,8 +197,13 @@ def build_circuit(doc: dict, source: str = "<built>") -> Circuit:
     synapses = _synapses(read, doc.get("synapses", []), neuron_names, neuron_types, inputs)
     actuators = _actuators(read, doc.get("actuators", {}), neuron_names)
     return Circuit(
-        name=str(doc.get("name", Path(source).stem)), source=source, neuron_names=neuron_names,
-        neuron_types=neuron_types, inputs=inputs, synapses=synapses, actuators=actuators,
+        name=str(doc.get("name", Path(source).stem)),
+        source=source,
+        neuron_names=neuron_names,
+        neuron_types=neuron_types,
+        inputs=inputs,
+        synapses=synapses,
+        actuators=actuators,
     )
 
 
@@ -231,8 +244,11 @@ def _neuron_types(read: _Reader, tables: dict) -> dict[str, NeuronType]:
         base_name = table.get("base", "regular")
         if base_name not in types:
             read.fail(entry, f"unknown base type {base_name!r} (known: {', '.join(types)})")
-        values = {key: read.number(entry, key, value, integer=_TYPE_FIELDS[key] == "int")
-                  for key, value in table.items() if key != "base"}
+        values = {
+            key: read.number(entry, key, value, integer=_TYPE_FIELDS[key] == "int")
+            for key, value in table.items()
+            if key != "base"
+        }
         t = dataclasses.replace(types[base_name], name=tname, **values)
         _check_type(t, lambda p, entry=entry: read.fail(entry, p))
         types[tname] = t
@@ -242,7 +258,7 @@ def _neuron_types(read: _Reader, tables: dict) -> dict[str, NeuronType]:
 def _neurons(read: _Reader, neurons, types: dict) -> tuple[tuple[str, ...], tuple[NeuronType, ...]]:
     """[neurons]: NAME = "type", in file order (the order is the neurons' index)."""
     if not isinstance(neurons, dict) or not neurons:
-        read.fail("neurons", "a circuit needs a [neurons] table with at least one neuron (NAME = \"type\")")
+        read.fail("neurons", 'a circuit needs a [neurons] table with at least one neuron (NAME = "type")')
     for nname, tname in neurons.items():
         if not isinstance(tname, str) or tname not in types:
             read.fail(f"neurons.{nname}", f"unknown neuron type {tname!r} (known: {', '.join(types)})")
@@ -262,7 +278,8 @@ def _inputs(read: _Reader, tables: dict, neuron_names: tuple[str, ...]) -> tuple
         if target not in neuron_names:
             read.fail(entry, f"unknown target neuron {target!r}")
         inp = InputNeuron(
-            name=iname, target=target,
+            name=iname,
+            target=target,
             weight=read.number(entry, "weight", table.get("weight", 20.0)),
             delay=read.number(entry, "delay", table.get("delay", 0), integer=True),
             pulses=read.number(entry, "pulses", table.get("pulses", 1), integer=True),
@@ -287,8 +304,13 @@ def _inputs(read: _Reader, tables: dict, neuron_names: tuple[str, ...]) -> tuple
     return tuple(inputs)
 
 
-def _synapses(read: _Reader, raw, neuron_names: tuple[str, ...], neuron_types: tuple[NeuronType, ...],
-              inputs: tuple[InputNeuron, ...]) -> tuple[Synapse, ...]:
+def _synapses(
+    read: _Reader,
+    raw,
+    neuron_names: tuple[str, ...],
+    neuron_types: tuple[NeuronType, ...],
+    inputs: tuple[InputNeuron, ...],
+) -> tuple[Synapse, ...]:
     """[[synapses]] between neurons (from/to: a name or a list of names, all pairs), then one
     synapse per input neuron to its target."""
     if not isinstance(raw, list):
@@ -320,7 +342,11 @@ def _synapses(read: _Reader, raw, neuron_names: tuple[str, ...], neuron_types: t
             for post in posts:
                 label = f"{entry} ({pre} -> {post})"
                 if pre not in neuron_names:
-                    what = "an input neuron (inputs have one synapse, to their target)" if pre in index else "unknown neuron"
+                    what = (
+                        "an input neuron (inputs have one synapse, to their target)"
+                        if pre in index
+                        else "unknown neuron"
+                    )
                     read.fail(label, f"from: {what} {pre!r}")
                 if post not in neuron_names:
                     read.fail(label, f"to: unknown neuron {post!r}")

@@ -57,10 +57,12 @@ def raster(circuit, weights: np.ndarray, events: dict[int, dict[str, float]], ti
     return np.array([probe.step(feeds.get(t))[0].copy() for t in range(ticks)])
 
 
-def plot_rasters(path: Path, title: str, circuit, before: np.ndarray, after: np.ndarray, schedule: dict,
-                 probe: str) -> None:
+def plot_rasters(
+    path: Path, title: str, circuit, before: np.ndarray, after: np.ndarray, schedule: dict, probe: str
+) -> None:
     """Two rasters side by side: a paired trial, then `probe` alone, with the weights before and after."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -70,8 +72,12 @@ def plot_rasters(path: Path, title: str, circuit, before: np.ndarray, after: np.
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.2), dpi=110, sharey=True)
     for ax, weights, label in ((axes[0], before, "before pairing"), (axes[1], after, "after pairing")):
         spikes = raster(circuit, weights, events, 110)
-        ax.eventplot([np.flatnonzero(spikes[:, k]) for k in range(len(names))], lineoffsets=range(len(names)),
-                     linelengths=0.7, colors="k")
+        ax.eventplot(
+            [np.flatnonzero(spikes[:, k]) for k in range(len(names))],
+            lineoffsets=range(len(names)),
+            linelengths=0.7,
+            colors="k",
+        )
         ax.axvspan(8, 30, color="tab:blue", alpha=0.08)
         ax.axvspan(68, 90, color="tab:orange", alpha=0.12)
         ax.set(title=f"{label}: paired trial | {probe} alone", xlabel="tick", xlim=(0, 110))
@@ -98,21 +104,35 @@ def main(argv=None) -> None:
         initial = engine.get_weights()[0]
         history = train(engine, schedule, args.trials)
         if figure:
-            plot_rasters(out / figure, f"{title}: {circuit.name} ({args.trials} pairings, A+ = A- = {args.a_plus})",
-                         circuit, initial, history[-1], schedule, watch[0][0])
+            plot_rasters(
+                out / figure,
+                f"{title}: {circuit.name} ({args.trials} pairings, A+ = A- = {args.a_plus})",
+                circuit,
+                initial,
+                history[-1],
+                schedule,
+                watch[0][0],
+            )
         print(f"\n{title}  ({circuit.source}; trial schedule {schedule}, {args.trials} trials)")
         for stim, tgt in watch:
             syn = circuit.synapse_index(stim.removesuffix("_in").upper(), tgt)
             marks = [history[k][syn] for k in range(0, args.trials, max(1, args.trials // 8))]
             after = responds(engine, stim, tgt)
-            print(f"  {circuit.synapse_label(syn):8s} weight 5.00 -> {history[-1][syn]:5.2f}  "
-                  f"({' '.join(f'{m:.1f}' for m in marks)})   {stim} alone fires {tgt}: "
-                  f"before {'yes' if before[(stim, tgt)] else 'no'}, after {'yes' if after else 'no'}")
+            print(
+                f"  {circuit.synapse_label(syn):8s} weight 5.00 -> {history[-1][syn]:5.2f}  "
+                f"({' '.join(f'{m:.1f}' for m in marks)})   {stim} alone fires {tgt}: "
+                f"before {'yes' if before[(stim, tgt)] else 'no'}, after {'yes' if after else 'no'}"
+            )
 
     show("fig. 2, C paired 2 ticks before U", "conditioning", {"c_in": 0, "u_in": 2}, [("c_in", "M")], "fig2.png")
     show("fig. 2, reverse order: U 2 ticks before C", "conditioning", {"u_in": 0, "c_in": 2}, [("c_in", "M")])
-    show("fig. 4, A before U, B after", "association", {"a_in": 0, "u_in": 2, "b_in": 6},
-         [("a_in", "M"), ("b_in", "M")], "fig4.png")
+    show(
+        "fig. 4, A before U, B after",
+        "association",
+        {"a_in": 0, "u_in": 2, "b_in": 6},
+        [("a_in", "M"), ("b_in", "M")],
+        "fig4.png",
+    )
     print(f"\nspike rasters before and after pairing: {out}/fig2.png, {out}/fig4.png")
 
 

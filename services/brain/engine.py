@@ -198,16 +198,66 @@ def _step_range(lo, hi, feed, clock, syn, npar, lrn, inpar, v, w, state, last_sp
 
 
 @njit(cache=True)
-def _step_serial(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
-                 out_start, out_syn, order_key, rules):
-    _step_range(np.uint64(0), np.uint64(v.shape[1]), feed, clock, syn, npar, lrn, inpar, v, w, state,
-                last_spike, hist, ring, spiked)
+def _step_serial(
+    feed,
+    clock,
+    syn,
+    npar,
+    lrn,
+    inpar,
+    v,
+    w,
+    state,
+    last_spike,
+    hist,
+    ring,
+    spiked,
+    out_start,
+    out_syn,
+    order_key,
+    rules,
+):
+    _step_range(
+        np.uint64(0),
+        np.uint64(v.shape[1]),
+        feed,
+        clock,
+        syn,
+        npar,
+        lrn,
+        inpar,
+        v,
+        w,
+        state,
+        last_spike,
+        hist,
+        ring,
+        spiked,
+    )
     clock[TICK] += 1
 
 
 @njit(cache=True, parallel=True)
-def _step_parallel(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
-                   out_start, out_syn, order_key, rules, chunks):
+def _step_parallel(
+    feed,
+    clock,
+    syn,
+    npar,
+    lrn,
+    inpar,
+    v,
+    w,
+    state,
+    last_spike,
+    hist,
+    ring,
+    spiked,
+    out_start,
+    out_syn,
+    order_key,
+    rules,
+    chunks,
+):
     agents = v.shape[1]
     for c in prange(chunks):  # one contiguous block of agents per thread
         lo, hi = np.uint64(c * agents // chunks), np.uint64((c + 1) * agents // chunks)
@@ -271,8 +321,27 @@ def _netlogo_receive(a, t, s, training, rules, syn, npar, lrn, v, w, state, last
 
 
 @njit(cache=True, inline="always")
-def _netlogo_range(lo, hi, feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
-                   out_start, out_syn, order_key, rules):
+def _netlogo_range(
+    lo,
+    hi,
+    feed,
+    clock,
+    syn,
+    npar,
+    lrn,
+    inpar,
+    v,
+    w,
+    state,
+    last_spike,
+    hist,
+    ring,
+    spiked,
+    out_start,
+    out_syn,
+    order_key,
+    rules,
+):
     """One NetLogo tick for agents lo..hi-1: each agent is a sequence of turns (no vector loop)."""
     t = clock[TICK]
     training = clock[TRAINING] != 0
@@ -334,44 +403,206 @@ def _netlogo_range(lo, hi, feed, clock, syn, npar, lrn, inpar, v, w, state, last
 
 
 @njit(cache=True)
-def _netlogo_serial(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
-                    out_start, out_syn, order_key, rules):
-    _netlogo_range(np.uint64(0), np.uint64(v.shape[1]), feed, clock, syn, npar, lrn, inpar, v, w, state,
-                   last_spike, hist, ring, spiked, out_start, out_syn, order_key, rules)
+def _netlogo_serial(
+    feed,
+    clock,
+    syn,
+    npar,
+    lrn,
+    inpar,
+    v,
+    w,
+    state,
+    last_spike,
+    hist,
+    ring,
+    spiked,
+    out_start,
+    out_syn,
+    order_key,
+    rules,
+):
+    _netlogo_range(
+        np.uint64(0),
+        np.uint64(v.shape[1]),
+        feed,
+        clock,
+        syn,
+        npar,
+        lrn,
+        inpar,
+        v,
+        w,
+        state,
+        last_spike,
+        hist,
+        ring,
+        spiked,
+        out_start,
+        out_syn,
+        order_key,
+        rules,
+    )
     clock[TICK] += 1
 
 
 @njit(cache=True, parallel=True)
-def _netlogo_parallel(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
-                      out_start, out_syn, order_key, rules, chunks):
+def _netlogo_parallel(
+    feed,
+    clock,
+    syn,
+    npar,
+    lrn,
+    inpar,
+    v,
+    w,
+    state,
+    last_spike,
+    hist,
+    ring,
+    spiked,
+    out_start,
+    out_syn,
+    order_key,
+    rules,
+    chunks,
+):
     agents = v.shape[1]
     for c in prange(chunks):
         lo, hi = np.uint64(c * agents // chunks), np.uint64((c + 1) * agents // chunks)
-        _netlogo_range(lo, hi, feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
-                       out_start, out_syn, order_key, rules)
+        _netlogo_range(
+            lo,
+            hi,
+            feed,
+            clock,
+            syn,
+            npar,
+            lrn,
+            inpar,
+            v,
+            w,
+            state,
+            last_spike,
+            hist,
+            ring,
+            spiked,
+            out_start,
+            out_syn,
+            order_key,
+            rules,
+        )
     clock[TICK] += 1
 
 
 @njit(cache=True, inline="always")
-def serial_tick(netlogo, feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
-                out_start, out_syn, order_key, rules):
+def serial_tick(
+    netlogo,
+    feed,
+    clock,
+    syn,
+    npar,
+    lrn,
+    inpar,
+    v,
+    w,
+    state,
+    last_spike,
+    hist,
+    ring,
+    spiked,
+    out_start,
+    out_syn,
+    order_key,
+    rules,
+):
     """One tick of either semantics on one thread, for compiled loops of many ticks (Engine.run,
     services.loop's fused loop); the arguments after the feed are Engine.serial_args."""
     if netlogo:
-        _netlogo_serial(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
-                        out_start, out_syn, order_key, rules)
+        _netlogo_serial(
+            feed,
+            clock,
+            syn,
+            npar,
+            lrn,
+            inpar,
+            v,
+            w,
+            state,
+            last_spike,
+            hist,
+            ring,
+            spiked,
+            out_start,
+            out_syn,
+            order_key,
+            rules,
+        )
     else:
-        _step_serial(feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
-                     out_start, out_syn, order_key, rules)
+        _step_serial(
+            feed,
+            clock,
+            syn,
+            npar,
+            lrn,
+            inpar,
+            v,
+            w,
+            state,
+            last_spike,
+            hist,
+            ring,
+            spiked,
+            out_start,
+            out_syn,
+            order_key,
+            rules,
+        )
 
 
 @njit(cache=True)
-def _run_serial(feeds, netlogo, out, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
-                out_start, out_syn, order_key, rules):
+def _run_serial(
+    feeds,
+    netlogo,
+    out,
+    clock,
+    syn,
+    npar,
+    lrn,
+    inpar,
+    v,
+    w,
+    state,
+    last_spike,
+    hist,
+    ring,
+    spiked,
+    out_start,
+    out_syn,
+    order_key,
+    rules,
+):
     """Engine.run's ticks in one call: feeds [T, A, inputs] -> out [T, A, nodes]."""
     for k in range(feeds.shape[0]):
-        serial_tick(netlogo, feeds[k], clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked,
-                    out_start, out_syn, order_key, rules)
+        serial_tick(
+            netlogo,
+            feeds[k],
+            clock,
+            syn,
+            npar,
+            lrn,
+            inpar,
+            v,
+            w,
+            state,
+            last_spike,
+            hist,
+            ring,
+            spiked,
+            out_start,
+            out_syn,
+            order_key,
+            rules,
+        )
         for a in range(spiked.shape[1]):
             for n in range(spiked.shape[0]):
                 out[k, a, n] = spiked[n, a] != 0
@@ -395,8 +626,17 @@ class Engine:
     values share one STDP table.
     """
 
-    def __init__(self, circuit: Circuit, agents: int = 1, training: bool = True, semantics: str = DEFAULT_SEMANTICS,
-                 order: str = "random", seed=0, without: tuple[str, ...] = (), params=None):
+    def __init__(
+        self,
+        circuit: Circuit,
+        agents: int = 1,
+        training: bool = True,
+        semantics: str = DEFAULT_SEMANTICS,
+        order: str = "random",
+        seed=0,
+        without: tuple[str, ...] = (),
+        params=None,
+    ):
         if agents < 1:
             raise ValueError(f"agents must be >= 1, got {agents}")
         if semantics not in SEMANTICS:
@@ -407,8 +647,10 @@ class Engine:
         self.agents = agents
         unknown = sorted(set(without) - set(NETLOGO_RULES))
         if unknown or (without and semantics != "netlogo"):
-            raise ValueError(f"without: NetLogo rules are {', '.join(NETLOGO_RULES)} (netlogo semantics only), "
-                             f"got {', '.join(without)}")
+            raise ValueError(
+                f"without: NetLogo rules are {', '.join(NETLOGO_RULES)} (netlogo semantics only), "
+                f"got {', '.join(without)}"
+            )
         self.semantics, self.order, self.without = semantics, order, tuple(without)
         self.seeds = seed + np.arange(agents, dtype=np.int64) if np.ndim(seed) == 0 else np.asarray(seed, np.int64)
         if self.seeds.shape != (agents,):
@@ -420,8 +662,9 @@ class Engine:
             dtype=np.int64,
         ).reshape(self.n_synapses, 4)
         _, offset = stdp_table(c.neuron_types)
-        self.npar = np.array([[getattr(t, name) for name in NEURON_COLUMNS] + [offset] for t in c.neuron_types],
-                             dtype=np.float64)
+        self.npar = np.array(
+            [[getattr(t, name) for name in NEURON_COLUMNS] + [offset] for t in c.neuron_types], dtype=np.float64
+        )
         self.inpar = np.array(
             [[i.pulses, np.nan if i.at_start is None else i.at_start] for i in c.inputs], dtype=np.float64
         ).reshape(self.n_inputs, 2)
@@ -447,8 +690,20 @@ class Engine:
         self.v = self._v.T  # [A, neurons] membrane potentials
         self.w = self._w.T  # [A, synapses] weights
         self.spiked = self._spiked.view(np.bool_).T  # [A, nodes] who spiked in the last tick
-        self._args = (self.clock, self.syn, self.npar, self.lrn, self.inpar, self._v, self._w,
-                      self.state, self.last_spike, self.hist, self.ring, self._spiked)
+        self._args = (
+            self.clock,
+            self.syn,
+            self.npar,
+            self.lrn,
+            self.inpar,
+            self._v,
+            self._w,
+            self.state,
+            self.last_spike,
+            self.hist,
+            self.ring,
+            self._spiked,
+        )
         serial, parallel = _step_serial, _step_parallel
         if semantics == "netlogo":  # each neuron's outgoing synapses, for its turn
             pre = self.syn[: S - I, PRE]
@@ -501,8 +756,13 @@ class Engine:
         """
         if feed is None:
             feed = self.no_feed
-        elif (type(feed) is not np.ndarray or feed.dtype != np.float64 or feed.shape != self.no_feed.shape
-              or not feed.flags.c_contiguous or not feed.flags.writeable):
+        elif (
+            type(feed) is not np.ndarray
+            or feed.dtype != np.float64
+            or feed.shape != self.no_feed.shape
+            or not feed.flags.c_contiguous
+            or not feed.flags.writeable
+        ):
             feed = self._checked_feed(feed)
         self._call(feed, *self._args)
         return self.spiked
@@ -523,8 +783,16 @@ class Engine:
         copy_into(self._state_arrays(), arrays, "engine snapshot")
 
     def _state_arrays(self) -> dict[str, np.ndarray]:
-        return {"clock": self.clock, "v": self._v, "w": self._w, "state": self.state, "last_spike": self.last_spike,
-                "hist": self.hist, "ring": self.ring, "spiked": self._spiked}
+        return {
+            "clock": self.clock,
+            "v": self._v,
+            "w": self._w,
+            "state": self.state,
+            "last_spike": self.last_spike,
+            "hist": self.hist,
+            "ring": self.ring,
+            "spiked": self._spiked,
+        }
 
     def get_weights(self) -> np.ndarray:
         """A copy of all synapse weights, [A, synapses] (checkpoints)."""
@@ -532,8 +800,11 @@ class Engine:
 
     def set_weights(self, weights) -> None:
         """Replace all weights ([synapses] for every agent, or [A, synapses]); plastic ones must be in range."""
-        weights = np.broadcast_to(np.asarray(weights, dtype=np.float64), self.w.shape) if np.ndim(weights) == 1 \
+        weights = (
+            np.broadcast_to(np.asarray(weights, dtype=np.float64), self.w.shape)
+            if np.ndim(weights) == 1
             else np.asarray(weights, dtype=np.float64)
+        )
         if weights.shape != self.w.shape:
             raise ValueError(f"weights must have shape {self.w.shape} or ({self.n_synapses},), got {weights.shape}")
         if not np.all(np.isfinite(weights)) or np.any(weights <= 0):
@@ -546,8 +817,10 @@ class Engine:
         bad = plastic & ((weights < lo) | (weights > hi))
         if bad.any():
             a, k = (int(i[0]) for i in np.nonzero(bad))
-            raise ValueError(f"weight of plastic synapse {self.circuit.synapse_label(k)} of agent {a} outside "
-                             f"[{lo[a, k]}, {hi[a, k]}]")
+            raise ValueError(
+                f"weight of plastic synapse {self.circuit.synapse_label(k)} of agent {a} outside "
+                f"[{lo[a, k]}, {hi[a, k]}]"
+            )
         self.w[:] = weights
 
     def run(self, feeds: np.ndarray) -> np.ndarray:
@@ -570,8 +843,9 @@ def _variant(circuit: Circuit, values: dict) -> Circuit:
     """The circuit with one agent's learning values: initial weight first (the w_max check is on it)."""
     if "initial_weight" in values:
         w = values["initial_weight"]
-        circuit = dataclasses.replace(circuit, synapses=tuple(
-            dataclasses.replace(s, weight=w) if s.plastic else s for s in circuit.synapses))
+        circuit = dataclasses.replace(
+            circuit, synapses=tuple(dataclasses.replace(s, weight=w) if s.plastic else s for s in circuit.synapses)
+        )
     fields = {k: v for k, v in values.items() if k in LEARNING_FIELDS}
     return circuit.with_learning_params(**fields) if fields else circuit
 
@@ -592,8 +866,7 @@ def learning_tables(circuit: Circuit, params: dict, agents: int) -> tuple:
     for row in settings:
         types = _variant(circuit, {k: float(v) for k, v in zip(names, row)}).neuron_types
         table, _ = stdp_table(types)
-        tables.append(np.column_stack([[types[n].w_min for n in first], [types[n].w_max for n in first],
-                                       table[first]]))
+        tables.append(np.column_stack([[types[n].w_min for n in first], [types[n].w_max for n in first], table[first]]))
     return np.ascontiguousarray(np.stack(tables)), group.reshape(agents).astype(np.int64), profile
 
 

@@ -42,53 +42,97 @@ CATCH_UP_S = 0.05  # free-running: a clock this far behind skips ahead instead o
 
 def parser() -> argparse.ArgumentParser:
     p = Parser(prog="spikinglab brain", description="The spiking-network brain, on the bus.")
-    p.add_argument("--circuit", default="insect", help="circuit name in services/brain/circuits/ or a .toml path (default insect)")
+    p.add_argument(
+        "--circuit", default="insect", help="circuit name in services/brain/circuits/ or a .toml path (default insect)"
+    )
     p.add_argument("--a-plus", type=number, help="A+ = A- of the learning neurons (default: the circuit's)")
     p.add_argument("--no-training", action="store_true", help="weights stay as they are")
-    p.add_argument("--params", type=Path, metavar="FILE.csv",
-                   help="per-agent parameters: a CSV file with a header of names (a_plus, a_minus, tau_plus, "
-                        "tau_minus, w_max, initial_weight, input_gain; the world's go to the world) and a row per "
-                        "agent of the whole population, or one row for all (docs/api.md); a shard takes its slice")
+    p.add_argument(
+        "--params",
+        type=Path,
+        metavar="FILE.csv",
+        help="per-agent parameters: a CSV file with a header of names (a_plus, a_minus, tau_plus, "
+        "tau_minus, w_max, initial_weight, input_gain; the world's go to the world) and a row per "
+        "agent of the whole population, or one row for all (docs/api.md); a shard takes its slice",
+    )
     add_engine_args(p)
-    p.add_argument("--seed", type=at_least(0), default=None,
-                   help="the netlogo order's seed, agent a using seed + a (default: the world's seed, which its "
-                        "sensor messages carry, so that a run is the same in one process or across the bus)")
+    p.add_argument(
+        "--seed",
+        type=at_least(0),
+        default=None,
+        help="the netlogo order's seed, agent a using seed + a (default: the world's seed, which its "
+        "sensor messages carry, so that a run is the same in one process or across the bus)",
+    )
     p.add_argument("--load", type=Path, help="start from the weights in this checkpoint (.npz)")
     p.add_argument("--save", type=Path, help="write the final weights here (.npz) when the run ends")
     p.add_argument("--once", action="store_true", help="exit after one run ends (default: serve the next run)")
-    p.add_argument("--shard", type=shard, default=(1, 1), metavar="I/N",
-                   help="serve shard I of N of the population (the world, started with --shards N, sends each its "
-                        "slice of the agents; default 1/1: all of them)")
-    p.add_argument("--checkpoint", type=Path, metavar="DIR",
-                   help="keep the brain's whole state here whenever the world keeps a checkpoint (world "
-                        "--checkpoint), the last two per run: a resumed run goes back to them tick for tick")
-    p.add_argument("--stats", type=Path,
-                   help="write the rejected messages (and, free-running, the tick rate and lateness) here (JSON) "
-                        "when a run ends")
-    p.add_argument("--publish-state", action="store_true",
-                   help="publish spikes and potentials of every tick, and the weights, in batches of 50 to 250 ticks "
-                        f"(fewer for more agents; {FREE_STATE_BATCH} free-running) for the recorder; the first tick "
-                        "waits until someone subscribes")
+    p.add_argument(
+        "--shard",
+        type=shard,
+        default=(1, 1),
+        metavar="I/N",
+        help="serve shard I of N of the population (the world, started with --shards N, sends each its "
+        "slice of the agents; default 1/1: all of them)",
+    )
+    p.add_argument(
+        "--checkpoint",
+        type=Path,
+        metavar="DIR",
+        help="keep the brain's whole state here whenever the world keeps a checkpoint (world "
+        "--checkpoint), the last two per run: a resumed run goes back to them tick for tick",
+    )
+    p.add_argument(
+        "--stats",
+        type=Path,
+        help="write the rejected messages (and, free-running, the tick rate and lateness) here (JSON) when a run ends",
+    )
+    p.add_argument(
+        "--publish-state",
+        action="store_true",
+        help="publish spikes and potentials of every tick, and the weights, in batches of 50 to 250 ticks "
+        f"(fewer for more agents; {FREE_STATE_BATCH} free-running) for the recorder; the first tick "
+        "waits until someone subscribes",
+    )
     free = p.add_argument_group("free-running (robot)")
-    free.add_argument("--clock", type=not_negative, default=0, metavar="HZ",
-                      help="tick on this clock with the latest sensor reading, motor spikes as events "
-                           "(robot mode, e.g. 1000); default 0: lock-step with a world")
-    free.add_argument("--stale-after", type=positive, default=0.5,
-                      help="seconds after which a reading no longer counts as sensed (default 0.5)")
-    free.add_argument("--no-realtime", action="store_true",
-                      help="do not ask for real-time scheduling of the clock thread (asked by default; needs "
-                           "root or CAP_SYS_NICE on Linux, else the normal scheduler is used)")
+    free.add_argument(
+        "--clock",
+        type=not_negative,
+        default=0,
+        metavar="HZ",
+        help="tick on this clock with the latest sensor reading, motor spikes as events "
+        "(robot mode, e.g. 1000); default 0: lock-step with a world",
+    )
+    free.add_argument(
+        "--stale-after",
+        type=positive,
+        default=0.5,
+        help="seconds after which a reading no longer counts as sensed (default 0.5)",
+    )
+    free.add_argument(
+        "--no-realtime",
+        action="store_true",
+        help="do not ask for real-time scheduling of the clock thread (asked by default; needs "
+        "root or CAP_SYS_NICE on Linux, else the normal scheduler is used)",
+    )
     add_bus_args(p)
     return p
 
 
 def add_engine_args(p: argparse.ArgumentParser) -> None:
     """The engine's semantics options, shared by `brain`, `run` and `sweep`."""
-    p.add_argument("--semantics", choices=SEMANTICS, default=DEFAULT_SEMANTICS,
-                   help=f"phased: five phases, a delay of d is exactly d; netlogo: the original NetLogo engine's "
-                        f"turns (docs/tick.md) (default {DEFAULT_SEMANTICS})")
-    p.add_argument("--order", choices=ORDERS, default="random",
-                   help="netlogo: neurons each tick in a seeded random order (as NetLogo's ask) or in file order")
+    p.add_argument(
+        "--semantics",
+        choices=SEMANTICS,
+        default=DEFAULT_SEMANTICS,
+        help=f"phased: five phases, a delay of d is exactly d; netlogo: the original NetLogo engine's "
+        f"turns (docs/tick.md) (default {DEFAULT_SEMANTICS})",
+    )
+    p.add_argument(
+        "--order",
+        choices=ORDERS,
+        default="random",
+        help="netlogo: neurons each tick in a seeded random order (as NetLogo's ask) or in file order",
+    )
 
 
 def brain_params(path: Path, circuit) -> dict:
@@ -106,9 +150,18 @@ def brain_params(path: Path, circuit) -> dict:
 class BrainNode:
     """The lock-step logic, without the transport: a Sensors message in, a Motor message out."""
 
-    def __init__(self, circuit, training: bool = True, weights: np.ndarray | None = None,
-                 checkpoints: Path | None = None, quiet_s: float = QUIET_S, shard: tuple[int, int] = (1, 1),
-                 params: dict | None = None, free_running: bool = False, **engine_options):
+    def __init__(
+        self,
+        circuit,
+        training: bool = True,
+        weights: np.ndarray | None = None,
+        checkpoints: Path | None = None,
+        quiet_s: float = QUIET_S,
+        shard: tuple[int, int] = (1, 1),
+        params: dict | None = None,
+        free_running: bool = False,
+        **engine_options,
+    ):
         """`params`: per-agent parameter columns of the whole population (services.params.read_params);
         `free_running`: on a clock (robot), state batches of FREE_STATE_BATCH ticks, not sized by agents."""
         self.circuit, self.training, self.initial_weights = circuit, training, weights
@@ -139,15 +192,27 @@ class BrainNode:
             options["seed"] = message.seed
         self.first = message.first
         options["seed"] += message.first  # agent k of a slice is agent first + k of the population
-        self.brain = Brain(self.circuit, message.names, tuple(self.circuit.actuators), agents=agents,
-                           training=self.training, params=params, **options)
+        self.brain = Brain(
+            self.circuit,
+            message.names,
+            tuple(self.circuit.actuators),
+            agents=agents,
+            training=self.training,
+            params=params,
+            **options,
+        )
         if self.initial_weights is not None:  # one agent's weights are given to every agent
             w = self.initial_weights
             self.brain.engine.set_weights(w[0] if w.shape[0] == 1 else w)
         self.batch = self.new_batch()  # nothing of a previous run goes into this one's batches
-        log.info("brain for %d agent(s) of circuit %s, sensors %s, training %s, %s", agents, self.circuit.name,
-                 ", ".join(message.names), "on" if self.training else "off",
-                 ", ".join(f"{k} {v}" for k, v in options.items()))
+        log.info(
+            "brain for %d agent(s) of circuit %s, sensors %s, training %s, %s",
+            agents,
+            self.circuit.name,
+            ", ".join(message.names),
+            "on" if self.training else "off",
+            ", ".join(f"{k} {v}" for k, v in options.items()),
+        )
 
     def params_of(self, first: int, agents: int) -> dict:
         """The per-agent columns of agents first.. first + agents - 1: this shard's slice of the
@@ -159,8 +224,10 @@ class BrainNode:
         i, n = self.shard
         lo, hi = population * (i - 1) // n, population * i // n
         if (first, first + agents) != (lo, hi):
-            raise BusError(f"does not fit the parameter file: its {population} agents make agents {lo}-{hi - 1} "
-                           f"this brain's (shard {i}/{n}); the world sends agents {first}-{first + agents - 1}")
+            raise BusError(
+                f"does not fit the parameter file: its {population} agents make agents {lo}-{hi - 1} "
+                f"this brain's (shard {i}/{n}); the world sends agents {first}-{first + agents - 1}"
+            )
         return {name: column if len(column) == 1 else column[lo:hi] for name, column in self.params.items()}
 
     def starts_run(self, message: Sensors) -> bool:
@@ -168,8 +235,11 @@ class BrainNode:
         first tick (a checkpoint), once the run served has gone quiet; or whatever comes first."""
         if self.brain is None:
             return True
-        return (message.run != self.run and (message.tick == 0 or message.checkpoint)
-                and time.monotonic() - self.heard_at > self.quiet_s)
+        return (
+            message.run != self.run
+            and (message.tick == 0 or message.checkpoint)
+            and time.monotonic() - self.heard_at > self.quiet_s
+        )
 
     def answer(self, message: Sensors) -> Motor | None:
         """The Motor answer to `message`, or None for an older tick (the world moved on). A message
@@ -188,14 +258,17 @@ class BrainNode:
             if message.tick > 0:
                 self.go_back(message, joining=True)
         if message.run != self.run:
-            raise BusError(f"another run: sensors of run {message.run!r} at tick {message.tick}, the brain serves "
-                           f"run {self.run!r}")
+            raise BusError(
+                f"another run: sensors of run {message.run!r} at tick {message.tick}, the brain serves run {self.run!r}"
+            )
         self.heard_at = time.monotonic()
         if message.first != self.first:
             raise BusError(f"another slice: agents from {message.first}, this brain serves agents from {self.first}")
         if message.names != self.brain.sensor_names or values.shape[0] != self.brain.agents:
-            raise BusError(f"does not fit the run: {values.shape[0]} agents with sensors {list(message.names)}, this "
-                           f"brain serves {self.brain.agents} with {list(self.brain.sensor_names)}")
+            raise BusError(
+                f"does not fit the run: {values.shape[0]} agents with sensors {list(message.names)}, this "
+                f"brain serves {self.brain.agents} with {list(self.brain.sensor_names)}"
+            )
         if message.checkpoint and message.tick < self.last_tick:  # the world resumed the run from there
             self.go_back(message)
         if message.tick == self.last_tick:
@@ -208,8 +281,9 @@ class BrainNode:
             self.keep_checkpoint(message.tick)
         actions = self.brain.step(values)
         self.last_tick, self.stepped = message.tick, True
-        self.last_answer = Motor(tick=message.tick, names=self.brain.action_names, actions=Array.of(actions),
-                                 run=self.run, first=self.first)
+        self.last_answer = Motor(
+            tick=message.tick, names=self.brain.action_names, actions=Array.of(actions), run=self.run, first=self.first
+        )
         return self.last_answer
 
     def checkpoint_name(self) -> str:
@@ -223,16 +297,21 @@ class BrainNode:
         """The whole brain at the start of `tick`, where the world keeps its own; the last two of the run."""
         if self.checkpoints is None:
             if not self.warned:
-                log.warning("the world keeps checkpoints of run %s but this brain does not (no --checkpoint): a "
-                            "resumed run would start the brain afresh", self.run)
+                log.warning(
+                    "the world keeps checkpoints of run %s but this brain does not (no --checkpoint): a "
+                    "resumed run would start the brain afresh",
+                    self.run,
+                )
                 self.warned = True
             return
         path = self.checkpoint_path(tick)
         if not path.exists():  # a repeat of the tick: already kept
-            snapshots.write(path, self.brain.engine.snapshot(), {"run": self.run, "tick": tick,
-                                                                 "circuit": self.circuit.name})
-        kept = sorted(self.checkpoints.glob(f"{self.checkpoint_name()}-tick*.npz"),
-                      key=lambda p: int(p.stem.rsplit("tick", 1)[1]))
+            snapshots.write(
+                path, self.brain.engine.snapshot(), {"run": self.run, "tick": tick, "circuit": self.circuit.name}
+            )
+        kept = sorted(
+            self.checkpoints.glob(f"{self.checkpoint_name()}-tick*.npz"), key=lambda p: int(p.stem.rsplit("tick", 1)[1])
+        )
         for old in kept[:-2]:
             old.unlink(missing_ok=True)
 
@@ -242,8 +321,10 @@ class BrainNode:
         path = self.checkpoint_path(message.tick) if self.checkpoints else None
         try:
             if path is None or not path.exists():
-                raise ValueError(f"no checkpoint of run {self.run} at tick {message.tick}"
-                                 + (f" in {self.checkpoints}" if self.checkpoints else " (no --checkpoint)"))
+                raise ValueError(
+                    f"no checkpoint of run {self.run} at tick {message.tick}"
+                    + (f" in {self.checkpoints}" if self.checkpoints else " (no --checkpoint)")
+                )
             arrays, meta = snapshots.read(path)
             if meta.get("circuit") != self.circuit.name:
                 raise ValueError(f"{path}: a brain of circuit {meta.get('circuit')!r}, this is {self.circuit.name!r}")
@@ -251,8 +332,12 @@ class BrainNode:
         except ValueError as e:
             if not joining:
                 raise BusError(f"cannot resume: {e}") from None
-            log.warning("joined run %s at tick %d afresh (%s): the learning before it is not in this brain",
-                        self.run, message.tick, e)
+            log.warning(
+                "joined run %s at tick %d afresh (%s): the learning before it is not in this brain",
+                self.run,
+                message.tick,
+                e,
+            )
             return
         self.last_tick, self.last_answer = message.tick - 1, None
         self.batch = self.new_batch()
@@ -261,8 +346,10 @@ class BrainNode:
     def ends(self, order: Control) -> bool:
         """Whether `order` ends this node's run: an "end" for the run it serves, not before its last tick."""
         if self.brain is None or order.run != self.run or order.tick < self.last_tick:
-            raise BusError(f"does not fit the run: end of run {order.run!r} at tick {order.tick}, the brain serves "
-                           f"run {self.run!r} at tick {self.last_tick}")
+            raise BusError(
+                f"does not fit the run: end of run {order.run!r} at tick {order.tick}, the brain serves "
+                f"run {self.run!r} at tick {self.last_tick}"
+            )
         return True
 
     def keep_state(self) -> None:
@@ -276,17 +363,30 @@ class BrainNode:
         first, rows = self.batch.take()
         if first is None:
             first = self.last_tick + 1
-            rows = {"spiked": np.zeros((0, engine.agents, engine.spiked.shape[1]), np.uint8),
-                    "potentials": np.zeros((0, engine.agents, engine.n_neurons), np.float32)}
-        return BrainState(tick=first, run=self.run or "", spiked=Array.of(rows["spiked"]),
-                          potentials=Array.of(rows["potentials"]), weights=Array.of(engine.w), final=final)
+            rows = {
+                "spiked": np.zeros((0, engine.agents, engine.spiked.shape[1]), np.uint8),
+                "potentials": np.zeros((0, engine.agents, engine.n_neurons), np.float32),
+            }
+        return BrainState(
+            tick=first,
+            run=self.run or "",
+            spiked=Array.of(rows["spiked"]),
+            potentials=Array.of(rows["potentials"]),
+            weights=Array.of(engine.w),
+            final=final,
+        )
 
 
 def layout(circuit, tick: int, run: str = "") -> BrainLayout:
-    return BrainLayout(tick=tick, run=run, circuit=circuit.name, nodes=circuit.node_names,
-                       neurons=len(circuit.neuron_names),
-                       synapses=tuple(circuit.synapse_label(k) for k in range(len(circuit.synapses))),
-                       plastic=tuple(circuit.plastic_synapses))
+    return BrainLayout(
+        tick=tick,
+        run=run,
+        circuit=circuit.name,
+        nodes=circuit.node_names,
+        neurons=len(circuit.neuron_names),
+        synapses=tuple(circuit.synapse_label(k) for k in range(len(circuit.synapses))),
+        plastic=tuple(circuit.plastic_synapses),
+    )
 
 
 def run(args: argparse.Namespace, session) -> int:
@@ -300,14 +400,28 @@ def run(args: argparse.Namespace, session) -> int:
         log.error("%s", e)
         return 2
     if args.shard[1] > 1 and (args.publish_state or args.clock):
-        log.error("--shard %d/%d: a sharded brain serves a world in lock-step and does not publish its state (the "
-                  "recorder takes one brain's; record the world, or run one brain): drop %s", *args.shard,
-                  "--publish-state" if args.publish_state else "--clock")
+        log.error(
+            "--shard %d/%d: a sharded brain serves a world in lock-step and does not publish its state (the "
+            "recorder takes one brain's; record the world, or run one brain): drop %s",
+            *args.shard,
+            "--publish-state" if args.publish_state else "--clock",
+        )
         return 2
+
     def new_node() -> BrainNode:  # one per run the brain serves
-        return BrainNode(circuit, training=not args.no_training, weights=weights, checkpoints=args.checkpoint,
-                         shard=args.shard, params=params, free_running=bool(args.clock), seed=args.seed,
-                         semantics=args.semantics, order=args.order)
+        return BrainNode(
+            circuit,
+            training=not args.no_training,
+            weights=weights,
+            checkpoints=args.checkpoint,
+            shard=args.shard,
+            params=params,
+            free_running=bool(args.clock),
+            seed=args.seed,
+            semantics=args.semantics,
+            order=args.order,
+        )
+
     node = new_node()
     bus = Bus(session, args.group, keys.brain_service(args.shard))
     bus.watch_others(lambda: f" at tick {node.last_tick + 1} of run {node.run}" if node.run else "")
@@ -322,12 +436,17 @@ def run(args: argparse.Namespace, session) -> int:
         motor = bus.outbox(keys.motor(args.group))
         state = bus.outbox(keys.brain_state(args.group), lossy=True) if args.publish_state else None
         world = bus.presence("world")
-        log.info("brain ready on group %s (%s)%s", args.group, bus.sender,
-                 f", shard {args.shard[0]} of {args.shard[1]}" if args.shard[1] > 1 else "")
+        log.info(
+            "brain ready on group %s (%s)%s",
+            args.group,
+            bus.sender,
+            f", shard {args.shard[0]} of {args.shard[1]}" if args.shard[1] > 1 else "",
+        )
         kept = None  # (run, tick) whose learning was saved when the run stopped without its end
 
         def unsaved() -> bool:  # learning of a run that has not ended, not kept yet
             return node.brain is not None and kept != (node.run, node.last_tick)
+
         while True:
             message = sensors.get(timeout=0.25)
             if message is not None:
@@ -345,8 +464,9 @@ def run(args: argparse.Namespace, session) -> int:
                     state.put(node.state_message(final=True))
                 log.info("run ended at tick %d; rejected messages: %s", order.tick, bus.rejections() or "none")
                 if args.stats:
-                    args.stats.write_text(json.dumps({"ticks": node.last_tick + 1,
-                                                      "rejected_messages": bus.rejections()}))
+                    args.stats.write_text(
+                        json.dumps({"ticks": node.last_tick + 1, "rejected_messages": bus.rejections()})
+                    )
                 if args.save and node.brain is not None:
                     save_weights(args.save, node.brain.engine, circuit, tick=order.tick)
                     log.info("weights saved to %s", args.save)
@@ -385,13 +505,22 @@ def keep_learning(args, node: BrainNode, circuit, why: str) -> tuple:
     """A run stopped without its end (`why`): its weights so far are saved beside --save, never
     lost to the next run. Returns (run, last tick): what was kept."""
     if not args.save:
-        log.warning("run %s stopped at tick %d without its end (%s); its weights are not saved (no --save)",
-                    node.run, node.last_tick, why)
+        log.warning(
+            "run %s stopped at tick %d without its end (%s); its weights are not saved (no --save)",
+            node.run,
+            node.last_tick,
+            why,
+        )
         return node.run, node.last_tick
     path = args.save.with_name(f"{args.save.stem}-{node.run}-tick{node.last_tick + 1}.npz")
     save_weights(path, node.brain.engine, circuit, tick=node.last_tick + 1)
-    log.warning("run %s stopped at tick %d without its end (%s): its weights so far saved to %s", node.run,
-                node.last_tick + 1, why, path)
+    log.warning(
+        "run %s stopped at tick %d without its end (%s): its weights so far saved to %s",
+        node.run,
+        node.last_tick + 1,
+        why,
+        path,
+    )
     return node.run, node.last_tick
 
 
@@ -417,8 +546,9 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
     motor = bus.outbox(keys.motor(args.group))
     state = bus.outbox(keys.brain_state(args.group), lossy=True) if args.publish_state else None
     latest, latest_at = None, 0.0
-    log.info("brain ready on group %s (%s), free-running at %g Hz; waiting for sensors", args.group, bus.sender,
-             args.clock)
+    log.info(
+        "brain ready on group %s (%s), free-running at %g Hz; waiting for sensors", args.group, bus.sender, args.clock
+    )
     while latest is None:  # the first reading that fits the circuit tells the sensors and the agents
         latest = sensors.get(timeout=0.25)
         if latest is not None:
@@ -448,8 +578,9 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
             fresh = now - latest_at < args.stale_after
             if message is not None:
                 if message.names != latest.names or message.values.shape != latest.values.shape:
-                    sensors.refuse(BusError(f"does not fit the run: {list(message.values.shape)} "
-                                            f"sensors of {list(message.names)}"))
+                    sensors.refuse(
+                        BusError(f"does not fit the run: {list(message.values.shape)} sensors of {list(message.names)}")
+                    )
                 elif message.run != latest.run and fresh:  # a new run once the robot's has gone quiet
                     sensors.refuse(BusError(f"another run: {message.run!r}, the robot's is {latest.run!r}"))
                 else:
@@ -460,8 +591,15 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
             actions = brain.step(values)
             node.last_tick = tick
             if actions.any() or now - spoke_at > HEARTBEAT_S:  # silence would mean a stalled brain
-                motor.put(Motor(tick=tick, names=brain.action_names, actions=Array.of(actions), run=latest.run,
-                                reading=latest.tick))
+                motor.put(
+                    Motor(
+                        tick=tick,
+                        names=brain.action_names,
+                        actions=Array.of(actions),
+                        run=latest.run,
+                        reading=latest.tick,
+                    )
+                )
                 spoke_at = now
             if state is not None:
                 node.keep_state()
@@ -472,8 +610,9 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
                 if order is not None and order.run == latest.run:
                     break
                 if order is not None:
-                    control.refuse(BusError(f"another run: end of run {order.run!r}, the robot's run is "
-                                            f"{latest.run!r}"))
+                    control.refuse(
+                        BusError(f"another run: end of run {order.run!r}, the robot's run is {latest.run!r}")
+                    )
             tick += 1
             next_at += period
             behind = time.monotonic() - next_at
@@ -492,11 +631,21 @@ def run_free(args: argparse.Namespace, bus: Bus, node: BrainNode) -> int:
         state.put(node.state_message(final=True))
     elapsed = time.monotonic() - started
     late_ms = np.array(lateness) * 1000 if lateness else np.zeros(1)
-    stats = {"ticks": tick, "hz": round(tick / elapsed, 1), "late_ms_median": round(float(np.median(late_ms)), 4),
-             "late_ms_p99": round(float(np.percentile(late_ms, 99)), 4), "late_ms_max": round(float(late_ms.max()), 3),
-             "rejected_messages": bus.rejections()}
-    log.info("free-running brain stopped after %d ticks: %.1f Hz, lateness median %.3f ms, p99 %.3f ms",
-             tick, stats["hz"], stats["late_ms_median"], stats["late_ms_p99"])
+    stats = {
+        "ticks": tick,
+        "hz": round(tick / elapsed, 1),
+        "late_ms_median": round(float(np.median(late_ms)), 4),
+        "late_ms_p99": round(float(np.percentile(late_ms, 99)), 4),
+        "late_ms_max": round(float(late_ms.max()), 3),
+        "rejected_messages": bus.rejections(),
+    }
+    log.info(
+        "free-running brain stopped after %d ticks: %.1f Hz, lateness median %.3f ms, p99 %.3f ms",
+        tick,
+        stats["hz"],
+        stats["late_ms_median"],
+        stats["late_ms_p99"],
+    )
     if args.stats:
         args.stats.write_text(json.dumps(stats))
     if args.save:

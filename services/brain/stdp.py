@@ -32,6 +32,7 @@ def stdp_table(neuron_types) -> tuple[np.ndarray, int]:
     table = np.zeros((len(neuron_types), width))
     for n, t in enumerate(neuron_types):
         for k in range(width):
-            table[n, k] = weight_change(k - offset, t.a_plus, t.a_minus, t.tau_plus, t.tau_minus,
-                                        t.window_neg, t.window_pos)
+            table[n, k] = weight_change(
+                k - offset, t.a_plus, t.a_minus, t.tau_plus, t.tau_minus, t.window_neg, t.window_pos
+            )
     return table, offset

@@ -9,7 +9,7 @@ DEFAULT_GROUP = "insect"
 
 
 def _check(group: str) -> str:
-    if not group or any(c in group for c in "/*$?#@ ") :
+    if not group or any(c in group for c in "/*$?#@ "):
         raise ValueError(f"group name {group!r} must be one key segment (no '/', '*', '$', '?', '#', '@' or spaces)")
     return group
 

@@ -46,14 +46,14 @@ class Array(msgspec.Struct, frozen=True):
     data: bytes
 
     @classmethod
-    def of(cls, a) -> "Array":
+    def of(cls, a) -> Array:
         a = np.ascontiguousarray(a)
         if a.dtype.byteorder == ">":
             a = a.astype(a.dtype.newbyteorder("<"))
         return cls(a.dtype.str, tuple(a.shape), a.tobytes())
 
     @classmethod
-    def view(cls, a: np.ndarray) -> "Array":
+    def view(cls, a: np.ndarray) -> Array:
         """As of(), but no copy: the message reads `a`'s memory when it is encoded, so `a` must hold
         the same values for as long as the message may be put. The lock-step sensors are put every
         tick: a 16,000-agent reading is 640 KB, and copying it (into fresh pages each tick) cost the
@@ -219,16 +219,24 @@ class WorldState(Message, tag="world_state", kw_only=True):
         self.changes.numpy("changes", "<i8", 2)
         shape = self.pos.numpy("pos", "<f8", 3).shape[:2]
         if self.sensors.numpy("sensors", "<f8", 3).shape != (*shape, len(self.sensor_names)):
-            raise BusError(f"sensors have shape {list(self.sensors.shape)} for {list(shape)} ticks x agents and "
-                           f"{len(self.sensor_names)} sensor names")
-        for name, arr, dtype, ndim in (("heading", self.heading, "<f8", 2), ("events", self.events, "<i8", 3),
-                                       ("collisions", self.collisions, "<i8", 2), ("food", self.food, "<i8", 2)):
+            raise BusError(
+                f"sensors have shape {list(self.sensors.shape)} for {list(shape)} ticks x agents and "
+                f"{len(self.sensor_names)} sensor names"
+            )
+        for name, arr, dtype, ndim in (
+            ("heading", self.heading, "<f8", 2),
+            ("events", self.events, "<i8", 3),
+            ("collisions", self.collisions, "<i8", 2),
+            ("food", self.food, "<i8", 2),
+        ):
             if arr.numpy(name, dtype, ndim).shape[:2] != shape:
                 raise BusError(f"{name} covers {arr.shape[:2]} ticks x agents, pos {shape}")
         if self.pos.shape[2] != 2 or self.changes.shape[1] != 5 or self.events.shape[2] != len(EVENT_COLUMNS):
             raise BusError("pos needs 2 columns, changes 5, events one per EVENT_COLUMNS")
-        if not (np.isfinite(self.pos.numpy("pos", "<f8", 3)).all() and
-                np.isfinite(self.heading.numpy("heading", "<f8", 2)).all()):
+        if not (
+            np.isfinite(self.pos.numpy("pos", "<f8", 3)).all()
+            and np.isfinite(self.heading.numpy("heading", "<f8", 2)).all()
+        ):
             raise BusError("pos and heading must be finite")
 
 

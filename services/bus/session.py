@@ -41,28 +41,54 @@ def endpoint(text: str) -> str:
     the IP protocols (argparse turns the ArgumentTypeError into a usage error naming the option)."""
     protocol, _, address = text.partition("/")
     if protocol not in PROTOCOLS or not address:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an endpoint: expected <protocol>/<address> with protocol "
-                                         f"one of {', '.join(PROTOCOLS)}, e.g. tcp/192.168.1.10:7447")
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not an endpoint: expected <protocol>/<address> with protocol "
+            f"one of {', '.join(PROTOCOLS)}, e.g. tcp/192.168.1.10:7447"
+        )
     if protocol in ("tcp", "udp", "tls", "quic"):
         host, _, port = address.split("#")[0].split("?")[0].rpartition(":")
         if not host or not port.isdigit() or not 0 <= int(port) <= 65535:
-            raise argparse.ArgumentTypeError(f"{text!r}: a {protocol} endpoint needs host:port with a port of "
-                                             "0-65535, e.g. tcp/192.168.1.10:7447")
+            raise argparse.ArgumentTypeError(
+                f"{text!r}: a {protocol} endpoint needs host:port with a port of 0-65535, e.g. tcp/192.168.1.10:7447"
+            )
     return text
 
 
 def add_bus_args(parser: argparse.ArgumentParser) -> None:
     bus = parser.add_argument_group("bus")
-    bus.add_argument("--connect", action="append", default=[], metavar="ENDPOINT", type=endpoint,
-                     help="endpoint to connect to, e.g. tcp/192.168.1.10:7447 (repeatable)")
-    bus.add_argument("--listen", action="append", default=[], metavar="ENDPOINT", type=endpoint,
-                     help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
-    bus.add_argument("--zenoh-config", metavar="FILE", type=zenoh_config_file,
-                     help="a Zenoh JSON5 config file (TLS, access control: spikinglab certs writes them)")
-    bus.add_argument("--group", default=keys.DEFAULT_GROUP,
-                     help=f"the insect or population this service belongs to (default {keys.DEFAULT_GROUP})")
-    bus.add_argument("--cpu", type=int, metavar="N",
-                     help="run this process on CPU N only (a lock-step pair on separate cores is ~30 %% faster)")
+    bus.add_argument(
+        "--connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        type=endpoint,
+        help="endpoint to connect to, e.g. tcp/192.168.1.10:7447 (repeatable)",
+    )
+    bus.add_argument(
+        "--listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        type=endpoint,
+        help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)",
+    )
+    bus.add_argument(
+        "--zenoh-config",
+        metavar="FILE",
+        type=zenoh_config_file,
+        help="a Zenoh JSON5 config file (TLS, access control: spikinglab certs writes them)",
+    )
+    bus.add_argument(
+        "--group",
+        default=keys.DEFAULT_GROUP,
+        help=f"the insect or population this service belongs to (default {keys.DEFAULT_GROUP})",
+    )
+    bus.add_argument(
+        "--cpu",
+        type=int,
+        metavar="N",
+        help="run this process on CPU N only (a lock-step pair on separate cores is ~30 %% faster)",
+    )
 
 
 def zenoh_config_file(text: str) -> dict:
@@ -70,8 +96,9 @@ def zenoh_config_file(text: str) -> dict:
     try:
         settings = json5.loads(Path(text).read_text())
     except OSError as e:
-        raise argparse.ArgumentTypeError(f"cannot read {text}: {e.strerror} (`spikinglab certs DIR` writes one for "
-                                         "each service)") from None
+        raise argparse.ArgumentTypeError(
+            f"cannot read {text}: {e.strerror} (`spikinglab certs DIR` writes one for each service)"
+        ) from None
     except ValueError as e:  # json5's parse errors, and a file that is not UTF-8
         raise argparse.ArgumentTypeError(f"{text} is not a JSON5 config: {e}") from None
     if not isinstance(settings, dict):
@@ -114,11 +141,13 @@ def open_session(args: argparse.Namespace, mode: str | None = None) -> zenoh.Ses
         session = zenoh.open(make_config(args.connect, args.listen, args.zenoh_config, mode))
     except zenoh.ZError as e:
         reason = str(e).split(" at /")[0]  # without the Rust source location
-        raise SystemExit(f"cannot open the bus session (connect {args.connect}, listen {args.listen}): "
-                         f"{reason}") from None
+        raise SystemExit(
+            f"cannot open the bus session (connect {args.connect}, listen {args.listen}): {reason}"
+        ) from None
     if args.connect:
-        threading.Thread(target=report_if_alone, args=(session, args.connect), daemon=True,
-                         name="connection check").start()
+        threading.Thread(
+            target=report_if_alone, args=(session, args.connect), daemon=True, name="connection check"
+        ).start()
     return session
 
 
@@ -133,8 +162,11 @@ def report_if_alone(session: zenoh.Session, connect: list[str]) -> None:
         except Exception:  # the session closed meanwhile
             return
         time.sleep(0.25)
-    log.warning("nothing answers at %s after %.0f s (is the other side running, and is the endpoint right?); "
-                "still trying", ", ".join(connect), NOTHING_ANSWERS_AFTER)
+    log.warning(
+        "nothing answers at %s after %.0f s (is the other side running, and is the endpoint right?); still trying",
+        ", ".join(connect),
+        NOTHING_ANSWERS_AFTER,
+    )
 
 
 def by_key(rejected: Counter) -> dict[str, dict[str, int]]:
@@ -193,8 +225,9 @@ class Inbox:
 
     WAKE_EVERY = 0.25
 
-    def __init__(self, session: zenoh.Session, key: str, kinds, capacity: int = 100_000,
-                 backlog_bytes: int | None = None):
+    def __init__(
+        self, session: zenoh.Session, key: str, kinds, capacity: int = 100_000, backlog_bytes: int | None = None
+    ):
         self.key, self.kinds = key, kinds
         self.rejected: Counter = Counter()
         self._session = session
@@ -264,8 +297,9 @@ class Inbox:
         self.rejected[(key, reason)] += 1
         total = self.rejected_total
         if total <= 20 or total % 1000 == 0:
-            log.warning("rejected message on %s%s: %s (%d rejected so far)", key, f" {where}" if where else "",
-                        error, total)
+            log.warning(
+                "rejected message on %s%s: %s (%d rejected so far)", key, f" {where}" if where else "", error, total
+            )
 
     @property
     def dropped(self) -> int:
@@ -382,6 +416,7 @@ class Bus:
         """Log each other service of the group that joins or leaves the bus, with `where()` (the
         tick this one has reached): a killed process is seen within milliseconds, a frozen one
         when its lease ends (about 10 s), one behind a dead router with the router."""
+
         def on_change(change: str, key: str) -> None:
             service = key.rsplit("/", 1)[-1]
             if service == self.service:
@@ -394,6 +429,7 @@ class Bus:
                 log.warning("the %s left the bus%s", service, context)
             else:
                 log.info("the %s is on the bus%s", service, context)
+
         self._owned.append(Presence(self.session, self.group, "*", on_change))
 
     def presence(self, service: str) -> Presence:
@@ -422,13 +458,20 @@ def guard_threads() -> None:
     clean way: logged with its traceback, then the main thread is interrupted as by Ctrl-C (so the
     service stops its robot, saves and says goodbye) and the process exits 1. Never a process that
     stays on the bus looking alive while a part of it is dead."""
+
     def died(hook) -> None:
         if hook.exc_type is SystemExit:
             return
-        log.critical("thread %r died, so this process stops: %s: %s", hook.thread.name if hook.thread else "?",
-                     hook.exc_type.__name__, hook.exc_value, exc_info=(hook.exc_type, hook.exc_value, hook.exc_traceback))
+        log.critical(
+            "thread %r died, so this process stops: %s: %s",
+            hook.thread.name if hook.thread else "?",
+            hook.exc_type.__name__,
+            hook.exc_value,
+            exc_info=(hook.exc_type, hook.exc_value, hook.exc_traceback),
+        )
         _thread_died.set()
         _thread.interrupt_main(signal.SIGINT)
+
     threading.excepthook = died
 
 
@@ -436,8 +479,9 @@ def thread_died() -> bool:
     return _thread_died.is_set()
 
 
-def service_main(name: str, parser: argparse.ArgumentParser, run, argv=None, interrupted: int = 130,
-                 prepare=None) -> int:
+def service_main(
+    name: str, parser: argparse.ArgumentParser, run, argv=None, interrupted: int = 130, prepare=None
+) -> int:
     """The common start of a service: logging, its options, SIGTERM handled like Ctrl-C (the
     service saves, flushes or reports on its way out), a dead thread ends it, the session, then
     run(args, session)."""

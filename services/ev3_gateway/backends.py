@@ -97,10 +97,18 @@ class EV3Backend(Backend):
         self._dc = ev3_dc
         w, dc = wiring, ev3_dc
         self._read_ops = b"".join(
-            dc.opInput_Device + dc.READY_SI + dc.LCX(0) + dc.LCX(port - 1) + dc.LCX(kind) + dc.LCX(mode)
-            + dc.LCX(1) + dc.GVX(4 * k)
-            for k, (port, kind, mode) in enumerate(((w.colour, EV3_COLOR, 2), (w.ultrasonic, EV3_ULTRASONIC, 0),
-                                                    (w.touch, EV3_TOUCH, 0))))
+            dc.opInput_Device
+            + dc.READY_SI
+            + dc.LCX(0)
+            + dc.LCX(port - 1)
+            + dc.LCX(kind)
+            + dc.LCX(mode)
+            + dc.LCX(1)
+            + dc.GVX(4 * k)
+            for k, (port, kind, mode) in enumerate(
+                ((w.colour, EV3_COLOR, 2), (w.ultrasonic, EV3_ULTRASONIC, 0), (w.touch, EV3_TOUCH, 0))
+            )
+        )
 
     def connect(self) -> None:
         try:
@@ -135,8 +143,15 @@ class EV3Backend(Backend):
 
     def _time_sync(self, speed: int, turn: int, ms: int) -> None:
         dc = self._dc
-        self._send(dc.opOutput_Time_Sync + dc.LCX(0) + dc.LCX(self.wiring.motor_bits) + dc.LCX(speed)
-                   + dc.LCX(turn) + dc.LCX(int(ms)) + dc.LCX(1))
+        self._send(
+            dc.opOutput_Time_Sync
+            + dc.LCX(0)
+            + dc.LCX(self.wiring.motor_bits)
+            + dc.LCX(speed)
+            + dc.LCX(turn)
+            + dc.LCX(int(ms))
+            + dc.LCX(1)
+        )
 
     def forward(self, ms: int) -> None:
         self._time_sync(self.wiring.speed, 0, ms)
@@ -174,10 +189,20 @@ class SimBackend(Backend):
     and carries it back to the start when it leaves the floor.
     """
 
-    def __init__(self, seed: int = 0, patch_cm: float = 30.0, object_cm: float = 15.0, speed_cm_s: float = 20.0,
-                 turn_deg_s: float = 50.0, link_ms: float = 5.0, map_path=None):
+    def __init__(
+        self,
+        seed: int = 0,
+        patch_cm: float = 30.0,
+        object_cm: float = 15.0,
+        speed_cm_s: float = 20.0,
+        turn_deg_s: float = 50.0,
+        link_ms: float = 5.0,
+        map_path=None,
+    ):
         from services.world.physics import build_objects
-        from services.world.world import BLACK as W_BLACK, RED as W_RED, World, map_world, params_for
+        from services.world.world import BLACK as W_BLACK
+        from services.world.world import RED as W_RED
+        from services.world.world import World, map_world, params_for
 
         if not 0 < object_cm <= patch_cm:
             raise ValueError(f"the objects ({object_cm} cm) must fit their squares ({patch_cm} cm)")
@@ -219,7 +244,9 @@ class SimBackend(Backend):
 
     def read(self) -> Reading:
         from services.world.physics import ray
-        from services.world.world import BLACK as W_BLACK, GREEN as W_GREEN, RED as W_RED
+        from services.world.world import BLACK as W_BLACK
+        from services.world.world import GREEN as W_GREEN
+        from services.world.world import RED as W_RED
 
         if not self.connected:
             raise RobotLinkError("simulated EV3: not connected")

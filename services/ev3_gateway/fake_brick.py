@@ -108,7 +108,7 @@ class FakeBrick:
             self.changed_at = time.monotonic()
 
     # --- life cycle ----------------------------------------------------------------------------
-    def start(self) -> "FakeBrick":
+    def start(self) -> FakeBrick:
         self._server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         self._server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         if self.port:
@@ -123,8 +123,10 @@ class FakeBrick:
         self.port = self._server.getsockname()[1]
         self._server.listen(1)
         self._server.settimeout(0.2)
-        self._threads = [threading.Thread(target=self._beacon, daemon=True),
-                         threading.Thread(target=self._serve, daemon=True)]
+        self._threads = [
+            threading.Thread(target=self._beacon, daemon=True),
+            threading.Thread(target=self._serve, daemon=True),
+        ]
         for t in self._threads:
             t.start()
         return self
@@ -172,8 +174,7 @@ class FakeBrick:
     # --- network -------------------------------------------------------------------------------
     def _beacon(self) -> None:
         udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        text = (f"Serial-Number: {self.serial}\r\nPort: {self.port}\r\nName: {self.name}\r\n"
-                f"Protocol: EV3\r\n").encode()
+        text = (f"Serial-Number: {self.serial}\r\nPort: {self.port}\r\nName: {self.name}\r\nProtocol: EV3\r\n").encode()
         while not self._stop.wait(0.1):
             if self._client is None and not self.silent:
                 udp.sendto(text, ("127.0.0.1", BEACON_PORT))
@@ -183,7 +184,7 @@ class FakeBrick:
         while not self._stop.is_set():
             try:
                 client, _ = self._server.accept()
-            except (socket.timeout, OSError):
+            except (TimeoutError, OSError):
                 continue
             client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             try:
@@ -209,7 +210,7 @@ class FakeBrick:
                     data = client.recv(65536)
                     closed = not data
                     buffer += data
-                except socket.timeout:
+                except TimeoutError:
                     pass
                 except OSError:  # a reset: what was in flight is lost with the connection
                     return
@@ -262,12 +263,14 @@ class FakeBrick:
             elif op == OP_OUTPUT_TIME_SYNC:
                 args, i = self._params(ops, i, 6)
                 layer, ports, speed, turn, ms, brake = args
-                self.commands.append(MotorCommand(time.monotonic(), "time_sync", ports, speed, turn, ms, brake,
-                                                  self.connections))
+                self.commands.append(
+                    MotorCommand(time.monotonic(), "time_sync", ports, speed, turn, ms, brake, self.connections)
+                )
             elif op == OP_OUTPUT_STOP:
                 args, i = self._params(ops, i, 3)
-                self.commands.append(MotorCommand(time.monotonic(), "stop", args[1], brake=args[2],
-                                                  link=self.connections))
+                self.commands.append(
+                    MotorCommand(time.monotonic(), "stop", args[1], brake=args[2], link=self.connections)
+                )
             else:
                 raise ProtocolError(f"opcode 0x{op:02X} is not supported by this brick")
 
@@ -303,8 +306,10 @@ class FakeBrick:
 def parser():
     from services.options import Parser
 
-    p = Parser(prog="python -m services.ev3_gateway.fake_brick",
-               description="A fake EV3 brick on loopback for the gateway (--backend ev3) to find and drive.")
+    p = Parser(
+        prog="python -m services.ev3_gateway.fake_brick",
+        description="A fake EV3 brick on loopback for the gateway (--backend ev3) to find and drive.",
+    )
     p.add_argument("--colour", type=int, default=6, help="the colour sensor's reading (default 6: white)")
     p.add_argument("--distance-cm", type=float, default=100.0, help="the ultrasonic sensor's reading (default 100)")
     p.add_argument("--report-every", type=float, default=10.0, help="seconds between status lines (default 10)")

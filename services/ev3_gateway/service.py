@@ -62,29 +62,58 @@ def parser() -> argparse.ArgumentParser:
     sim.add_argument("--sim-seed", type=at_least(0), default=0)
     sim.add_argument("--sim-map", type=Path)
     sim.add_argument("--sim-patch-cm", type=positive, default=30.0, help="the floor's squares (default 30 cm)")
-    sim.add_argument("--sim-object-cm", type=positive, default=15.0,
-                     help="the objects in the centre of black and red squares (default 15 cm)")
+    sim.add_argument(
+        "--sim-object-cm",
+        type=positive,
+        default=15.0,
+        help="the objects in the centre of black and red squares (default 15 cm)",
+    )
     sim.add_argument("--link-ms", type=not_negative, default=5.0, help="simulated link round trip (default 5 ms)")
     m = p.add_argument_group("mapping and safety")
-    m.add_argument("--move-ms", type=at_least(1),  # 0 would be "until stopped" to the brick
-                   default=500, help="forward time per MOVE spike (default 500)")
+    m.add_argument(
+        "--move-ms",
+        type=at_least(1),  # 0 would be "until stopped" to the brick
+        default=500,
+        help="forward time per MOVE spike (default 500)",
+    )
     m.add_argument("--spin-ms", type=at_least(1), default=100, help="spin time per ROTATE spike (default 100)")
     m.add_argument("--pain-below-cm", type=not_negative, default=5.0, help="ultrasonic distance that hurts (default 5)")
-    m.add_argument("--contact-value", type=number, default=0.0,
-                   help="value fed for pain and reward (default 0: a spike in the tick it is read)")
-    m.add_argument("--motor-timeout", type=positive, default=0.2,
-                   help="stop when the brain was not heard, or no command came after the last one ended, for this "
-                        "long (default 0.2 s: with the brain heard every 50 ms, a stall stops the motors within "
-                        "250 ms)")
-    m.add_argument("--max-command-age", type=positive, default=0.2,
-                   help="drop a motor command that answers a reading older than this (default 0.2 s): a brain "
-                        "that stalled sends no backlog")
-    p.add_argument("--max-polls", type=not_negative, default=0, metavar="PER_S",
-                   help="poll at most this often (default 0: as fast as the link allows)")
-    p.add_argument("--duration", type=not_negative, default=0,
-                   help="stop after this many seconds (default 0: run until Ctrl-C)")
-    p.add_argument("--stats", type=Path,
-                   help="write polls, commands, stops, link losses and the times of collisions here (JSON) at the end")
+    m.add_argument(
+        "--contact-value",
+        type=number,
+        default=0.0,
+        help="value fed for pain and reward (default 0: a spike in the tick it is read)",
+    )
+    m.add_argument(
+        "--motor-timeout",
+        type=positive,
+        default=0.2,
+        help="stop when the brain was not heard, or no command came after the last one ended, for this "
+        "long (default 0.2 s: with the brain heard every 50 ms, a stall stops the motors within "
+        "250 ms)",
+    )
+    m.add_argument(
+        "--max-command-age",
+        type=positive,
+        default=0.2,
+        help="drop a motor command that answers a reading older than this (default 0.2 s): a brain "
+        "that stalled sends no backlog",
+    )
+    p.add_argument(
+        "--max-polls",
+        type=not_negative,
+        default=0,
+        metavar="PER_S",
+        help="poll at most this often (default 0: as fast as the link allows)",
+    )
+    p.add_argument(
+        "--duration", type=not_negative, default=0, help="stop after this many seconds (default 0: run until Ctrl-C)"
+    )
+    p.add_argument(
+        "--stats",
+        type=Path,
+        help="write polls, commands, stops, link losses and the times of collisions here (JSON) at the end",
+    )
     add_bus_args(p)
     return p
 
@@ -165,8 +194,9 @@ def motor_actions(message: Motor, run: str) -> dict:
     if message.run != run:
         raise BusError(f"another run: motor for run {message.run!r}, the robot's run is {run!r}")
     if actions.shape != (1, len(message.names)):
-        raise BusError(f"does not fit the run: actions of shape {list(actions.shape)}, a robot takes "
-                       f"(1, {len(message.names)})")
+        raise BusError(
+            f"does not fit the run: actions of shape {list(actions.shape)}, a robot takes (1, {len(message.names)})"
+        )
     return dict(zip(message.names, actions[0].tolist()))
 
 
@@ -185,8 +215,15 @@ class Gateway:
         self.run_id = new_run_id()  # the brain's motor messages answer readings of this run
         self.started = time.monotonic()
         self.published = np.zeros(READINGS_KEPT)  # when reading k was published, at k % READINGS_KEPT
-        self.stats = {"polls": 0, "commands": 0, "safety_stops": 0, "stale_commands": 0, "link_losses": 0,
-                      "rejected_messages": {}, "collisions": []}
+        self.stats = {
+            "polls": 0,
+            "commands": 0,
+            "safety_stops": 0,
+            "stale_commands": 0,
+            "link_losses": 0,
+            "rejected_messages": {},
+            "collisions": [],
+        }
 
     def call(self, what: str, *args) -> bool:
         """A backend call under the lock; a link failure is noted for the poll loop to repair."""
@@ -258,8 +295,14 @@ class Gateway:
             touching = self.count_collision(reading, touching)
             self.published[tick % READINGS_KEPT] = time.monotonic()
             self.stats["polls"] = tick + 1  # before the brain can answer it
-            self.sensors.put(Sensors(tick=tick, names=names, run=self.run_id, values=Array.of(
-                sensor_values(reading, args.pain_below_cm, args.contact_value))))
+            self.sensors.put(
+                Sensors(
+                    tick=tick,
+                    names=names,
+                    run=self.run_id,
+                    values=Array.of(sensor_values(reading, args.pain_below_cm, args.contact_value)),
+                )
+            )
             tick += 1
 
     def commands(self) -> None:
@@ -292,16 +335,18 @@ class Gateway:
         if message.reading < 0:
             return False
         if message.reading >= polls:
-            raise BusError(f"does not fit the run: answers reading {message.reading}, the robot has published "
-                           f"{polls}")
+            raise BusError(f"does not fit the run: answers reading {message.reading}, the robot has published {polls}")
         published = self.published[message.reading % READINGS_KEPT] if polls - message.reading < READINGS_KEPT else 0
         age = time.monotonic() - published
         if age <= self.args.max_command_age:
             return False
         self.stats["stale_commands"] += 1
         if self.stats["stale_commands"] <= 5 or self.stats["stale_commands"] % 1000 == 0:
-            log.warning("dropped a motor command answering a reading %.0f ms old (%d dropped so far)",
-                        age * 1000, self.stats["stale_commands"])
+            log.warning(
+                "dropped a motor command answering a reading %.0f ms old (%d dropped so far)",
+                age * 1000,
+                self.stats["stale_commands"],
+            )
         return True
 
     def run(self) -> None:
@@ -321,10 +366,21 @@ class Gateway:
 
 def backend_from(args: argparse.Namespace):
     if args.backend == "sim":
-        return SimBackend(seed=args.sim_seed, patch_cm=args.sim_patch_cm, object_cm=args.sim_object_cm,
-                          link_ms=args.link_ms, map_path=args.sim_map)
-    wiring = Wiring(touch=args.touch_port, colour=args.colour_port, ultrasonic=args.ultrasonic_port,
-                    motors=args.motors, speed=args.speed, spin_speed=args.spin_speed)
+        return SimBackend(
+            seed=args.sim_seed,
+            patch_cm=args.sim_patch_cm,
+            object_cm=args.sim_object_cm,
+            link_ms=args.link_ms,
+            map_path=args.sim_map,
+        )
+    wiring = Wiring(
+        touch=args.touch_port,
+        colour=args.colour_port,
+        ultrasonic=args.ultrasonic_port,
+        motors=args.motors,
+        speed=args.speed,
+        spin_speed=args.spin_speed,
+    )
     return EV3Backend(protocol=args.protocol, host=args.host, wiring=wiring)
 
 
@@ -351,7 +407,9 @@ def main(argv=None) -> int:
     try:
         gateway.run()
     finally:
-        control.put(Control(tick=gateway.stats["polls"], command="end", run=gateway.run_id))  # the brain saves, the recorder ends
+        control.put(
+            Control(tick=gateway.stats["polls"], command="end", run=gateway.run_id)
+        )  # the brain saves, the recorder ends
         backend.close()
         bus.close()
         log.info("gateway done: %s", {k: len(v) if k == "collisions" else v for k, v in gateway.stats.items()})

@@ -39,8 +39,12 @@ from services.bus.schemas import (
     WorldState,
 )
 
-PATCH_COLOURS = [(EMPTY, "floor", (24, 24, 28)), (BLACK, "wall", (215, 215, 215)),
-                 (RED, "predator", (220, 50, 47)), (GREEN, "food", (60, 190, 80))]
+PATCH_COLOURS = [
+    (EMPTY, "floor", (24, 24, 28)),
+    (BLACK, "wall", (215, 215, 215)),
+    (RED, "predator", (220, 50, 47)),
+    (GREEN, "food", (60, 190, 80)),
+]
 SEEN_COLOUR = {BLACK: (215, 215, 215), RED: (255, 80, 80), GREEN: (90, 230, 110)}
 SMELLS = {"smell_black": BLACK, "smell_red": RED, "smell_green": GREEN}
 TRAIL_EVERY, TRAIL_STEP = 50, 5  # ticks between trail updates; keep every 5th position
@@ -48,13 +52,19 @@ TRAIL_EVERY, TRAIL_STEP = 50, 5  # ticks between trail updates; keep every 5th p
 
 def blueprint(detail: int = 0) -> rrb.Blueprint:
     """World view beside spike raster, potentials, weights and the learning curve."""
-    recent = [rrb.VisibleTimeRange("tick", start=rrb.TimeRangeBoundary.cursor_relative(seq=-300),
-                                   end=rrb.TimeRangeBoundary.cursor_relative())]
-    whole = [rrb.VisibleTimeRange("tick", start=rrb.TimeRangeBoundary.infinite(),
-                                  end=rrb.TimeRangeBoundary.infinite())]
+    recent = [
+        rrb.VisibleTimeRange(
+            "tick", start=rrb.TimeRangeBoundary.cursor_relative(seq=-300), end=rrb.TimeRangeBoundary.cursor_relative()
+        )
+    ]
+    whole = [rrb.VisibleTimeRange("tick", start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite())]
     # the whole run on the x axis, not linked to the raster's 300-tick window
-    all_ticks = rrb.archetypes.TimeAxis(link=rrb.components.LinkAxis.Independent, view_range=rrb.components.TimeRange(
-        start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite()))
+    all_ticks = rrb.archetypes.TimeAxis(
+        link=rrb.components.LinkAxis.Independent,
+        view_range=rrb.components.TimeRange(
+            start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite()
+        ),
+    )
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
@@ -64,10 +74,12 @@ def blueprint(detail: int = 0) -> rrb.Blueprint:
             ),
             rrb.Vertical(
                 rrb.TimeSeriesView(name="spike raster", origin=f"/brain/agent{detail}/spikes", time_ranges=recent),
-                rrb.TimeSeriesView(name="membrane potentials", origin=f"/brain/agent{detail}/potentials",
-                                   time_ranges=recent),
-                rrb.TimeSeriesView(name="plastic weights", origin=f"/brain/agent{detail}/weights", time_ranges=whole,
-                                   axis_x=all_ticks),
+                rrb.TimeSeriesView(
+                    name="membrane potentials", origin=f"/brain/agent{detail}/potentials", time_ranges=recent
+                ),
+                rrb.TimeSeriesView(
+                    name="plastic weights", origin=f"/brain/agent{detail}/weights", time_ranges=whole, axis_x=all_ticks
+                ),
                 rrb.TimeSeriesView(name="learning", origin="/learning", time_ranges=whole, axis_x=all_ticks),
             ),
             column_shares=[1, 1],
@@ -102,8 +114,11 @@ class Recorder:
         self._next_tick: dict[str, int] = {}  # the tick each state stream's next batch should start at
         self._reset_buffers()
         rec.log("/world/map", rr.AnnotationContext([(c, name, rgb) for c, name, rgb in PATCH_COLOURS]), static=True)
-        rec.log("/learning/collisions_per_1000", rr.SeriesLines(names="collision events per 1,000 ticks",
-                                                               colors=(220, 50, 47), widths=2), static=True)
+        rec.log(
+            "/learning/collisions_per_1000",
+            rr.SeriesLines(names="collision events per 1,000 ticks", colors=(220, 50, 47), widths=2),
+            static=True,
+        )
         rec.log("/learning/food", rr.SeriesLines(names="food eaten (mean)", colors=(60, 190, 80)), static=True)
         rec.log("/world/pain", rr.Points2D([], colors=[(255, 60, 60)]), static=True)
 
@@ -126,8 +141,10 @@ class Recorder:
         """BusError unless `message` fits what this recording holds: the same agents and brain
         layout as the messages before it, map changes inside the map. A message that does not fit
         is refused whole, before anything of it is logged."""
+
         def refuse(why):
             raise BusError(f"does not fit the recording: {why}")
+
         if self.run is None and not isinstance(message, (WorldMap, BrainLayout)) and not RUN_ID.fullmatch(message.run):
             refuse(f"a {type(message).__name__} of no run the services name, before the run's map or brain layout")
         if self.run is not None and message.run != self.run:
@@ -144,18 +161,29 @@ class Recorder:
             nodes, neurons, synapses = message.spiked.shape[2], message.potentials.shape[2], message.weights.shape[1]
             shape = (message.spiked.shape[1], nodes, neurons, synapses)
             if self.brain_shape is not None and shape != self.brain_shape:  # its batches are joined at a flush
-                refuse("a brain state of {} agents, {} nodes, {} neurons, {} synapses; before {}, {}, {}, {}".format(
-                    *shape, *self.brain_shape))
+                refuse(
+                    "a brain state of {} agents, {} nodes, {} neurons, {} synapses; before {}, {}, {}, {}".format(
+                        *shape, *self.brain_shape
+                    )
+                )
             if self.layout is not None and (nodes, neurons, synapses) != (
-                    len(self.layout.nodes), self.layout.neurons, len(self.layout.synapses)):
-                refuse(f"{nodes} nodes, {neurons} neurons, {synapses} synapses; the brain's layout says "
-                       f"{len(self.layout.nodes)}, {self.layout.neurons}, {len(self.layout.synapses)}")
+                len(self.layout.nodes),
+                self.layout.neurons,
+                len(self.layout.synapses),
+            ):
+                refuse(
+                    f"{nodes} nodes, {neurons} neurons, {synapses} synapses; the brain's layout says "
+                    f"{len(self.layout.nodes)}, {self.layout.neurons}, {len(self.layout.synapses)}"
+                )
         elif isinstance(message, BrainLayout) and self.layout is not None and message != self.layout:
             refuse("a second brain layout, not the one the recording has")
         elif isinstance(message, BrainLayout) and self.brain_shape is not None:
             if (len(message.nodes), message.neurons, len(message.synapses)) != self.brain_shape[1:]:
-                refuse("a layout of {} nodes, {} neurons, {} synapses for brain states of {}, {}, {}".format(
-                    len(message.nodes), message.neurons, len(message.synapses), *self.brain_shape[1:]))
+                refuse(
+                    "a layout of {} nodes, {} neurons, {} synapses for brain states of {}, {}, {}".format(
+                        len(message.nodes), message.neurons, len(message.synapses), *self.brain_shape[1:]
+                    )
+                )
         elif isinstance(message, WorldMap) and self.agents and self.grid is not None:
             if message.grid.shape[1:] != self.grid.shape[1:]:
                 refuse(f"a map of {list(message.grid.shape[1:])} patches during a run on {list(self.grid.shape[1:])}")
@@ -166,8 +194,12 @@ class Recorder:
         self.fits(message)
         if self.run is None:  # the run of the first map or layout: the services send those first
             self.run = message.run
-        handler = {WorldMap: self.on_world_map, WorldState: self.on_world_state, BrainState: self.on_brain_state,
-                   BrainLayout: self.on_brain_layout}[type(message)]
+        handler = {
+            WorldMap: self.on_world_map,
+            WorldState: self.on_world_state,
+            BrainState: self.on_brain_state,
+            BrainLayout: self.on_brain_layout,
+        }[type(message)]
         if message.tick >= 0 and not isinstance(message, (BrainLayout, WorldMap)):
             # the earliest tick held; said once, at the first flush (a batch may start earlier than
             # the message that happened to come first)
@@ -216,8 +248,9 @@ class Recorder:
                 if (mine[:, 1] == self.arena_shown).any():
                     self._log_map(int(t))
         for k in np.flatnonzero((ticks + 1) % 1000 == 0):  # the learning curve, per 1,000 ticks like the world's
-            self.b["bins"].append((int(ticks[k]), float((collisions[k] - self._collisions_at_bin).mean()),
-                                   float(food[k].mean())))
+            self.b["bins"].append(
+                (int(ticks[k]), float((collisions[k] - self._collisions_at_bin).mean()), float(food[k].mean()))
+            )
             self._collisions_at_bin = collisions[k].copy()
         for k, a in zip(*np.nonzero(events[:, :, EV_LEARNED])):
             t = int(ticks[k])
@@ -245,10 +278,13 @@ class Recorder:
             seen = np.isfinite(d)
             rad = np.radians(before_heading[:, a])
             tip = before_pos[:, a] + np.where(seen, d, 4.0)[:, None] * np.stack([np.sin(rad), np.cos(rad)], axis=1)
-            felt = [~np.isnan(sensed[:, a, names.index(n)]) if n in names else np.zeros(len(ticks), bool)
-                    for n in ("pain", "reward")]
-            self.b[f"vision{a}"].append((ticks, np.stack([before_pos[:, a], tip], axis=1),
-                                         palette[np.where(seen, nearest, len(smells))], *felt))
+            felt = [
+                ~np.isnan(sensed[:, a, names.index(n)]) if n in names else np.zeros(len(ticks), bool)
+                for n in ("pain", "reward")
+            ]
+            self.b[f"vision{a}"].append(
+                (ticks, np.stack([before_pos[:, a], tip], axis=1), palette[np.where(seen, nearest, len(smells))], *felt)
+            )
 
     def on_brain_layout(self, m: BrainLayout) -> None:
         self.layout = m
@@ -256,8 +292,11 @@ class Recorder:
             base = f"/brain/agent{a}"
             for k, name in enumerate(m.nodes):
                 colour = (255, 200, 60) if k >= m.neurons else (120, 180, 255)
-                self.rec.log(f"{base}/spikes/{k:02d}_{name}", rr.SeriesPoints(names=name, colors=colour,
-                                                                              marker_sizes=2.0), static=True)
+                self.rec.log(
+                    f"{base}/spikes/{k:02d}_{name}",
+                    rr.SeriesPoints(names=name, colors=colour, marker_sizes=2.0),
+                    static=True,
+                )
             self.rec.log(f"{base}/potentials", rr.SeriesLines(names=list(m.nodes[: m.neurons])), static=True)
             self.rec.log(f"{base}/weights", rr.SeriesLines(names=[m.synapses[k] for k in m.plastic]), static=True)
 
@@ -285,8 +324,12 @@ class Recorder:
         expected = self._next_tick.get(stream)
         if expected is not None and first > expected:
             self.missing[stream] = self.missing.get(stream, 0) + first - expected
-            self.event(f"ticks {expected}..{first - 1} of the {stream}'s state are missing: dropped on the way (the "
-                       "recorder fell behind)", "WARN", first)
+            self.event(
+                f"ticks {expected}..{first - 1} of the {stream}'s state are missing: dropped on the way (the "
+                "recorder fell behind)",
+                "WARN",
+                first,
+            )
         self._next_tick[stream] = max(expected or 0, first + ticks)
 
     def event(self, text: str, level: str = "INFO", tick: int | None = None) -> None:
@@ -301,8 +344,9 @@ class Recorder:
         if not self._announced and self.first_tick is not None:
             self._announced = True
             if self.first_tick > 0:
-                self.event(f"recording starts at tick {self.first_tick}: the recorder started late", "WARN",
-                           self.first_tick)
+                self.event(
+                    f"recording starts at tick {self.first_tick}: the recorder started late", "WARN", self.first_tick
+                )
         if b["pose"]:
             self._flush_world(b)
         if b["brain"] or b["weights"]:
@@ -325,8 +369,13 @@ class Recorder:
             if a < A:
                 colours.reshape(T, A, 3)[:, a] = (255, 230, 0)
                 sizes[:, a] = 0.7
-        self._columns("/world/insects", ticks, rr.Points2D.columns(
-            positions=self.view(pos).reshape(-1, 2), colors=colours, radii=sizes.reshape(-1)).partition([A] * T))
+        self._columns(
+            "/world/insects",
+            ticks,
+            rr.Points2D.columns(
+                positions=self.view(pos).reshape(-1, 2), colors=colours, radii=sizes.reshape(-1)
+            ).partition([A] * T),
+        )
         for a in (a for a in self.detail if a < A):
             self._flush_agent(a, ticks, pos[:, a], heading[:, a], b[f"vision{a}"])
 
@@ -335,25 +384,41 @@ class Recorder:
         ahead = np.stack([np.sin(rad), np.cos(rad)], axis=1)
         start = self.view(pos)
         tip = self.view(pos + 1.2 * ahead)
-        self._columns(f"/world/heading/agent{a}", ticks, rr.Arrows2D.columns(
-            origins=start, vectors=tip - start, colors=np.tile([255, 230, 0], (len(ticks), 1))).partition([1] * len(ticks)))
+        self._columns(
+            f"/world/heading/agent{a}",
+            ticks,
+            rr.Arrows2D.columns(
+                origins=start, vectors=tip - start, colors=np.tile([255, 230, 0], (len(ticks), 1))
+            ).partition([1] * len(ticks)),
+        )
         if vision:  # strips as one [T, 2, 2] array: Rerun converts it at once, a list strip by strip
             ray_ticks, rays, ray_colours, hurt, fed = (np.concatenate(column) for column in zip(*vision))
             rays = self.view(rays)
-            self._columns(f"/world/vision/agent{a}", ray_ticks, rr.LineStrips2D.columns(
-                strips=rays, colors=ray_colours, radii=np.full(len(rays), 0.08, np.float32)).partition([1] * len(rays)))
+            self._columns(
+                f"/world/vision/agent{a}",
+                ray_ticks,
+                rr.LineStrips2D.columns(
+                    strips=rays, colors=ray_colours, radii=np.full(len(rays), 0.08, np.float32)
+                ).partition([1] * len(rays)),
+            )
             for flags, path, colour in ((hurt, "/world/pain", (255, 60, 60)), (fed, "/world/reward", (90, 230, 110))):
                 # a mark in the ticks it happens, an empty batch in the others (no stale mark)
                 marks = rays[flags, 0]
                 if len(marks) or path == "/world/pain":
-                    self._columns(path, ray_ticks, rr.Points2D.columns(
-                        positions=marks, colors=np.tile(np.array(colour, np.uint8), (len(marks), 1)),
-                        radii=np.full(len(marks), 0.9, np.float32)).partition(flags.astype(np.int64)))
+                    self._columns(
+                        path,
+                        ray_ticks,
+                        rr.Points2D.columns(
+                            positions=marks,
+                            colors=np.tile(np.array(colour, np.uint8), (len(marks), 1)),
+                            radii=np.full(len(marks), 0.9, np.float32),
+                        ).partition(flags.astype(np.int64)),
+                    )
         # the trail: every TRAIL_EVERY ticks, the last `trail` positions, split where it jumped (reset)
         old_ticks, old_pos = self._trail.get(a, (np.zeros(0, np.int64), np.zeros((0, 2))))
         history_ticks = np.concatenate([old_ticks, ticks])
         history = np.concatenate([old_pos, pos])
-        self._trail[a] = (history_ticks[-self.trail:], history[-self.trail:])
+        self._trail[a] = (history_ticks[-self.trail :], history[-self.trail :])
         strips, counts, when = [], [], []
         shown = self.view(history)  # once for the whole history: the same points as piece by piece
         for t in ticks[(ticks % TRAIL_EVERY) == 0]:
@@ -366,9 +431,15 @@ class Recorder:
             counts.append(len(pieces))
             when.append(t)
         if when:
-            self._columns(f"/world/trail/agent{a}", when, rr.LineStrips2D.columns(
-                strips=strips, colors=np.tile([255, 230, 0, 120], (len(strips), 1)).astype(np.uint8),
-                radii=np.full(len(strips), 0.1, np.float32)).partition(counts))
+            self._columns(
+                f"/world/trail/agent{a}",
+                when,
+                rr.LineStrips2D.columns(
+                    strips=strips,
+                    colors=np.tile([255, 230, 0, 120], (len(strips), 1)).astype(np.uint8),
+                    radii=np.full(len(strips), 0.1, np.float32),
+                ).partition(counts),
+            )
 
     def _flush_brain(self, batches, weights) -> None:
         if batches:  # [T], [T, shown, nodes], [T, shown, neurons]
@@ -382,8 +453,11 @@ class Recorder:
                 for k, name in enumerate(names):
                     when = ticks[spiked[:, k] > 0]
                     if len(when):  # the raster row: the node's row number, only in the ticks it spiked
-                        self._columns(f"{base}/spikes/{k:02d}_{name}", when,
-                                      rr.Scalars.columns(scalars=np.full(len(when), len(names) - k, np.float64)))
+                        self._columns(
+                            f"{base}/spikes/{k:02d}_{name}",
+                            when,
+                            rr.Scalars.columns(scalars=np.full(len(when), len(names) - k, np.float64)),
+                        )
                 pot = potential_rows[:, i].astype(np.float64)
                 self._columns(f"{base}/potentials", ticks, rr.Scalars.columns(scalars=pot))
             if weights and self.layout is not None:

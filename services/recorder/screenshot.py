@@ -54,7 +54,9 @@ def repair(recording: Path) -> bool:
     return True
 
 
-def screenshot(recording: Path, out: Path, tick: int | None = None, size: str = "1600x900", settle: float = 2.0) -> Path:
+def screenshot(
+    recording: Path, out: Path, tick: int | None = None, size: str = "1600x900", settle: float = 2.0
+) -> Path:
     """Render `recording` at `tick` into `out` (PNG) with a headless viewer."""
     tick = last_tick(recording) if tick is None else tick
     with socket.socket() as s:
@@ -63,10 +65,13 @@ def screenshot(recording: Path, out: Path, tick: int | None = None, size: str = 
     command = viewer_command()
     if command is None:
         raise RuntimeError("no Rerun viewer: the rerun command comes with rerun-sdk (pip install rerun-sdk)")
-    viewer = subprocess.Popen([*command, "--headless", "--window-size", size, "--port", str(port),
-                               "--hide-welcome-screen"],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                              start_new_session=True)  # its own group: the venv's `rerun` starts the real viewer
+    viewer = subprocess.Popen(
+        [*command, "--headless", "--window-size", size, "--port", str(port), "--hide-welcome-screen"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )  # its own group: the venv's `rerun` starts the real viewer
     try:
         client, deadline = None, time.monotonic() + 30
         while client is None:
@@ -88,8 +93,9 @@ def screenshot(recording: Path, out: Path, tick: int | None = None, size: str = 
             out.parent.mkdir(parents=True, exist_ok=True)
             client.save_screenshot(str(out.resolve()))
         except ConnectionError as e:  # the viewer's answer to a request it cannot carry out
-            raise RuntimeError(f"the viewer could not show {recording} at tick {tick}: "
-                               f"{str(e).splitlines()[0]}") from None
+            raise RuntimeError(
+                f"the viewer could not show {recording} at tick {tick}: {str(e).splitlines()[0]}"
+            ) from None
     finally:  # the whole group: killing the wrapper alone left a ~400 MB viewer behind per call
         try:
             os.killpg(viewer.pid, signal.SIGKILL)
@@ -123,8 +129,12 @@ def main(argv=None) -> int:
         print(f"spikinglab screenshot: {args.recording}: not a Rerun recording (.rrd): {e}", file=sys.stderr)
         return 2
     try:
-        out = screenshot(args.recording, args.out or args.recording.with_name("replay.png"),
-                         last if args.tick is None else args.tick, args.size)
+        out = screenshot(
+            args.recording,
+            args.out or args.recording.with_name("replay.png"),
+            last if args.tick is None else args.tick,
+            args.size,
+        )
     except RuntimeError as e:  # the headless viewer could not start or render
         print(f"spikinglab screenshot: {e}", file=sys.stderr)
         return 1

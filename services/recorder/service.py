@@ -42,24 +42,44 @@ NEXT_RUN_HELD = 256  # messages of another run held while the run recorded may s
 def parser() -> argparse.ArgumentParser:
     p = Parser(prog="spikinglab record", description="Record a run to a Rerun file.")
     p.add_argument("--out", type=Path, help="the .rrd file (default runs/<date>-<time>/recording.rrd)")
-    p.add_argument("--viewer", metavar="URL", type=viewer_url,
-                   help="also stream to a running viewer, e.g. rerun+http://127.0.0.1:9876/proxy")
+    p.add_argument(
+        "--viewer",
+        metavar="URL",
+        type=viewer_url,
+        help="also stream to a running viewer, e.g. rerun+http://127.0.0.1:9876/proxy",
+    )
     live = p.add_argument_group("live view")
-    live.add_argument("--serve", action="store_true",
-                      help="also serve the run live over gRPC for viewers: rerun rerun+http://HOST:GRPC_PORT/proxy")
-    live.add_argument("--web", action="store_true",
-                      help="also host the web viewer over HTTP, showing the served run (implies --serve)")
+    live.add_argument(
+        "--serve",
+        action="store_true",
+        help="also serve the run live over gRPC for viewers: rerun rerun+http://HOST:GRPC_PORT/proxy",
+    )
+    live.add_argument(
+        "--web",
+        action="store_true",
+        help="also host the web viewer over HTTP, showing the served run (implies --serve)",
+    )
     live.add_argument("--grpc-port", type=port, default=9876, help="--serve's port (default 9876)")
     live.add_argument("--web-port", type=port, default=9090, help="--web's port (default 9090)")
-    p.add_argument("--detail", default=(0,), type=agent_list,
-                   help="agents with raster, potentials, weights, ray, trail, e.g. 0,3 (default 0)")
+    p.add_argument(
+        "--detail",
+        default=(0,),
+        type=agent_list,
+        help="agents with raster, potentials, weights, ray, trail, e.g. 0,3 (default 0)",
+    )
     p.add_argument("--flush-every", type=at_least(1), default=1000, help="ticks per batch written (default 1,000)")
     p.add_argument("--forever", action="store_true", help="keep recording after the run's end")
-    p.add_argument("--backlog-mb", type=at_least(1), default=256,
-                   help="messages waiting to be recorded, at most (default %(default)s MB): beyond, they are dropped "
-                        "and counted, and the ticks missing are said; a recorder that falls behind never holds the "
-                        "run back nor grows without limit")
-    p.add_argument("--nice", type=int, default=10, help="scheduling priority increment (default 10: after world and brain)")
+    p.add_argument(
+        "--backlog-mb",
+        type=at_least(1),
+        default=256,
+        help="messages waiting to be recorded, at most (default %(default)s MB): beyond, they are dropped "
+        "and counted, and the ticks missing are said; a recorder that falls behind never holds the "
+        "run back nor grows without limit",
+    )
+    p.add_argument(
+        "--nice", type=int, default=10, help="scheduling priority increment (default 10: after world and brain)"
+    )
     add_bus_args(p)
     return p
 
@@ -68,8 +88,10 @@ def viewer_url(text: str) -> str:
     """A viewer's gRPC URL (rerun+http://host:port/proxy), checked before anything starts."""
     url = urllib.parse.urlsplit(text)
     if url.scheme not in ("rerun", "rerun+http", "rerun+https") or not url.hostname:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a viewer URL: expected rerun+http://HOST:PORT/proxy, "
-                                         "e.g. rerun+http://127.0.0.1:9876/proxy")
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a viewer URL: expected rerun+http://HOST:PORT/proxy, "
+            "e.g. rerun+http://127.0.0.1:9876/proxy"
+        )
     return text
 
 
@@ -115,8 +137,9 @@ def run(args: argparse.Namespace, session) -> int:
     if serve:
         log.info("serving the run live: rerun rerun+http://127.0.0.1:%d/proxy", args.grpc_port)
     if args.web:
-        rr.serve_web_viewer(web_port=args.web_port, open_browser=False,
-                            connect_to=f"rerun+http://127.0.0.1:{args.grpc_port}/proxy")
+        rr.serve_web_viewer(
+            web_port=args.web_port, open_browser=False, connect_to=f"rerun+http://127.0.0.1:{args.grpc_port}/proxy"
+        )
         log.info("web viewer: %s", web_viewer_url(args.web_port, args.grpc_port))
     bus = Bus(session, args.group, "recorder")
     recorder = Recorder(rec, detail=detail, flush_every=args.flush_every)
@@ -124,8 +147,9 @@ def run(args: argparse.Namespace, session) -> int:
     first_stream = rec  # serves the live view, if asked, for every run's recording
     next_run: list = []  # messages of another run, held until the run recorded has gone quiet
     # only the state streams: the lock-step messages (sensors, motor) never come to the recorder
-    inbox = bus.inbox(keys.state(args.group), (WorldMap, WorldState, BrainState, BrainLayout),
-                      backlog_bytes=args.backlog_mb << 20)
+    inbox = bus.inbox(
+        keys.state(args.group), (WorldMap, WorldState, BrainState, BrainLayout), backlog_bytes=args.backlog_mb << 20
+    )
     watched = {name: bus.presence(name) for name in ("world", "brain")}
     recorder.event(f"recorder started on group {args.group}, writing {out}")
     log.info("recording group %s to %s", args.group, out)
@@ -140,9 +164,11 @@ def run(args: argparse.Namespace, session) -> int:
                 while not presence.events.empty():
                     change, _ = presence.events.get()
                     # stamped with the tick the recorder has got to, which can trail the run
-                    recorder.event(f"{name} {'is on the bus' if change == 'up' else 'left the bus'} "
-                                   f"(seen while recording tick {max(recorder.last_tick, 0)})",
-                                   "INFO" if change == "up" else "WARN")
+                    recorder.event(
+                        f"{name} {'is on the bus' if change == 'up' else 'left the bus'} "
+                        f"(seen while recording tick {max(recorder.last_tick, 0)})",
+                        "INFO" if change == "up" else "WARN",
+                    )
             if message is not None:
                 if received == 0:
                     first_at = time.monotonic()
@@ -153,8 +179,12 @@ def run(args: argparse.Namespace, session) -> int:
                     if getattr(message, "final", False) and not args.forever and ending is None:
                         ending = time.monotonic() + END_GRACE
                 except BusError as e:  # it does not fit the recording: refused whole, counted
-                    if recorder.run is not None and message.run != recorder.run and RUN_ID.fullmatch(message.run) \
-                            and len(next_run) < NEXT_RUN_HELD:
+                    if (
+                        recorder.run is not None
+                        and message.run != recorder.run
+                        and RUN_ID.fullmatch(message.run)
+                        and len(next_run) < NEXT_RUN_HELD
+                    ):
                         next_run.append(message)  # perhaps the next run: it waits for this one to go quiet
                     else:
                         inbox.refuse(e, f"({type(message).__name__} of tick {message.tick})")
@@ -166,8 +196,14 @@ def run(args: argparse.Namespace, session) -> int:
                     rec.disconnect()
                 run_id = next_run[0].run
                 path = out.with_name(f"{out.stem}-{run_id}{out.suffix}")
-                log.info("run %s: recorded to %s (%s); run %s starts: recording it to %s", recorder.run, current,
-                         recorder.ticks_held(), run_id, path)
+                log.info(
+                    "run %s: recorded to %s (%s); run %s starts: recording it to %s",
+                    recorder.run,
+                    current,
+                    recorder.ticks_held(),
+                    run_id,
+                    path,
+                )
                 rec = open_recording(args, path, f"{args.group}-{run_id}", served_at=serve and args.grpc_port)
                 recorder, current, ending = Recorder(rec, detail=detail, flush_every=args.flush_every), path, None
                 recorder.event(f"recorder on group {args.group}: run {run_id} follows another run, writing {path}")
@@ -183,37 +219,56 @@ def run(args: argparse.Namespace, session) -> int:
                 recorder.event(f"rejected or dropped messages so far: {rejected} ({reasons})", "WARN")
             # the run is over when every stream that came has sent its final batch (the world's and
             # the brain's come on different links, in either order)
-            if ending and ((recorder.world_done or recorder.agents == 0) and
-                           (recorder.brain_done or recorder.spike_counts is None) or time.monotonic() > ending):
+            if ending and (
+                (recorder.world_done or recorder.agents == 0)
+                and (recorder.brain_done or recorder.spike_counts is None)
+                or time.monotonic() > ending
+            ):
                 break
             seen = [presence for presence in watched.values() if presence.seen]
             if seen and not any(p.alive for p in seen) and not args.forever and ending is None:
                 ending = time.monotonic() + END_GRACE  # they left without the run's end: what came is written
-                recorder.event(f"the {' and the '.join(n for n, p in watched.items() if p.seen)} left without the "
-                               f"run's end: the recording ends at tick {max(recorder.last_tick, 0)}", "WARN")
-                log.warning("the services recorded left without the run's end: ending the recording in %.0f s",
-                            END_GRACE)
+                recorder.event(
+                    f"the {' and the '.join(n for n, p in watched.items() if p.seen)} left without the "
+                    f"run's end: the recording ends at tick {max(recorder.last_tick, 0)}",
+                    "WARN",
+                )
+                log.warning(
+                    "the services recorded left without the run's end: ending the recording in %.0f s", END_GRACE
+                )
             if time.monotonic() - last_flush > FLUSH_S:
                 recorder.flush()
                 last_flush = time.monotonic()
     finally:
         for held in next_run:
-            inbox.refuse(BusError(f"another run: {held.run!r}, after the run recorded ended (--forever records "
-                                  "the runs that follow)"), f"({type(held).__name__} of tick {held.tick})")
+            inbox.refuse(
+                BusError(
+                    f"another run: {held.run!r}, after the run recorded ended (--forever records the runs that follow)"
+                ),
+                f"({type(held).__name__} of tick {held.tick})",
+            )
         recorder.close()
         for stream in [rec] if rec is first_stream else [rec, first_stream]:
             stream.flush()
             stream.disconnect()
         bus.close()
         took = max(time.monotonic() - first_at, 1e-9)
-        log.info("recording written to %s (%s): %d messages in %.1f s, %.0f messages/s; ticks missing: %s; "
-                 "rejected: %s", current, recorder.ticks_held(), received, took, received / took,
-                 recorder.missing or "none", bus.rejections() or "none")
+        log.info(
+            "recording written to %s (%s): %d messages in %.1f s, %.0f messages/s; ticks missing: %s; rejected: %s",
+            current,
+            recorder.ticks_held(),
+            received,
+            took,
+            received / took,
+            recorder.missing or "none",
+            bus.rejections() or "none",
+        )
     return 0
 
 
-def open_recording(args: argparse.Namespace, path: Path, recording_id: str, serving: bool = False,
-                   served_at: int | None = None) -> rr.RecordingStream:
+def open_recording(
+    args: argparse.Namespace, path: Path, recording_id: str, serving: bool = False, served_at: int | None = None
+) -> rr.RecordingStream:
     """A recording written to `path`, streamed to --viewer, and served live (`serving`: this
     recording's stream serves at --grpc-port; `served_at`: sent to the one that serves there)."""
     rec = rr.RecordingStream("spikinglab", recording_id=recording_id)
@@ -233,8 +288,9 @@ def step_back(args: argparse.Namespace) -> None:
     try:
         os.nice(args.nice)
     except OSError as e:  # a negative increment needs root or CAP_SYS_NICE: record at the usual priority
-        log.warning("cannot change the priority by --nice %d (%s): recording at the usual priority", args.nice,
-                    e.strerror)
+        log.warning(
+            "cannot change the priority by --nice %d (%s): recording at the usual priority", args.nice, e.strerror
+        )
 
 
 def main(argv=None) -> int:

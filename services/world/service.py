@@ -54,14 +54,28 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, help="write metrics.json (collisions over time, learning time, ...) here")
     p.add_argument("--publish-state", action="store_true", help="publish poses and events every tick (recorder)")
     p.add_argument("--progress", action="store_true", help="show a progress bar")
-    p.add_argument("--shards", type=at_least(1), default=1, metavar="N",
-                   help="the brain runs as N shards (brain --shard I/N): each is sent its slice of the agents and the "
-                        "world waits for all of them every tick (default 1)")
-    p.add_argument("--checkpoint", type=Path, metavar="DIR",
-                   help="keep the whole world here every --checkpoint-every ticks, and resume the run kept here "
-                        "(with the same options) if there is one; the brain keeps its own (brain --checkpoint)")
-    p.add_argument("--checkpoint-every", type=at_least(1), default=10_000, metavar="TICKS",
-                   help="ticks between checkpoints (default %(default)s)")
+    p.add_argument(
+        "--shards",
+        type=at_least(1),
+        default=1,
+        metavar="N",
+        help="the brain runs as N shards (brain --shard I/N): each is sent its slice of the agents and the "
+        "world waits for all of them every tick (default 1)",
+    )
+    p.add_argument(
+        "--checkpoint",
+        type=Path,
+        metavar="DIR",
+        help="keep the whole world here every --checkpoint-every ticks, and resume the run kept here "
+        "(with the same options) if there is one; the brain keeps its own (brain --checkpoint)",
+    )
+    p.add_argument(
+        "--checkpoint-every",
+        type=at_least(1),
+        default=10_000,
+        metavar="TICKS",
+        help="ticks between checkpoints (default %(default)s)",
+    )
     add_bus_args(p)
     return p
 
@@ -72,16 +86,28 @@ def add_world_args(p: argparse.ArgumentParser) -> None:
     w.add_argument("--seed", type=at_least(0), default=0, help="world seed: maps and headings (agent a uses seed + a)")
     w.add_argument("--agents", type=at_least(1), default=1, help="insects stepped together (default 1)")
     w.add_argument("--shared", action="store_true", help="all agents share one arena (default: one each)")
-    w.add_argument("--preset", choices=sorted(PRESETS), default="paper",
-                   help="rotation and move steps: paper (5 deg, 1 patch, default) or netlogo (4 deg, 0.4 patch)")
+    w.add_argument(
+        "--preset",
+        choices=sorted(PRESETS),
+        default="paper",
+        help="rotation and move steps: paper (5 deg, 1 patch, default) or netlogo (4 deg, 0.4 patch)",
+    )
     w.add_argument("--map", type=Path, help="a text map file instead of the generated arena (docs/world.md)")
     w.add_argument("--no-training", action="store_true", help="no push on noxious patches (test mode)")
-    w.add_argument("--learned-after", type=at_least(1), default=5000,
-                   help="collision-free ticks that count as learned (default 5,000)")
-    w.add_argument("--params", type=Path, metavar="FILE.csv",
-                   help="per-agent parameters: a CSV file with a header of names (rotation_step, move_step; the "
-                        "brain's, such as a_plus or w_max, go to the brain) and a row per agent, or one row for all "
-                        "(docs/api.md)")
+    w.add_argument(
+        "--learned-after",
+        type=at_least(1),
+        default=5000,
+        help="collision-free ticks that count as learned (default 5,000)",
+    )
+    w.add_argument(
+        "--params",
+        type=Path,
+        metavar="FILE.csv",
+        help="per-agent parameters: a CSV file with a header of names (rotation_step, move_step; the "
+        "brain's, such as a_plus or w_max, go to the brain) and a row per agent, or one row for all "
+        "(docs/api.md)",
+    )
 
 
 def world_from_args(args: argparse.Namespace) -> World:
@@ -95,8 +121,15 @@ def world_from_args(args: argparse.Namespace) -> World:
     if args.map:
         params, grid = map_world(args.map, params)
     columns = file_for_agents(args.params, args.agents) if args.params else {}
-    return World(params, agents=args.agents, seed=args.seed, shared=args.shared, grid=grid,
-                 training=not args.no_training, agent_params=side_of(columns, "world"))
+    return World(
+        params,
+        agents=args.agents,
+        seed=args.seed,
+        shared=args.shared,
+        grid=grid,
+        training=not args.no_training,
+        agent_params=side_of(columns, "world"),
+    )
 
 
 def actions_from(message: Motor, agents: int) -> np.ndarray | None:
@@ -129,8 +162,18 @@ class Brains:
         brain's netlogo order follows it; `checkpoint`: the world kept its state at the start of
         this tick, the brain keeps its own)."""
         values = world.sense()  # viewed, not copied: sense() fills it again only after collect() got every answer
-        requests = [Sensors(tick=tick, names=SENSORS, values=Array.view(values[lo:hi]), run=run_id, seed=world.seed,
-                            checkpoint=checkpoint, first=lo) for lo, hi in self.slices]
+        requests = [
+            Sensors(
+                tick=tick,
+                names=SENSORS,
+                values=Array.view(values[lo:hi]),
+                run=run_id,
+                seed=world.seed,
+                checkpoint=checkpoint,
+                first=lo,
+            )
+            for lo, hi in self.slices
+        ]
         for outbox, request in zip(self.sensors, requests):
             outbox.put(request)
         return requests
@@ -155,20 +198,29 @@ class Brains:
                 now = time.monotonic()
                 if now - asked_at >= UNANSWERED_S and (said_at is None or now - said_at >= 60):
                     said_at = now  # on the bus, yet silent: most likely it refuses these sensors, and says why
-                    log.warning("%s on the bus but no answer to tick %d for %.0f s: its log says why (a brain "
-                                "refuses sensors that do not fit its circuit, parameter file or shard)",
-                                " and ".join(self.names[k] for k in silent), t, now - asked_at)
+                    log.warning(
+                        "%s on the bus but no answer to tick %d for %.0f s: its log says why (a brain "
+                        "refuses sensors that do not fit its circuit, parameter file or shard)",
+                        " and ".join(self.names[k] for k in silent),
+                        t,
+                        now - asked_at,
+                    )
                 continue
             k = self.index.get(answer.first)
             size = None if k is None else self.slices[k][1] - self.slices[k][0]
             if answer.run != run_id:
-                self.motor.refuse(BusError(f"another run: motor for run {answer.run!r}, this is {run_id!r}"),
-                                  f"(tick {answer.tick})")
+                self.motor.refuse(
+                    BusError(f"another run: motor for run {answer.run!r}, this is {run_id!r}"), f"(tick {answer.tick})"
+                )
             elif answer.actions.shape[0] != size:
-                self.motor.refuse(BusError(f"does not fit the run: {answer.actions.shape[0]} agents from agent "
-                                           f"{answer.first}, the world has {world.agents}" +
-                                           (f" in shards from {[lo for lo, _ in self.slices]}"
-                                            if len(self.slices) > 1 else "")), f"(tick {answer.tick})")
+                self.motor.refuse(
+                    BusError(
+                        f"does not fit the run: {answer.actions.shape[0]} agents from agent "
+                        f"{answer.first}, the world has {world.agents}"
+                        + (f" in shards from {[lo for lo, _ in self.slices]}" if len(self.slices) > 1 else "")
+                    ),
+                    f"(tick {answer.tick})",
+                )
             elif answer.tick == t:
                 answers[k] = actions_from(answer, size)
         if self.first_answer_at is None:
@@ -183,8 +235,10 @@ class Progress:
         self.world, self.bar = world, None
         if enabled:
             from tqdm import tqdm
-            self.bar = tqdm(total=ticks, initial=world.tick, unit="tick", unit_scale=True, dynamic_ncols=True,
-                            mininterval=0.5)
+
+            self.bar = tqdm(
+                total=ticks, initial=world.tick, unit="tick", unit_scale=True, dynamic_ncols=True, mininterval=0.5
+            )
         self._shown = world.tick  # a resumed run starts there
 
     def update(self, tick: int) -> None:
@@ -205,8 +259,15 @@ class Progress:
 def keep_state(batch: TickBatch, changes: list, world: World, t: int, sensors: np.ndarray) -> None:
     """Tick t as the recorder sees it: its sensors, poses after the actions, its events and changes."""
     m = world.metrics
-    batch.add(t, sensors=sensors, pos=world.pos, heading=world.heading, events=world.events,
-              collisions=m.collisions, food=m.food)
+    batch.add(
+        t,
+        sensors=sensors,
+        pos=world.pos,
+        heading=world.heading,
+        events=world.events,
+        collisions=m.collisions,
+        food=m.food,
+    )
     for row in world.changes():
         changes.append((t, *row))
 
@@ -216,33 +277,56 @@ def state_message(batch: TickBatch, changes: list, final: bool, world: World, ru
     first, a = batch.take()
     if first is None:
         A = world.agents
-        first, a = world.tick, {"sensors": np.zeros((0, A, len(SENSORS))), "pos": np.zeros((0, A, 2)),
-                                "heading": np.zeros((0, A)), "events": np.zeros((0, A, len(EVENT_COLUMNS)), np.int64),
-                                "collisions": np.zeros((0, A), np.int64), "food": np.zeros((0, A), np.int64)}
+        first, a = (
+            world.tick,
+            {
+                "sensors": np.zeros((0, A, len(SENSORS))),
+                "pos": np.zeros((0, A, 2)),
+                "heading": np.zeros((0, A)),
+                "events": np.zeros((0, A, len(EVENT_COLUMNS)), np.int64),
+                "collisions": np.zeros((0, A), np.int64),
+                "food": np.zeros((0, A), np.int64),
+            },
+        )
     rows = np.array(changes, np.int64).reshape(-1, 5)
     changes.clear()
-    return WorldState(tick=first, run=run, sensor_names=SENSORS, sensors=Array.of(a["sensors"]),
-                      pos=Array.of(a["pos"]),
-                      heading=Array.of(a["heading"]), events=Array.of(a["events"]), collisions=Array.of(a["collisions"]),
-                      food=Array.of(a["food"]), changes=Array.of(rows), final=final)
+    return WorldState(
+        tick=first,
+        run=run,
+        sensor_names=SENSORS,
+        sensors=Array.of(a["sensors"]),
+        pos=Array.of(a["pos"]),
+        heading=Array.of(a["heading"]),
+        events=Array.of(a["events"]),
+        collisions=Array.of(a["collisions"]),
+        food=Array.of(a["food"]),
+        changes=Array.of(rows),
+        final=final,
+    )
 
 
 def metrics_of(world: World, ticks: int, elapsed: float, resumed_at: int = 0) -> dict:
     m, p = world.metrics, world.params
     return {
-        "ticks": ticks, "agents": world.agents, "seed": world.seed, "shared_arena": world.shared,
-        "training": world.training, "elapsed_s": round(elapsed, 3),
+        "ticks": ticks,
+        "agents": world.agents,
+        "seed": world.seed,
+        "shared_arena": world.shared,
+        "training": world.training,
+        "elapsed_s": round(elapsed, 3),
         "ticks_per_s": round((ticks - resumed_at) / max(elapsed, 1e-9), 1),
         "resumed_at": resumed_at or None,  # the tick this process resumed the run at (its checkpoint)
         "world": {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(p).items()},
         "collisions_per_1000_ticks": np.array(m.bins).T.tolist() if m.bins else [[] for _ in range(world.agents)],
         "collisions": m.collisions.tolist(),
         "collisions_by_colour": {c: m.collisions_by_colour[:, k].tolist() for k, c in ((1, "black"), (2, "red"))},
-        "food": m.food.tolist(), "distance": np.round(m.distance, 3).tolist(), "resets": m.resets.tolist(),
+        "food": m.food.tolist(),
+        "distance": np.round(m.distance, 3).tolist(),
+        "resets": m.resets.tolist(),
         "ticks_since_last_collision": [ticks - int(t) if t >= 0 else ticks for t in m.last_collision],
         "learning_time": [int(t) if t >= 0 else None for t in m.learned_at],
         "learning_time_definition": f"the last tick on a noxious patch before the first {p.learned_after} "
-                                    "ticks off them (null: not reached)",
+        "ticks off them (null: not reached)",
     }
 
 
@@ -252,8 +336,10 @@ def outcome(result: dict, shown: int = 8) -> str:
     if len(collisions) <= shown:
         return f"collisions {collisions}; learning time {learned}"
     reached = sum(t is not None for t in learned)
-    return (f"{len(collisions)} insects: collisions {np.mean(collisions):.1f} per insect on average (the first "
-            f"{shown}: {collisions[:shown]}); learned: {reached} of {len(learned)}")
+    return (
+        f"{len(collisions)} insects: collisions {np.mean(collisions):.1f} per insect on average (the first "
+        f"{shown}: {collisions[:shown]}); learned: {reached} of {len(learned)}"
+    )
 
 
 class Trajectory:
@@ -278,9 +364,16 @@ class Trajectory:
 
     def save(self, path: Path, ticks: int) -> None:
         late = np.roll(self.late, -(ticks % self.n), axis=0)  # oldest first
-        np.savez_compressed(path, early=self.early, late=late, late_from=ticks - self.n,
-                            grid_early=self.grid_early, grid_late=self.world.grid[self.world.arena_of[0]],
-                            x_min=self.world.params.x_min, y_min=self.world.params.y_min)
+        np.savez_compressed(
+            path,
+            early=self.early,
+            late=late,
+            late_from=ticks - self.n,
+            grid_early=self.grid_early,
+            grid_late=self.world.grid[self.world.arena_of[0]],
+            x_min=self.world.params.x_min,
+            y_min=self.world.params.y_min,
+        )
 
 
 CHECKPOINT = "world.npz"  # in --checkpoint DIR: the world of one run, at its last checkpoint
@@ -291,16 +384,26 @@ PENDING = "world-pending.npz"
 
 def run_options(args: argparse.Namespace) -> dict:
     """The options that make a run what it is: a checkpoint resumes only under the same ones."""
-    return {"ticks": args.ticks, "seed": args.seed, "agents": args.agents, "shared": args.shared,
-            "preset": args.preset, "map": str(args.map) if args.map else None, "no_training": args.no_training,
-            "learned_after": args.learned_after}
+    return {
+        "ticks": args.ticks,
+        "seed": args.seed,
+        "agents": args.agents,
+        "shared": args.shared,
+        "preset": args.preset,
+        "map": str(args.map) if args.map else None,
+        "no_training": args.no_training,
+        "learned_after": args.learned_after,
+    }
 
 
 def keep_checkpoint(args: argparse.Namespace, world: World, trajectory: Trajectory, run_id: str) -> None:
-    arrays = {**{f"world.{k}": v for k, v in world.snapshot().items()},
-              **{f"trajectory.{k}": v for k, v in trajectory.arrays().items()}}
-    snapshots.write(args.checkpoint / PENDING, arrays, {"run": run_id, "tick": world.tick,
-                                                        "options": run_options(args)})
+    arrays = {
+        **{f"world.{k}": v for k, v in world.snapshot().items()},
+        **{f"trajectory.{k}": v for k, v in trajectory.arrays().items()},
+    }
+    snapshots.write(
+        args.checkpoint / PENDING, arrays, {"run": run_id, "tick": world.tick, "options": run_options(args)}
+    )
 
 
 def resume(args: argparse.Namespace, world: World, trajectory: Trajectory) -> str | None:
@@ -313,13 +416,18 @@ def resume(args: argparse.Namespace, world: World, trajectory: Trajectory) -> st
     kept, wanted = meta.get("options", {}), run_options(args)
     differ = [f"--{k.replace('_', '-')} {kept.get(k)} there, {v} here" for k, v in wanted.items() if kept.get(k) != v]
     if differ:
-        raise ValueError(f"{path} holds run {meta.get('run')} at tick {meta.get('tick')} made with other options "
-                         f"({'; '.join(differ)}): resume it with those, or give another --checkpoint folder")
+        raise ValueError(
+            f"{path} holds run {meta.get('run')} at tick {meta.get('tick')} made with other options "
+            f"({'; '.join(differ)}): resume it with those, or give another --checkpoint folder"
+        )
     if not RUN_ID.fullmatch(str(meta.get("run"))):
         raise ValueError(f"{path}: not a world checkpoint (no run id in it)")
     world.restore({k.removeprefix("world."): v for k, v in arrays.items() if k.startswith("world.")})
-    snapshots.copy_into(trajectory.arrays(), {k.removeprefix("trajectory."): v for k, v in arrays.items()
-                                              if k.startswith("trajectory.")}, str(path))
+    snapshots.copy_into(
+        trajectory.arrays(),
+        {k.removeprefix("trajectory."): v for k, v in arrays.items() if k.startswith("trajectory.")},
+        str(path),
+    )
     return meta["run"]
 
 
@@ -345,8 +453,15 @@ def run(args: argparse.Namespace, session) -> int:
         run_id = resumed or new_run_id()  # the brain answers for this run only; an end names it
         if state is not None:
             wait_for_subscriber(state, "a recorder")
-            bus.outbox(keys.world_map(args.group)).put(WorldMap(
-                tick=start, run=run_id, grid=Array.of(world.grid), x_min=world.params.x_min, y_min=world.params.y_min))
+            bus.outbox(keys.world_map(args.group)).put(
+                WorldMap(
+                    tick=start,
+                    run=run_id,
+                    grid=Array.of(world.grid),
+                    x_min=world.params.x_min,
+                    y_min=world.params.y_min,
+                )
+            )
         batch, changes = TickBatch(state_batch(world.agents)), []
         if resumed:
             log.info("run %s resumed at tick %d from %s", run_id, start, args.checkpoint / CHECKPOINT)

@@ -101,10 +101,21 @@ class WorldParams:
 
 # fpar columns: the WorldParams the kernels read, in this order
 # (the rotation and move steps are per agent: World.steps)
-WORLD_COLUMNS = ("x_min", "y_min", "view_distance", "ray_step", "push", "start_x", "start_y", "learned_after",
-                 "pain_value", "reward_value")
-X_MIN, Y_MIN, VIEW, RAY_STEP, PUSH, START_X, START_Y, LEARNED_AFTER, PAIN_VALUE, REWARD_VALUE = \
-    range(len(WORLD_COLUMNS))
+WORLD_COLUMNS = (
+    "x_min",
+    "y_min",
+    "view_distance",
+    "ray_step",
+    "push",
+    "start_x",
+    "start_y",
+    "learned_after",
+    "pain_value",
+    "reward_value",
+)
+X_MIN, Y_MIN, VIEW, RAY_STEP, PUSH, START_X, START_Y, LEARNED_AFTER, PAIN_VALUE, REWARD_VALUE = range(
+    len(WORLD_COLUMNS)
+)
 
 # The paper's steps are the default: with the NetLogo demo's smaller steps the insect creeps up to
 # walls and does not learn avoidance in 40,000 ticks (docs/world.md).
@@ -127,7 +138,7 @@ def generate_map(params: WorldParams, seed: int) -> np.ndarray:
     grid[0, :] = grid[-1, :] = grid[:, 0] = grid[:, -1] = BLACK
     for x in p.wall_columns:
         if p.x_min < x < p.x_max:
-            grid[x - p.x_min, p.wall_from_y - p.y_min:] = BLACK
+            grid[x - p.x_min, p.wall_from_y - p.y_min :] = BLACK
     rng = np.random.default_rng(seed)
     u = rng.random((p.width - 2, p.height - 2))
     inner = grid[1:-1, 1:-1]  # red and green may overwrite inner wall cells
@@ -178,8 +189,10 @@ def load_map(path) -> tuple[np.ndarray, tuple[float, float]]:
             elif ch in MAP_CHARS:
                 grid[x, y] = MAP_CHARS[ch]
             else:
-                raise MapError(f"{path}: line {line_no}, column {x + 1}: unknown cell {ch!r} "
-                               f"(use # wall, R predator, G food, . empty, S start)")
+                raise MapError(
+                    f"{path}: line {line_no}, column {x + 1}: unknown cell {ch!r} "
+                    f"(use # wall, R predator, G food, . empty, S start)"
+                )
     if start is None:
         raise MapError(f"{path}: no start 'S' in the map")
     if width < 3 or len(rows) < 3:
@@ -190,8 +203,15 @@ def load_map(path) -> tuple[np.ndarray, tuple[float, float]]:
 def map_world(path, base: WorldParams | None = None) -> tuple[WorldParams, np.ndarray]:
     """Params and grid for a map file: the arena is the map, its lower-left patch is (0, 0)."""
     grid, start = load_map(path)
-    params = dataclasses.replace(base or WorldParams(), x_min=0, y_min=0, x_max=grid.shape[0] - 1,
-                                 y_max=grid.shape[1] - 1, start=start, wall_columns=())
+    params = dataclasses.replace(
+        base or WorldParams(),
+        x_min=0,
+        y_min=0,
+        x_max=grid.shape[0] - 1,
+        y_max=grid.shape[1] - 1,
+        start=start,
+        wall_columns=(),
+    )
     return params, grid
 
 
@@ -218,9 +238,17 @@ class World:
     several times (one per parameter setting). `agent_params`: the world's per-agent columns
     (services.params: rotation and move steps), each a number or one value per agent."""
 
-    def __init__(self, params: WorldParams | None = None, agents: int = 1, seed: int = 0,
-                 shared: bool = False, grid: np.ndarray | None = None, training: bool = True,
-                 numbers=None, agent_params=None):
+    def __init__(
+        self,
+        params: WorldParams | None = None,
+        agents: int = 1,
+        seed: int = 0,
+        shared: bool = False,
+        grid: np.ndarray | None = None,
+        training: bool = True,
+        numbers=None,
+        agent_params=None,
+    ):
         self.params = p = params or WorldParams()
         self.agents, self.seed, self.shared = agents, seed, shared
         self.numbers = np.arange(agents, dtype=np.int64) if numbers is None else np.asarray(numbers, np.int64)
@@ -228,8 +256,12 @@ class World:
             raise ValueError(f"numbers: one agent number >= 0 per agent ({agents}), got {list(self.numbers)[:8]}")
         columns = agent_columns(agents, agent_params, "world")
         # per agent: degrees per ROTATE spike, patches per MOVE spike
-        self.steps = np.column_stack([columns.get("rotation_step", np.full(agents, p.rotation_step)),
-                                      columns.get("move_step", np.full(agents, p.move_step))])
+        self.steps = np.column_stack(
+            [
+                columns.get("rotation_step", np.full(agents, p.rotation_step)),
+                columns.get("move_step", np.full(agents, p.move_step)),
+            ]
+        )
         self.training = training
         self._custom_grid = grid
         if grid is not None:
@@ -263,18 +295,25 @@ class World:
         """Fresh arenas and insects from the seed (agent a's arena and heading use seed + a)."""
         p = self.params
         for g in range(self.grid.shape[0]):
-            self.grid[g] = self._custom_grid if self._custom_grid is not None else \
-                generate_map(p, self.seed + int(self.numbers[g]))
+            self.grid[g] = (
+                self._custom_grid
+                if self._custom_grid is not None
+                else generate_map(p, self.seed + int(self.numbers[g]))
+            )
         self.pos[:] = p.start
         self.heading[:] = [np.random.default_rng((self.seed, int(k), 1)).uniform(0, 360) for k in self.numbers]
         self.tick = 0
         self.last_patch[:] = -1
         A = self.agents
         self.metrics = Metrics(
-            collisions=np.zeros(A, np.int64), collisions_by_colour=np.zeros((A, 4), np.int64),
-            food=np.zeros(A, np.int64), distance=np.zeros(A), last_collision=np.full(A, -1, np.int64),
+            collisions=np.zeros(A, np.int64),
+            collisions_by_colour=np.zeros((A, 4), np.int64),
+            food=np.zeros(A, np.int64),
+            distance=np.zeros(A),
+            last_collision=np.full(A, -1, np.int64),
             last_noxious=np.full(A, -1, np.int64),
-            learned_at=np.full(A, -1, np.int64), resets=np.zeros(A, np.int64),
+            learned_at=np.full(A, -1, np.int64),
+            resets=np.zeros(A, np.int64),
         )
         self._bin = np.zeros(A, np.int64)
         self.events = np.zeros((A, len(EVENT_COLUMNS)), np.int64)  # this tick's events
@@ -301,12 +340,39 @@ class World:
             raise ValueError(f"actions of shape {actions.shape}, expected {self._actions.shape} (agents, actions)")
         self._actions[:] = actions
         m = self.metrics
-        self._touch(self.grid, self.arena_of, self.pos, self.heading, self.fpar, self.kind, self.training, self.tick,
-               self.last_patch, self.events, self.eaten, m.collisions, m.collisions_by_colour, m.food, m.distance,
-               m.last_collision, m.last_noxious, m.learned_at, self._bin)
-        self._act(self.grid.shape[1], self.grid.shape[2], self.pos, self.heading, self.fpar, self.steps,
-             self._actions, self.events, self.metrics.distance,
-             self.metrics.resets)
+        self._touch(
+            self.grid,
+            self.arena_of,
+            self.pos,
+            self.heading,
+            self.fpar,
+            self.kind,
+            self.training,
+            self.tick,
+            self.last_patch,
+            self.events,
+            self.eaten,
+            m.collisions,
+            m.collisions_by_colour,
+            m.food,
+            m.distance,
+            m.last_collision,
+            m.last_noxious,
+            m.learned_at,
+            self._bin,
+        )
+        self._act(
+            self.grid.shape[1],
+            self.grid.shape[2],
+            self.pos,
+            self.heading,
+            self.fpar,
+            self.steps,
+            self._actions,
+            self.events,
+            self.metrics.distance,
+            self.metrics.resets,
+        )
         self.tick += 1
         if self.tick % BIN == 0:
             self.metrics.bins.append(self._bin.copy())
@@ -331,9 +397,14 @@ class World:
 
     def _state_arrays(self) -> dict[str, np.ndarray]:
         m = self.metrics
-        return {"grid": self.grid, "pos": self.pos, "heading": self.heading, "last_patch": self.last_patch,
-                "bin": self._bin, **{f"metrics.{f.name}": getattr(m, f.name) for f in dataclasses.fields(m)
-                                     if f.name != "bins"}}
+        return {
+            "grid": self.grid,
+            "pos": self.pos,
+            "heading": self.heading,
+            "last_patch": self.last_patch,
+            "bin": self._bin,
+            **{f"metrics.{f.name}": getattr(m, f.name) for f in dataclasses.fields(m) if f.name != "bins"},
+        }
 
     def patch_at(self, agent: int = 0) -> int:
         p = self.params
@@ -341,8 +412,6 @@ class World:
         if 0 <= x < p.width and 0 <= y < p.height:
             return int(self.grid[self.arena_of[agent], x, y])
         return EMPTY
-
-
 
 
 @njit(cache=True, inline="always")
@@ -365,7 +434,7 @@ def _sense_one(a, grid, arena_of, pos, heading, fpar, kind, sensors, steps):
     # distance is a running sum, as NetLogo's `set itemcount itemcount + 0.2`: its 10th
     # sample is 1.9999999999999998, so a patch seen there fires its smell one tick sooner.
     d = 0.0
-    for k in range(1, steps + 1):
+    for _step in range(steps):
         d += fpar[RAY_STEP]
         colour, _ = _colour_at(grid, g, pos[a, 0] + d * dx, pos[a, 1] + d * dy, fpar)
         if colour != EMPTY:
@@ -399,8 +468,28 @@ def _sense_parallel(grid, arena_of, pos, heading, fpar, kind, sensors):
 
 
 @njit(cache=True, inline="always")
-def _touch_one(a, grid, arena_of, pos, heading, fpar, kind, training, t, last_patch, events, eaten,
-               collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins):
+def _touch_one(
+    a,
+    grid,
+    arena_of,
+    pos,
+    heading,
+    fpar,
+    kind,
+    training,
+    t,
+    last_patch,
+    events,
+    eaten,
+    collisions,
+    by_colour,
+    food,
+    distance,
+    last_collision,
+    last_noxious,
+    learned_at,
+    bins,
+):
     g = arena_of[a]
     for k in range(events.shape[1]):
         events[a, k] = 0
@@ -434,21 +523,99 @@ def _touch_one(a, grid, arena_of, pos, heading, fpar, kind, training, t, last_pa
 
 
 @njit(cache=True)
-def _touch(grid, arena_of, pos, heading, fpar, kind, training, t, last_patch, events, eaten,
-           collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins):
+def _touch(
+    grid,
+    arena_of,
+    pos,
+    heading,
+    fpar,
+    kind,
+    training,
+    t,
+    last_patch,
+    events,
+    eaten,
+    collisions,
+    by_colour,
+    food,
+    distance,
+    last_collision,
+    last_noxious,
+    learned_at,
+    bins,
+):
     """What touching the patch under each insect does in tick t: count, push, eat, learn."""
     for a in range(pos.shape[0]):
-        _touch_one(a, grid, arena_of, pos, heading, fpar, kind, training, t, last_patch, events, eaten,
-                   collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins)
+        _touch_one(
+            a,
+            grid,
+            arena_of,
+            pos,
+            heading,
+            fpar,
+            kind,
+            training,
+            t,
+            last_patch,
+            events,
+            eaten,
+            collisions,
+            by_colour,
+            food,
+            distance,
+            last_collision,
+            last_noxious,
+            learned_at,
+            bins,
+        )
 
 
 @njit(cache=True, parallel=True)
-def _touch_parallel(grid, arena_of, pos, heading, fpar, kind, training, t, last_patch, events, eaten,
-                    collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins):
+def _touch_parallel(
+    grid,
+    arena_of,
+    pos,
+    heading,
+    fpar,
+    kind,
+    training,
+    t,
+    last_patch,
+    events,
+    eaten,
+    collisions,
+    by_colour,
+    food,
+    distance,
+    last_collision,
+    last_noxious,
+    learned_at,
+    bins,
+):
     """_touch for agents each in an arena of its own (in a shared one, the first on a food patch eats it)."""
     for a in prange(pos.shape[0]):
-        _touch_one(a, grid, arena_of, pos, heading, fpar, kind, training, t, last_patch, events, eaten,
-                   collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins)
+        _touch_one(
+            a,
+            grid,
+            arena_of,
+            pos,
+            heading,
+            fpar,
+            kind,
+            training,
+            t,
+            last_patch,
+            events,
+            eaten,
+            collisions,
+            by_colour,
+            food,
+            distance,
+            last_collision,
+            last_noxious,
+            learned_at,
+            bins,
+        )
 
 
 @njit(cache=True, inline="always")

@@ -60,8 +60,9 @@ def main(argv=None) -> dict:
     parser.add_argument("--agents", type=at_least(1), default=1000, help="agents in the batch case")
     parser.add_argument("--batch-ticks", type=at_least(1), default=500, help="ticks per pass in the batch case")
     parser.add_argument("--repeats", type=at_least(1), default=3)
-    parser.add_argument("--rounds", type=at_least(1), default=20,
-                        help="rounds of the two batch engines in turns (ratio)")
+    parser.add_argument(
+        "--rounds", type=at_least(1), default=20, help="rounds of the two batch engines in turns (ratio)"
+    )
     args = parser.parse_args(argv)
 
     circuit = load_circuit("insect").with_learning_rate(0.04)
@@ -84,8 +85,10 @@ def main(argv=None) -> dict:
         feeds = random_feeds(rng, circuit, args.batch_ticks, args.agents)
         batch_rate = best_rate(batch, feeds, args.repeats, agents=args.agents)
         spikes = int(batch.run(feeds[:100]).sum())
-        print(f"{semantics}: A = {args.agents} {batch_rate:,.0f} agent-ticks/s on {os.cpu_count()} cores "
-              f"({spikes / args.agents / 100:.2f} spikes per agent per tick; training on)")
+        print(
+            f"{semantics}: A = {args.agents} {batch_rate:,.0f} agent-ticks/s on {os.cpu_count()} cores "
+            f"({spikes / args.agents / 100:.2f} spikes per agent per tick; training on)"
+        )
         prefix = "" if semantics == "phased" else f"{semantics}_"
         result[f"{prefix}single_ticks_per_s"] = round(single_rate)
         result[f"{prefix}single_run_ticks_per_s"] = round(run_rate)
@@ -96,8 +99,10 @@ def main(argv=None) -> dict:
     # this shared machine's speed drifts by 10-20 % within seconds: the two engines in turns, the median ratio
     ratios = [best_rate(*batches["netlogo"], 1) / best_rate(*batches["phased"], 1) for _ in range(args.rounds)]
     result[f"netlogo_over_phased_batch{args.agents}_median"] = round(float(np.median(ratios)), 3)
-    print(f"netlogo / phased at A = {args.agents}, {args.rounds} rounds in turns: median {np.median(ratios):.2f} "
-          f"(min {min(ratios):.2f}, max {max(ratios):.2f})")
+    print(
+        f"netlogo / phased at A = {args.agents}, {args.rounds} rounds in turns: median {np.median(ratios):.2f} "
+        f"(min {min(ratios):.2f}, max {max(ratios):.2f})"
+    )
     print(json.dumps(result))
     return result
 

@@ -26,7 +26,8 @@ from collections import Counter
 import msgspec
 import numpy as np
 import rerun as rr
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from services.brain.circuit import load_circuit
 from services.brain.service import BrainNode, layout
@@ -55,19 +56,38 @@ from services.world.service import actions_from
 raw_encode, raw_decode = msgspec.msgpack.Encoder().encode, msgspec.msgpack.Decoder().decode
 CIRCUIT = load_circuit("insect")
 A = 3
-KEY_OF = {Sensors: keys.sensors("insect"), Motor: keys.motor("insect"), Control: keys.control("insect"),
-          BrainState: keys.brain_state("insect"), BrainLayout: keys.brain_state("insect"),
-          WorldState: keys.world_state("insect"), WorldMap: keys.world_map("insect")}
+KEY_OF = {
+    Sensors: keys.sensors("insect"),
+    Motor: keys.motor("insect"),
+    Control: keys.control("insect"),
+    BrainState: keys.brain_state("insect"),
+    BrainLayout: keys.brain_state("insect"),
+    WorldState: keys.world_state("insect"),
+    WorldMap: keys.world_map("insect"),
+}
 # one real message of each kind, as the services send them for a run of 3 agents
 EXAMPLES = [
-    Sensors(tick=7, names=INSECT_SENSORS, values=Array.of(np.array([[0.4, np.nan, np.nan, 1.0, np.nan]] * A)),
-            run="r1", seed=4),
+    Sensors(
+        tick=7,
+        names=INSECT_SENSORS,
+        values=Array.of(np.array([[0.4, np.nan, np.nan, 1.0, np.nan]] * A)),
+        run="r1",
+        seed=4,
+    ),
     Motor(tick=7, names=INSECT_ACTIONS, actions=Array.of(np.array([[1, 0]] * A, np.uint8)), run="r1"),
     Control(tick=40000, command="end", run="r1"),
-    WorldState(tick=7, run="r1", sensor_names=("pain", "reward"), sensors=Array.of(np.full((50, A, 2), np.nan)),
-               pos=Array.of(np.zeros((50, A, 2))), heading=Array.of(np.zeros((50, A))),
-               events=Array.of(np.zeros((50, A, 4), np.int64)), collisions=Array.of(np.zeros((50, A), np.int64)),
-               food=Array.of(np.zeros((50, A), np.int64)), changes=Array.of(np.array([[7, 1, 3, 4, 0]], np.int64))),
+    WorldState(
+        tick=7,
+        run="r1",
+        sensor_names=("pain", "reward"),
+        sensors=Array.of(np.full((50, A, 2), np.nan)),
+        pos=Array.of(np.zeros((50, A, 2))),
+        heading=Array.of(np.zeros((50, A))),
+        events=Array.of(np.zeros((50, A, 4), np.int64)),
+        collisions=Array.of(np.zeros((50, A), np.int64)),
+        food=Array.of(np.zeros((50, A), np.int64)),
+        changes=Array.of(np.array([[7, 1, 3, 4, 0]], np.int64)),
+    ),
     WorldMap(tick=0, run="r1", grid=Array.of(np.zeros((A, 41, 60), np.uint8)), x_min=80, y_min=1),
     layout(CIRCUIT, 0, "r1"),
 ]
@@ -89,8 +109,12 @@ def example(kind):
 
 # any msgpack value: what a peer could put in a field
 values = st.recursive(
-    st.none() | st.booleans() | st.integers(min_value=-(2**63), max_value=2**64 - 1) | st.floats()
-    | st.text(max_size=20) | st.binary(max_size=64),
+    st.none()
+    | st.booleans()
+    | st.integers(min_value=-(2**63), max_value=2**64 - 1)
+    | st.floats()
+    | st.text(max_size=20)
+    | st.binary(max_size=64),
     lambda inner: st.lists(inner, max_size=5) | st.dictionaries(st.text(max_size=8), inner, max_size=5),
     max_leaves=20,
 )
@@ -111,11 +135,13 @@ class Services:
         """'taken' when some service that reads its key takes it, 'refused' when each refuses it (a
         BusError: it does not fit its run); any other exception escapes."""
         taken = []
+
         def attempt(step, *args):
             try:
                 taken.append(step(*args) is not False)
             except BusError:
                 taken.append(False)
+
         if isinstance(message, Sensors):
             attempt(BrainNode(CIRCUIT).answer, message)
             attempt(self.serving.answer, message)
@@ -200,7 +226,7 @@ def structure_mutants(data, message) -> list[bytes]:
     at = next((i for i, b in enumerate(payload) if 0xA1 <= b <= 0xBF), None)  # a msgpack str of 1..31 bytes
     if at is None or at + 1 >= len(payload):
         return [payload]
-    return [payload, payload[:at + 1] + b"\xff" + payload[at + 2:]]
+    return [payload, payload[: at + 1] + b"\xff" + payload[at + 2 :]]
 
 
 # well-formed messages with any values, their shapes mostly consistent (so that they pass the
@@ -228,35 +254,63 @@ def messages(draw, kind=None):
     tick, T, A = draw(ticks), draw(st.integers(0, 3)), draw(st.sampled_from([3, 3, 1, 0, 2]))
     if kind is Sensors:
         sensor_names = draw(st.just(INSECT_SENSORS) | names)
-        return Sensors(tick=tick, names=sensor_names, values=array(draw, "<f8", (A, len(sensor_names)), numbers),
-                       run=draw(runs), seed=draw(st.integers(0, 2**64 - 1) | st.integers(0, 9)))
+        return Sensors(
+            tick=tick,
+            names=sensor_names,
+            values=array(draw, "<f8", (A, len(sensor_names)), numbers),
+            run=draw(runs),
+            seed=draw(st.integers(0, 2**64 - 1) | st.integers(0, 9)),
+        )
     if kind is Motor:
         action_names = draw(st.just(INSECT_ACTIONS) | names)
-        return Motor(tick=tick, names=action_names, actions=array(draw, "|u1", (A, len(action_names)),
-                                                                  st.integers(0, 255)), run=draw(runs))
+        return Motor(
+            tick=tick,
+            names=action_names,
+            actions=array(draw, "|u1", (A, len(action_names)), st.integers(0, 255)),
+            run=draw(runs),
+        )
     if kind is BrainState:
-        return BrainState(tick=tick, run=draw(runs),
-                          spiked=array(draw, "|u1", (T, A, NODES), st.integers(0, 1)),
-                          potentials=array(draw, "<f4", (T, A, NEURONS), st.floats(width=32)),
-                          weights=array(draw, "<f8", (A, SYNAPSES), numbers))
+        return BrainState(
+            tick=tick,
+            run=draw(runs),
+            spiked=array(draw, "|u1", (T, A, NODES), st.integers(0, 1)),
+            potentials=array(draw, "<f4", (T, A, NEURONS), st.floats(width=32)),
+            weights=array(draw, "<f8", (A, SYNAPSES), numbers),
+        )
     if kind is BrainLayout:
-        return BrainLayout(tick=tick, run=draw(runs), circuit=draw(st.text(max_size=5)),
-                           nodes=draw(names | st.just(CIRCUIT.node_names)), neurons=draw(st.integers(0, 20) | i64),
-                           synapses=draw(names), plastic=tuple(draw(st.lists(i64, max_size=3))))
+        return BrainLayout(
+            tick=tick,
+            run=draw(runs),
+            circuit=draw(st.text(max_size=5)),
+            nodes=draw(names | st.just(CIRCUIT.node_names)),
+            neurons=draw(st.integers(0, 20) | i64),
+            synapses=draw(names),
+            plastic=tuple(draw(st.lists(i64, max_size=3))),
+        )
     if kind is WorldState:
         S, K = draw(st.integers(0, 5)), draw(st.integers(0, 3))
-        return WorldState(tick=tick, run=draw(runs),
-                          sensor_names=tuple(draw(st.lists(st.sampled_from(INSECT_SENSORS), min_size=S, max_size=S))),
-                          sensors=array(draw, "<f8", (T, A, S), numbers), pos=array(draw, "<f8", (T, A, 2), places),
-                          heading=array(draw, "<f8", (T, A), places), events=array(draw, "<i8", (T, A, 4), i64),
-                          collisions=array(draw, "<i8", (T, A), i64), food=array(draw, "<i8", (T, A), i64),
-                          changes=array(draw, "<i8", (K, 5), i64 | st.integers(0, 40)), final=draw(st.booleans()))
+        return WorldState(
+            tick=tick,
+            run=draw(runs),
+            sensor_names=tuple(draw(st.lists(st.sampled_from(INSECT_SENSORS), min_size=S, max_size=S))),
+            sensors=array(draw, "<f8", (T, A, S), numbers),
+            pos=array(draw, "<f8", (T, A, 2), places),
+            heading=array(draw, "<f8", (T, A), places),
+            events=array(draw, "<i8", (T, A, 4), i64),
+            collisions=array(draw, "<i8", (T, A), i64),
+            food=array(draw, "<i8", (T, A), i64),
+            changes=array(draw, "<i8", (K, 5), i64 | st.integers(0, 40)),
+            final=draw(st.booleans()),
+        )
     if kind is WorldMap:
-        return WorldMap(tick=tick, run=draw(runs),
-                        grid=array(draw, "|u1", (draw(st.integers(0, 3)), 41, 60), st.integers(0, 255)),
-                        x_min=draw(i64), y_min=draw(i64))
+        return WorldMap(
+            tick=tick,
+            run=draw(runs),
+            grid=array(draw, "|u1", (draw(st.integers(0, 3)), 41, 60), st.integers(0, 255)),
+            x_min=draw(i64),
+            y_min=draw(i64),
+        )
     return kind(tick=tick, command=draw(st.text(max_size=5) | st.just("end")), run=draw(runs))
-
 
 
 def payloads(source: str, kind) -> st.SearchStrategy:
@@ -291,8 +345,13 @@ def run(examples: int) -> tuple[dict, str | None]:
                 continue  # arbitrary bytes are no kind's: tried once, under "any key"
             counts = table.setdefault("any key" if source == "bytes" else KEY_OF[kind], Counter())
 
-            @settings(max_examples=examples, deadline=None, database=None, derandomize=True,
-                      suppress_health_check=list(HealthCheck))
+            @settings(
+                max_examples=examples,
+                deadline=None,
+                database=None,
+                derandomize=True,
+                suppress_health_check=list(HealthCheck),
+            )
             @given(payloads(source, kind))
             def throw(batch):
                 nonlocal first_escape
@@ -303,22 +362,29 @@ def run(examples: int) -> tuple[dict, str | None]:
                     except Exception:
                         counts["escapes"] += 1
                         first_escape = first_escape or traceback.format_exc()
+
             throw()
     return {key: dict(counts) for key, counts in table.items()}, first_escape
 
 
 def main(argv=None) -> dict:
     p = Parser(prog="spikinglab bench fuzz", description=__doc__.split("\n")[0])
-    p.add_argument("--examples", type=at_least(1), default=2000,
-                   help="payloads per source and kind (default 2000; each is tried as every kind and any kind)")
+    p.add_argument(
+        "--examples",
+        type=at_least(1),
+        default=2000,
+        help="payloads per source and kind (default 2000; each is tried as every kind and any kind)",
+    )
     args = p.parse_args(argv)
     warnings.simplefilter("ignore", RuntimeWarning)  # numpy's overflow notes on the extreme values thrown
     logging.getLogger("spikinglab").setLevel(logging.ERROR)  # the services' word on each payload they take
     table, escape = run(args.examples)
     print(f"{'key':36} {'payloads':>9} {'rejected':>9} {'refused':>8} {'taken':>7} {'escapes':>8}")
     for key, c in table.items():
-        print(f"{key:36} {c.get('tried', 0):9,} {c.get('rejected', 0):9,} {c.get('refused', 0):8,} "
-              f"{c.get('taken', 0):7,} {c.get('escapes', 0):8,}")
+        print(
+            f"{key:36} {c.get('tried', 0):9,} {c.get('rejected', 0):9,} {c.get('refused', 0):8,} "
+            f"{c.get('taken', 0):7,} {c.get('escapes', 0):8,}"
+        )
     print("(each payload is decoded as every kind it may be expected as, and as any kind: 8 outcomes)")
     if escape:
         print("first escape:\n" + escape)

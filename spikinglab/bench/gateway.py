@@ -28,8 +28,11 @@ def polls_per_s(seconds: float) -> float:
     with FakeBrick(), tempfile.TemporaryDirectory() as tmp:
         (gateway_ep,), sockets = local_endpoints("gateway")
         with sockets:
-            gateway = spawn("gateway", ["--listen", gateway_ep, "--duration", seconds, "--stats",
-                              Path(tmp) / "g.json"], subprocess.DEVNULL)
+            gateway = spawn(
+                "gateway",
+                ["--listen", gateway_ep, "--duration", seconds, "--stats", Path(tmp) / "g.json"],
+                subprocess.DEVNULL,
+            )
             gateway.wait(seconds + 30)
         return json.loads((Path(tmp) / "g.json").read_text())["polls"] / seconds
 
@@ -41,9 +44,25 @@ def chain(trials: int, hz: float, max_polls: float = 0) -> tuple[list[float], di
     with FakeBrick() as brick, tempfile.TemporaryDirectory() as tmp:
         (gateway_ep, brain_ep), sockets = local_endpoints("gateway", "brain")
         with sockets:
-            gateway = spawn("gateway", ["--listen", gateway_ep, "--cpu", 0, "--max-polls", max_polls], subprocess.DEVNULL)
-            brain = spawn("brain", ["--listen", brain_ep, "--connect", gateway_ep, "--clock", hz,
-                            "--stats", Path(tmp) / "b.json", "--cpu", 1], subprocess.DEVNULL)
+            gateway = spawn(
+                "gateway", ["--listen", gateway_ep, "--cpu", 0, "--max-polls", max_polls], subprocess.DEVNULL
+            )
+            brain = spawn(
+                "brain",
+                [
+                    "--listen",
+                    brain_ep,
+                    "--connect",
+                    gateway_ep,
+                    "--clock",
+                    hz,
+                    "--stats",
+                    Path(tmp) / "b.json",
+                    "--cpu",
+                    1,
+                ],
+                subprocess.DEVNULL,
+            )
             latencies = []
             try:
                 deadline = time.monotonic() + 60
@@ -78,12 +97,20 @@ def main(argv=None) -> dict:
     print(f"gateway polling the fake brick: {polls:,.0f} polls/s (3 sensors per poll, one direct command)")
     latencies, brain = chain(args.trials, args.clock)
     lat = np.array(latencies)
-    print(f"sensor -> motor, {len(lat)} trials: median {np.median(lat):.2f} ms, p90 {np.percentile(lat, 90):.2f} ms "
-          f"(of which the circuit: PAIN -> ROTATE, a delay of 3 ticks at {args.clock:g} Hz)")
-    print(f"free-running brain: {brain['hz']:,.1f} Hz, lateness median {brain['late_ms_median']:.3f} ms, "
-          f"p99 {brain['late_ms_p99']:.3f} ms, max {brain['late_ms_max']:.3f} ms")
-    result = {"polls_per_s": round(polls), "sensor_to_motor_ms_median": round(float(np.median(lat)), 2),
-              "brain_hz": brain["hz"], "brain_jitter_ms_p99": brain["late_ms_p99"]}
+    print(
+        f"sensor -> motor, {len(lat)} trials: median {np.median(lat):.2f} ms, p90 {np.percentile(lat, 90):.2f} ms "
+        f"(of which the circuit: PAIN -> ROTATE, a delay of 3 ticks at {args.clock:g} Hz)"
+    )
+    print(
+        f"free-running brain: {brain['hz']:,.1f} Hz, lateness median {brain['late_ms_median']:.3f} ms, "
+        f"p99 {brain['late_ms_p99']:.3f} ms, max {brain['late_ms_max']:.3f} ms"
+    )
+    result = {
+        "polls_per_s": round(polls),
+        "sensor_to_motor_ms_median": round(float(np.median(lat)), 2),
+        "brain_hz": brain["hz"],
+        "brain_jitter_ms_p99": brain["late_ms_p99"],
+    }
     print(json.dumps(result))
     return result
 

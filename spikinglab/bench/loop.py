@@ -27,15 +27,15 @@ from pathlib import Path
 
 import numpy as np
 
-from spikinglab.bench import steady_rate
-from spikinglab.bench.engine import best_rate, random_feeds
-from spikinglab.bench.recorder import one_run
 from services.brain.circuit import load_circuit
 from services.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, SEMANTICS, Engine
 from services.launch import local_endpoints, spawn
 from services.loop import brain_for, closed_loop
 from services.options import Parser, at_least
 from services.world.world import World
+from spikinglab.bench import steady_rate
+from spikinglab.bench.engine import best_rate, random_feeds
+from spikinglab.bench.recorder import one_run
 
 
 def inprocess(ticks: int, semantics: str, agents: int = 1) -> float:
@@ -77,11 +77,17 @@ def over_the_bus(ticks: int, agents: int, semantics: str) -> float:
     """Ticks/s measured by the world process itself, after the first tick (bench.steady_rate)."""
     (world_ep, brain_ep), sockets = local_endpoints("world", "brain")
     with sockets, tempfile.TemporaryDirectory() as tmp:
-        pin = ([["--cpu", "0"], ["--cpu", "1"]] if agents < PARALLEL_FROM and os.cpu_count() >= 2 else [[], []])
-        world = spawn("world", ["--listen", world_ep, "--ticks", ticks, "--agents", agents, "--out", tmp] + pin[0],
-                      subprocess.DEVNULL)
-        brain = spawn("brain", ["--listen", brain_ep, "--connect", world_ep, "--once", "--semantics", semantics]
-                      + pin[1], subprocess.DEVNULL)
+        pin = [["--cpu", "0"], ["--cpu", "1"]] if agents < PARALLEL_FROM and os.cpu_count() >= 2 else [[], []]
+        world = spawn(
+            "world",
+            ["--listen", world_ep, "--ticks", ticks, "--agents", agents, "--out", tmp] + pin[0],
+            subprocess.DEVNULL,
+        )
+        brain = spawn(
+            "brain",
+            ["--listen", brain_ep, "--connect", world_ep, "--once", "--semantics", semantics] + pin[1],
+            subprocess.DEVNULL,
+        )
         if world.wait(600) != 0 or brain.wait(60) != 0:
             raise SystemExit("the world or the brain failed")
         return steady_rate(Path(tmp))
@@ -100,14 +106,19 @@ def median_of(runs: list[float]) -> tuple[float, str]:
 
 def main(argv=None) -> dict:
     p = Parser(prog="spikinglab bench loop", description=__doc__.splitlines()[0])
-    p.add_argument("--ticks", type=at_least(2), default=20_000,
-                   help="ticks of the one-agent bus runs (rates are measured after the first)")
+    p.add_argument(
+        "--ticks",
+        type=at_least(2),
+        default=20_000,
+        help="ticks of the one-agent bus runs (rates are measured after the first)",
+    )
     p.add_argument("--agents", type=at_least(1), default=1000)
     p.add_argument("--batch-ticks", type=at_least(8), default=2000)  # a quarter of it in one process
     p.add_argument("--large-agents", type=at_least(1), default=16_000)
     p.add_argument("--large-ticks", type=at_least(2), default=300)
-    p.add_argument("--repeats", type=at_least(1), default=3,
-                   help="runs of each bus case (default 3; the median is reported)")
+    p.add_argument(
+        "--repeats", type=at_least(1), default=3, help="runs of each bus case (default 3; the median is reported)"
+    )
     p.add_argument("--semantics", choices=SEMANTICS, default=DEFAULT_SEMANTICS, help="the brain's engine semantics")
     args = p.parse_args(argv)
     A, big = args.agents, args.large_agents
@@ -119,30 +130,47 @@ def main(argv=None) -> dict:
     print(f"in one process, 1 agent (fused loop): {rate:,.0f} ticks/s")
     engine = engine_alone(args.batch_ticks // 4, args.semantics, A)
     batch_in = inprocess(args.batch_ticks // 4, args.semantics, A)
-    print(f"A = {A}: engine alone {engine:,.0f} agent-ticks/s, the loop in one process {batch_in:,.0f} "
-          f"({batch_in / engine:.0%} of the engine)")
+    print(
+        f"A = {A}: engine alone {engine:,.0f} agent-ticks/s, the loop in one process {batch_in:,.0f} "
+        f"({batch_in / engine:.0%} of the engine)"
+    )
     # unrecorded and recorded in turns: the machine drifts more between minutes than the recording costs
     turns = [(over_the_bus(args.ticks, 1, args.semantics), recorded_run(args.ticks)) for _ in range(args.repeats)]
     bus, text = median_of([plain for plain, _ in turns])
-    print(f"two processes on the bus, 1 agent: {bus:,.0f} ticks/s median ({1e6 / bus:.0f} us per lock-step "
-          f"round trip, {bus / pings:.0%} of the bare ping-pong; runs: {text})")
+    print(
+        f"two processes on the bus, 1 agent: {bus:,.0f} ticks/s median ({1e6 / bus:.0f} us per lock-step "
+        f"round trip, {bus / pings:.0%} of the bare ping-pong; runs: {text})"
+    )
     batch, text = median_of([over_the_bus(args.batch_ticks, A, args.semantics) * A for _ in range(args.repeats)])
-    print(f"two processes on the bus, A = {A}: {batch:,.0f} agent-ticks/s median ({batch / batch_in:.0%} of the loop "
-          f"in one process; runs: {text})")
+    print(
+        f"two processes on the bus, A = {A}: {batch:,.0f} agent-ticks/s median ({batch / batch_in:.0%} of the loop "
+        f"in one process; runs: {text})"
+    )
     large_in = inprocess(args.large_ticks, args.semantics, big)
     large, text = median_of([over_the_bus(args.large_ticks, big, args.semantics) * big for _ in range(args.repeats)])
-    print(f"A = {big}: in one process {large_in:,.0f} agent-ticks/s, two processes on the bus {large:,.0f} median "
-          f"({large / large_in:.0%}; runs: {text})")
+    print(
+        f"A = {big}: in one process {large_in:,.0f} agent-ticks/s, two processes on the bus {large:,.0f} median "
+        f"({large / large_in:.0%}; runs: {text})"
+    )
     recorded, text = median_of([recorded for _, recorded in turns])
-    print(f"two processes on the bus, 1 agent, recorded: {recorded:,.0f} ticks/s median ({1 - recorded / bus:.0%} "
-          f"below the loop unrecorded; runs: {text})")
-    result = {"zenoh_roundtrips_per_s": round(pings), "inprocess_ticks_per_s": round(rate),
-              "bus_ticks_per_s": round(bus), f"engine_batch{A}_agent_ticks_per_s": round(engine),
-              f"inprocess_batch{A}_agent_ticks_per_s": round(batch_in), f"bus_batch{A}_agent_ticks_per_s": round(batch),
-              f"inprocess_batch{big}_agent_ticks_per_s": round(large_in),
-              f"bus_batch{big}_agent_ticks_per_s": round(large), "recording_ticks_per_s": round(recorded)}
+    print(
+        f"two processes on the bus, 1 agent, recorded: {recorded:,.0f} ticks/s median ({1 - recorded / bus:.0%} "
+        f"below the loop unrecorded; runs: {text})"
+    )
+    result = {
+        "zenoh_roundtrips_per_s": round(pings),
+        "inprocess_ticks_per_s": round(rate),
+        "bus_ticks_per_s": round(bus),
+        f"engine_batch{A}_agent_ticks_per_s": round(engine),
+        f"inprocess_batch{A}_agent_ticks_per_s": round(batch_in),
+        f"bus_batch{A}_agent_ticks_per_s": round(batch),
+        f"inprocess_batch{big}_agent_ticks_per_s": round(large_in),
+        f"bus_batch{big}_agent_ticks_per_s": round(large),
+        "recording_ticks_per_s": round(recorded),
+    }
     print(json.dumps(result))
     return result
+
 
 if __name__ == "__main__":
     main()

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from spikinglab.bench import steady_rate
 from services.bus.schemas import state_batch
 from services.launch import local_endpoints, spawn
 from services.options import Parser, at_least
+from spikinglab.bench import steady_rate
 
 
 def one_run(ticks: int, record: bool, folder: Path) -> dict:
@@ -29,12 +29,17 @@ def one_run(ticks: int, record: bool, folder: Path) -> dict:
     with sockets:
         recorder = None
         if record:
-            recorder = spawn("record", ["--connect", world_ep, "--connect", brain_ep, "--out",
-                                        folder / "recording.rrd"], folder / "recorder.log")
-        world = spawn("world", ["--listen", world_ep, "--ticks", ticks, "--out", folder, "--cpu", 0] + state,
-                      subprocess.DEVNULL)
-        brain = spawn("brain", ["--listen", brain_ep, "--connect", world_ep, "--once", "--cpu", 1] + state,
-                      subprocess.DEVNULL)
+            recorder = spawn(
+                "record",
+                ["--connect", world_ep, "--connect", brain_ep, "--out", folder / "recording.rrd"],
+                folder / "recorder.log",
+            )
+        world = spawn(
+            "world", ["--listen", world_ep, "--ticks", ticks, "--out", folder, "--cpu", 0] + state, subprocess.DEVNULL
+        )
+        brain = spawn(
+            "brain", ["--listen", brain_ep, "--connect", world_ep, "--once", "--cpu", 1] + state, subprocess.DEVNULL
+        )
         world.wait()
         world_done = time.monotonic()
         brain.wait(60)
@@ -62,8 +67,12 @@ def alone(ticks: int) -> float:
 
     circuit, world, run = load_circuit("insect"), World(seed=1), new_run_id()
     node = BrainNode(circuit)
-    messages = [encode(WorldMap(tick=0, run=run, grid=Array.of(world.grid), x_min=world.params.x_min,
-                                y_min=world.params.y_min)), encode(layout(circuit, 0, run))]
+    messages = [
+        encode(
+            WorldMap(tick=0, run=run, grid=Array.of(world.grid), x_min=world.params.x_min, y_min=world.params.y_min)
+        ),
+        encode(layout(circuit, 0, run)),
+    ]
     batch, changes = TickBatch(state_batch(world.agents)), []
     values = world.sense()
     for t in range(ticks):
@@ -90,8 +99,12 @@ def alone(ticks: int) -> float:
 def main(argv=None) -> dict:
     p = Parser(prog="spikinglab bench recorder", description=__doc__.splitlines()[0])
     p.add_argument("--ticks", type=at_least(2), default=30_000)
-    p.add_argument("--repeats", type=at_least(1), default=3,
-                   help="pairs of runs, without and with the recorder in turns (default 3; medians reported)")
+    p.add_argument(
+        "--repeats",
+        type=at_least(1),
+        default=3,
+        help="pairs of runs, without and with the recorder in turns (default 3; medians reported)",
+    )
     args = p.parse_args(argv)
     pairs = []  # in turns: this machine drifts more between minutes than the recording costs
     for _ in range(args.repeats):
@@ -101,15 +114,23 @@ def main(argv=None) -> dict:
     with_it = float(np.median([r["ticks_per_s"] for _, r in pairs]))
     costs = sorted(1 - r["ticks_per_s"] / p["ticks_per_s"] for p, r in pairs)
     recorded = pairs[-1][1]
-    print(f"lock-step, 1 agent, {args.ticks:,} ticks, medians of {args.repeats} pairs in turns: {plain:,.0f} ticks/s "
-          f"without the recorder, {with_it:,.0f} with it ({1 - with_it / plain:.0%} less; pair by pair: "
-          f"{', '.join(f'{c:.0%}' for c in costs)})")
-    print(f"recorder: {recorded['messages']:,} messages (world and brain state in batches of {state_batch(1)} ticks), "
-          f"file complete {recorded['lag_s']} s after the last tick, {recorded['file_mb']} MB (the last pair)")
-    result = {"loop_ticks_per_s": round(plain), "recorded_loop_ticks_per_s": round(with_it),
-              "recording_cost_by_pair": [round(c, 3) for c in costs],
-              "recorder_messages": recorded["messages"], "recorder_lag_s": recorded["lag_s"],
-              "recording_mb": recorded["file_mb"]}
+    print(
+        f"lock-step, 1 agent, {args.ticks:,} ticks, medians of {args.repeats} pairs in turns: {plain:,.0f} ticks/s "
+        f"without the recorder, {with_it:,.0f} with it ({1 - with_it / plain:.0%} less; pair by pair: "
+        f"{', '.join(f'{c:.0%}' for c in costs)})"
+    )
+    print(
+        f"recorder: {recorded['messages']:,} messages (world and brain state in batches of {state_batch(1)} ticks), "
+        f"file complete {recorded['lag_s']} s after the last tick, {recorded['file_mb']} MB (the last pair)"
+    )
+    result = {
+        "loop_ticks_per_s": round(plain),
+        "recorded_loop_ticks_per_s": round(with_it),
+        "recording_cost_by_pair": [round(c, 3) for c in costs],
+        "recorder_messages": recorded["messages"],
+        "recorder_lag_s": recorded["lag_s"],
+        "recording_mb": recorded["file_mb"],
+    }
     capacity = alone(args.ticks)
     print(f"the recorder alone (decode, buffer, write {args.ticks:,} ticks fed at once): {capacity:,.0f} ticks/s")
     result["recorder_alone_ticks_per_s"] = round(capacity)

@@ -38,11 +38,28 @@ def one_run(brain_options: list, seed: int, seconds: float, gateway_options: lis
         (gateway_ep,), sockets = local_endpoints("gateway")
         with sockets:
             stats = Path(tmp) / "gateway.json"
-            gateway = spawn("gateway", ["--backend", "sim", "--sim-seed", seed, "--listen", gateway_ep,
-                                              "--duration", seconds, "--stats", stats, *gateway_options],
-                              Path(tmp) / "gateway.log")
-            brain = spawn("brain", ["--connect", gateway_ep, "--clock", 1000, "--seed", seed, *brain_options],
-                            Path(tmp) / "brain.log")
+            gateway = spawn(
+                "gateway",
+                [
+                    "--backend",
+                    "sim",
+                    "--sim-seed",
+                    seed,
+                    "--listen",
+                    gateway_ep,
+                    "--duration",
+                    seconds,
+                    "--stats",
+                    stats,
+                    *gateway_options,
+                ],
+                Path(tmp) / "gateway.log",
+            )
+            brain = spawn(
+                "brain",
+                ["--connect", gateway_ep, "--clock", 1000, "--seed", seed, *brain_options],
+                Path(tmp) / "brain.log",
+            )
             try:
                 gateway.wait(seconds + 60)
             finally:
@@ -63,6 +80,7 @@ def contact_s(collisions: list) -> float:
 def plot(results: dict, seconds: float, out: Path) -> None:
     """Cumulative collisions over time, a line per run: learning shows as the line flattening."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -72,8 +90,11 @@ def plot(results: dict, seconds: float, out: Path) -> None:
             starts = [0.0] + [start for start, _ in r["collisions"]] + [seconds]
             counts = list(range(len(starts) - 1)) + [len(starts) - 2]
             ax.step(starts, counts, where="post", color=colour, lw=1.5, label=name if k == 0 else None)
-    ax.set(xlabel="seconds of real time (1,000 brain ticks a second)", ylabel="collisions so far",
-           title="Simulated EV3: collisions (ultrasonic < 5 cm), a line per seed")
+    ax.set(
+        xlabel="seconds of real time (1,000 brain ticks a second)",
+        ylabel="collisions so far",
+        title="Simulated EV3: collisions (ultrasonic < 5 cm), a line per seed",
+    )
     ax.grid(alpha=0.3)
     ax.legend(loc="upper left")
     fig.tight_layout()
@@ -86,28 +107,40 @@ def main(argv=None) -> dict:
     p.add_argument("--seconds", type=positive, default=120, help="real time per run (default 120)")
     p.add_argument("--seeds", type=at_least(1), default=3, help="runs per condition (default 3)")
     p.add_argument("--bin", type=positive, default=30, help="seconds per column of the table (default 30)")
-    p.add_argument("--spin-ms", type=at_least(1), default=100,
-                   help="the gateway's spin per ROTATE (default 100: 5 degrees)")
+    p.add_argument(
+        "--spin-ms", type=at_least(1), default=100, help="the gateway's spin per ROTATE (default 100: 5 degrees)"
+    )
     p.add_argument("--out", type=Path, default=Path("bench-results"))
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     jobs = [(name, seed) for seed in range(args.seeds) for name in CONDITIONS]
-    print(f"{len(jobs)} runs of {args.seconds:.0f} s, two at a time: about "
-          f"{(len(jobs) + 1) // 2 * args.seconds / 60:.0f} minutes", flush=True)
+    print(
+        f"{len(jobs)} runs of {args.seconds:.0f} s, two at a time: about "
+        f"{(len(jobs) + 1) // 2 * args.seconds / 60:.0f} minutes",
+        flush=True,
+    )
     results: dict[str, list] = {name: [] for name in CONDITIONS}
     started = time.monotonic()
     with ThreadPoolExecutor(2) as pool:
-        futures = {pool.submit(one_run, CONDITIONS[name], seed, args.seconds, ["--spin-ms", args.spin_ms]): (name, seed)
-                   for name, seed in jobs}
+        futures = {
+            pool.submit(one_run, CONDITIONS[name], seed, args.seconds, ["--spin-ms", args.spin_ms]): (name, seed)
+            for name, seed in jobs
+        }
         for future, (name, seed) in futures.items():
             stats = future.result()
             results[name].append(stats)
-            print(f"  [{time.monotonic() - started:5.0f} s] {name}, seed {seed}: {len(stats['collisions'])} "
-                  f"collisions, {contact_s(stats['collisions']):.1f} s in contact, {stats['commands']} motor commands",
-                  flush=True)
+            print(
+                f"  [{time.monotonic() - started:5.0f} s] {name}, seed {seed}: {len(stats['collisions'])} "
+                f"collisions, {contact_s(stats['collisions']):.1f} s in contact, {stats['commands']} motor commands",
+                flush=True,
+            )
     bins = int(args.seconds // args.bin)
-    rows = ["| condition | " + " | ".join(f"{k * args.bin:.0f}-{(k + 1) * args.bin:.0f} s" for k in range(bins))
-            + " | all | seconds in contact |", "|---|" + "---|" * (bins + 2)]
+    rows = [
+        "| condition | "
+        + " | ".join(f"{k * args.bin:.0f}-{(k + 1) * args.bin:.0f} s" for k in range(bins))
+        + " | all | seconds in contact |",
+        "|---|" + "---|" * (bins + 2),
+    ]
     summary = {}
     for name, runs in results.items():
         counts = np.array([per_bin(r["collisions"], args.seconds, args.bin) for r in runs]) * (60 / args.bin)
@@ -115,15 +148,22 @@ def main(argv=None) -> dict:
         total = np.mean([len(r["collisions"]) for r in runs]) * 60 / args.seconds
         contact = np.mean([contact_s(r["collisions"]) for r in runs])
         rows.append(f"| {name} | " + " | ".join(f"{m:.0f}" for m in mean) + f" | {total:.1f} | {contact:.1f} |")
-        summary[name] = {"per_minute": [round(float(m), 1) for m in mean], "all": round(float(total), 2),
-                         "contact_s": round(float(contact), 1)}
-    table = (f"Collisions per minute (ultrasonic < 5 cm), mean over {args.seeds} seeds, "
-             f"`spikinglab bench robot --seconds {args.seconds:.0f} --seeds {args.seeds} --spin-ms {args.spin_ms}`\n\n"
-             + "\n".join(rows) + "\n")
+        summary[name] = {
+            "per_minute": [round(float(m), 1) for m in mean],
+            "all": round(float(total), 2),
+            "contact_s": round(float(contact), 1),
+        }
+    table = (
+        f"Collisions per minute (ultrasonic < 5 cm), mean over {args.seeds} seeds, "
+        f"`spikinglab bench robot --seconds {args.seconds:.0f} --seeds {args.seeds} --spin-ms {args.spin_ms}`\n\n"
+        + "\n".join(rows)
+        + "\n"
+    )
     print(table)
     (args.out / "robot.md").write_text(table)
-    (args.out / "robot.json").write_text(json.dumps({"args": {k: str(v) for k, v in vars(args).items()},
-                                                     "runs": results, "summary": summary}))
+    (args.out / "robot.json").write_text(
+        json.dumps({"args": {k: str(v) for k, v in vars(args).items()}, "runs": results, "summary": summary})
+    )
     plot(results, args.seconds, args.out / "robot.png")
     print(f"wrote {args.out / 'robot.md'}, robot.json, robot.png")
     print(json.dumps(summary))

@@ -17,9 +17,9 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from spikinglab.bench import steady_rate
 from services.launch import local_endpoints, spawn
 from services.options import Parser, at_least
+from spikinglab.bench import steady_rate
 
 
 def sharded(agents: int, shards: int, ticks: int) -> float:
@@ -27,11 +27,20 @@ def sharded(agents: int, shards: int, ticks: int) -> float:
     endpoints, sockets = local_endpoints("world", *(f"brain{i}" for i in range(shards)))
     threads = str(max(1, (os.cpu_count() or 1) // shards))
     with sockets, tempfile.TemporaryDirectory() as tmp:
-        world = spawn("world", ["--listen", endpoints[0], "--ticks", ticks, "--agents", agents, "--shards", shards,
-                                "--out", tmp], Path(tmp) / "world.log")
-        brains = [spawn("brain", ["--listen", endpoints[i + 1], "--connect", endpoints[0], "--once", "--shard",
-                                  f"{i + 1}/{shards}"], subprocess.DEVNULL, env={"NUMBA_NUM_THREADS": threads})
-                  for i in range(shards)]  # each shard's share of the cores
+        world = spawn(
+            "world",
+            ["--listen", endpoints[0], "--ticks", ticks, "--agents", agents, "--shards", shards, "--out", tmp],
+            Path(tmp) / "world.log",
+        )
+        brains = [
+            spawn(
+                "brain",
+                ["--listen", endpoints[i + 1], "--connect", endpoints[0], "--once", "--shard", f"{i + 1}/{shards}"],
+                subprocess.DEVNULL,
+                env={"NUMBA_NUM_THREADS": threads},
+            )
+            for i in range(shards)
+        ]  # each shard's share of the cores
         try:
             if world.wait(1800) != 0 or any(b.wait(120) != 0 for b in brains):
                 raise SystemExit(f"a shard or the world failed:\n{(Path(tmp) / 'world.log').read_text()[-2000:]}")
@@ -55,8 +64,11 @@ def main(argv=None) -> dict:
         rates[str(n)] = round(sharded(args.agents, n, args.ticks))
         base = rates[str(args.shards[0])] / args.shards[0]
         up = rates[str(n)] / base
-        print(f"{n:6d} | {rates[str(n)]:13,} | {up:8.2f} | {up / n:9.2f}" + ("  (more shards than cores)"
-                                                                           if n > cores else ""), flush=True)
+        print(
+            f"{n:6d} | {rates[str(n)]:13,} | {up:8.2f} | {up / n:9.2f}"
+            + ("  (more shards than cores)" if n > cores else ""),
+            flush=True,
+        )
     result = {"agents": args.agents, "cores": cores, "shards": rates}
     print(json.dumps(result))
     return result

@@ -62,12 +62,31 @@ def main(argv=None) -> dict:
         out = args.out or Path(tmp)
         out.mkdir(parents=True, exist_ok=True)
         group = ["--group", "soak"]
-        world = spawn("world", ["--listen", world_ep, "--ticks", args.ticks, "--publish-state", "--out", out, *group],
-                      out / "world.log")
-        brain = spawn("brain", ["--listen", brain_ep, "--connect", world_ep, "--once", "--publish-state", "--stats",
-                                out / "brain.json", *group], out / "brain.log")
-        recorder = spawn("record", ["--connect", world_ep, "--connect", brain_ep, "--out", out / "soak.rrd", *group],
-                         out / "recorder.log")
+        world = spawn(
+            "world",
+            ["--listen", world_ep, "--ticks", args.ticks, "--publish-state", "--out", out, *group],
+            out / "world.log",
+        )
+        brain = spawn(
+            "brain",
+            [
+                "--listen",
+                brain_ep,
+                "--connect",
+                world_ep,
+                "--once",
+                "--publish-state",
+                "--stats",
+                out / "brain.json",
+                *group,
+            ],
+            out / "brain.log",
+        )
+        recorder = spawn(
+            "record",
+            ["--connect", world_ep, "--connect", brain_ep, "--out", out / "soak.rrd", *group],
+            out / "recorder.log",
+        )
         processes = {"world": world, "brain": brain, "recorder": recorder}
         stop, counts = threading.Event(), {"sent": 0}
         # the fuzzer starts once the run has: on the plain bus the first map, layout or sensors set the
@@ -84,12 +103,15 @@ def main(argv=None) -> dict:
                 at = time.monotonic() - started
                 sample = {name: rss_mb(proc.pid) for name, proc in processes.items() if proc.poll() is None}
                 samples.append((at, sample))
-                print(f"\r{at:6.0f} s  " + "  ".join(f"{n} {mb:6.1f} MB" for n, mb in sample.items()), end="",
-                      flush=True)
+                print(
+                    f"\r{at:6.0f} s  " + "  ".join(f"{n} {mb:6.1f} MB" for n, mb in sample.items()), end="", flush=True
+                )
             print()
             if world.returncode != 0 or brain.wait(60) != 0 or recorder.wait(120) != 0:
-                raise SystemExit(f"a process failed: exit codes {[p.returncode for p in processes.values()]}; "
-                                 f"logs: {(out / 'world.log').read_text()[-1500:]}")
+                raise SystemExit(
+                    f"a process failed: exit codes {[p.returncode for p in processes.values()]}; "
+                    f"logs: {(out / 'world.log').read_text()[-1500:]}"
+                )
         finally:
             stop.set()
             fuzzer.join()
@@ -99,8 +121,12 @@ def main(argv=None) -> dict:
         metrics = json.loads((out / "metrics.json").read_text())
         wall = time.monotonic() - started
     ticks_per_s = metrics["ticks_per_s"]
-    result = {"ticks": metrics["ticks"], "ticks_per_s": round(ticks_per_s), "fuzzed": counts["sent"],
-              "rejected_by_world": sum(sum(r.values()) for r in metrics["rejected_messages"].values())}
+    result = {
+        "ticks": metrics["ticks"],
+        "ticks_per_s": round(ticks_per_s),
+        "fuzzed": counts["sent"],
+        "rejected_by_world": sum(sum(r.values()) for r in metrics["rejected_messages"].values()),
+    }
     half = [(t, s) for t, s in samples if t > wall / 2]
     for name in processes:
         t = np.array([t for t, s in half if name in s])
@@ -110,12 +136,16 @@ def main(argv=None) -> dict:
         per_s = np.polyfit(t, mb, 1)[0]
         per_100k = per_s / ticks_per_s * 100_000
         peak = max(s[name] for _, s in samples if name in s)
-        print(f"{name:8s} RSS: {mb[0]:.1f} -> {mb[-1]:.1f} MB over the second half, slope {per_100k:+.3f} MB per "
-              f"100,000 ticks, peak {peak:.1f} MB")
+        print(
+            f"{name:8s} RSS: {mb[0]:.1f} -> {mb[-1]:.1f} MB over the second half, slope {per_100k:+.3f} MB per "
+            f"100,000 ticks, peak {peak:.1f} MB"
+        )
         result[f"{name}_rss_mb_end"] = round(float(mb[-1]), 1)
         result[f"{name}_rss_slope_mb_per_100k_ticks"] = round(float(per_100k), 3)
-    print(f"{metrics['ticks']:,} ticks at {ticks_per_s:,.0f} ticks/s; {counts['sent']:,} malformed messages thrown, "
-          f"{result['rejected_by_world']:,} of them at the world's inbox rejected; every process ended cleanly")
+    print(
+        f"{metrics['ticks']:,} ticks at {ticks_per_s:,.0f} ticks/s; {counts['sent']:,} malformed messages thrown, "
+        f"{result['rejected_by_world']:,} of them at the world's inbox rejected; every process ended cleanly"
+    )
     print(json.dumps(result))
     return result
 

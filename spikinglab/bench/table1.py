@@ -30,8 +30,15 @@ STEPS = {"paper": "paper", "demo": "netlogo"}  # -> world preset
 
 # The setup closest to the NetLogo source (SpikingLab insect demo): its engine and order, its
 # w_max 9, its 4 degree / 0.4 patch steps, view distance 4, the 0.5 patch push on a collision.
-SOURCE = {"semantics": "netlogo", "order": "random", "without": (), "w_max": 9.0, "steps": "demo",
-          "view_distance": 4.0, "push": 0.5}
+SOURCE = {
+    "semantics": "netlogo",
+    "order": "random",
+    "without": (),
+    "w_max": 9.0,
+    "steps": "demo",
+    "view_distance": 4.0,
+    "push": 0.5,
+}
 ABLATION = {  # factor -> what it is switched to
     "order: random -> file order": {"order": "file"},
     "delay counting: from the sending tick -> from the next": {"without": ("delay_count",)},
@@ -56,16 +63,22 @@ def run_population(setting: dict, a: float, seeds: int, ticks: int) -> dict:
     params = params_for(STEPS[setting["steps"]], view_distance=setting["view_distance"], push=setting["push"])
     world = World(params, agents=seeds, seed=0)
     circuit = load_circuit("insect").with_learning_params(a_plus=a, a_minus=a, w_max=setting["w_max"])
-    brain = brain_for(world, circuit, semantics=setting["semantics"], order=setting["order"],
-                      without=setting["without"])
+    brain = brain_for(
+        world, circuit, semantics=setting["semantics"], order=setting["order"], without=setting["without"]
+    )
     started = time.perf_counter()
     collisions = noxious_ticks(world, brain, ticks)  # NetLogo resets its error-free counter in each
     plastic = circuit.plastic_synapses
     m = world.metrics
-    return {"a": a, "collision_ticks": collisions, "seconds": time.perf_counter() - started,
-            "weights": {circuit.synapse_label(k): float(np.mean(brain.engine.w[:, k])) for k in plastic},
-            # an insect that barely moves is collision-free for free: how far they went, what they ate
-            "distance_per_1000": float(m.distance.mean() * 1000 / ticks), "food": float(m.food.mean())}
+    return {
+        "a": a,
+        "collision_ticks": collisions,
+        "seconds": time.perf_counter() - started,
+        "weights": {circuit.synapse_label(k): float(np.mean(brain.engine.w[:, k])) for k in plastic},
+        # an insect that barely moves is collision-free for free: how far they went, what they ate
+        "distance_per_1000": float(m.distance.mean() * 1000 / ticks),
+        "food": float(m.food.mean()),
+    }
 
 
 def jobs(ablation: bool, a_values) -> list[tuple[str, dict, float]]:
@@ -86,11 +99,19 @@ def jobs(ablation: bool, a_values) -> list[tuple[str, dict, float]]:
 
 
 def summarise(name: str, setting: dict, result: dict, seeds: int, ticks: int) -> dict:
-    return {"name": name, "setting": {k: list(v) if isinstance(v, tuple) else v for k, v in setting.items()},
-            "a": result["a"], "seeds": seeds, "ticks": ticks, "seconds": round(result["seconds"], 1),
-            "definitions": all_definitions(result["collision_ticks"], ticks),
-            "noxious_ticks": [len(c) for c in result["collision_ticks"]], "mean_weights": result["weights"],
-            "distance_per_1000": round(result["distance_per_1000"], 1), "food": round(result["food"], 1)}
+    return {
+        "name": name,
+        "setting": {k: list(v) if isinstance(v, tuple) else v for k, v in setting.items()},
+        "a": result["a"],
+        "seeds": seeds,
+        "ticks": ticks,
+        "seconds": round(result["seconds"], 1),
+        "definitions": all_definitions(result["collision_ticks"], ticks),
+        "noxious_ticks": [len(c) for c in result["collision_ticks"]],
+        "mean_weights": result["weights"],
+        "distance_per_1000": round(result["distance_per_1000"], 1),
+        "food": round(result["food"], 1),
+    }
 
 
 def ratio(rows: list[dict], row: dict, definition: str) -> str:
@@ -100,17 +121,23 @@ def ratio(rows: list[dict], row: dict, definition: str) -> str:
 
 
 def markdown(rows: list[dict], definition: str) -> str:
-    lines = [f"Learning time ({definition} collision-free ticks unless named), {rows[0]['seeds']} seeds, "
-             f"{rows[0]['ticks']:,} ticks: median (quartiles), seeds learned, median / median at A = 0.04.", "",
-             "| setting | A+ = A- | paper | median (quartiles) | learned | ratio | paper ratio | patches per 1,000 ticks | food |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        f"Learning time ({definition} collision-free ticks unless named), {rows[0]['seeds']} seeds, "
+        f"{rows[0]['ticks']:,} ticks: median (quartiles), seeds learned, median / median at A = 0.04.",
+        "",
+        "| setting | A+ = A- | paper | median (quartiles) | learned | ratio | paper ratio "
+        "| patches per 1,000 ticks | food |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
         d, t = r["definitions"][definition], r["ticks"]
         paper = PAPER.get(r["a"])
-        lines.append(f"| {r['name']} | {r['a']} | {'' if paper is None else f'{paper:,}'} | "
-                     f"{tick_text(d['median'], t)} ({tick_text(d['q1'], t)} - {tick_text(d['q3'], t)}) | "
-                     f"{d['reached']}/{d['seeds']} | {ratio(rows, r, definition)} | "
-                     f"{'' if paper is None else f'{paper / PAPER[0.04]:.2f}'} | {r['distance_per_1000']} | {r['food']} |")
+        lines.append(
+            f"| {r['name']} | {r['a']} | {'' if paper is None else f'{paper:,}'} | "
+            f"{tick_text(d['median'], t)} ({tick_text(d['q1'], t)} - {tick_text(d['q3'], t)}) | "
+            f"{d['reached']}/{d['seeds']} | {ratio(rows, r, definition)} | "
+            f"{'' if paper is None else f'{paper / PAPER[0.04]:.2f}'} | {r['distance_per_1000']} | {r['food']} |"
+        )
     return "\n".join(lines)
 
 
@@ -118,8 +145,9 @@ def definitions_markdown(rows: list[dict]) -> str:
     names = list(DEFINITIONS)
     lines = ["| setting | A+ = A- | " + " | ".join(names) + " |", "|---|---|" + "---|" * len(names)]
     for r in rows:
-        cells = [f"{tick_text(r['definitions'][n]['median'], r['ticks'])} ({r['definitions'][n]['reached']})"
-                 for n in names]
+        cells = [
+            f"{tick_text(r['definitions'][n]['median'], r['ticks'])} ({r['definitions'][n]['reached']})" for n in names
+        ]
         lines.append(f"| {r['name']} | {r['a']} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n\nMedian learning time (seeds that learned) per definition."
 
@@ -129,8 +157,9 @@ def main(argv=None) -> dict:
     p.add_argument("--ablation", action="store_true", help="the ablation table instead of the grid")
     p.add_argument("--seeds", type=at_least(1), default=16)
     p.add_argument("--ticks", type=at_least(1000), default=150_000)  # one bin of 1,000
-    p.add_argument("--a-plus", type=positive, nargs="+", default=None, help=f"A values (default {A_VALUES}; "
-                   "ablation: 0.02 0.04)")
+    p.add_argument(
+        "--a-plus", type=positive, nargs="+", default=None, help=f"A values (default {A_VALUES}; ablation: 0.02 0.04)"
+    )
     p.add_argument("--workers", type=at_least(1), default=len(os.sched_getaffinity(0)))
     p.add_argument("--out", type=Path, default=Path("runs") / "table1")
     args = p.parse_args(argv)
@@ -141,10 +170,13 @@ def main(argv=None) -> dict:
     args.out.mkdir(parents=True, exist_ok=True)
     rows = [None] * len(todo)
     started = time.perf_counter()
-    with ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn")) as pool, \
-            tqdm(total=len(todo), unit="population", desc="table1" + (" ablation" if args.ablation else "")) as bar:
-        futures = {pool.submit(run_population, setting, a, args.seeds, args.ticks): k
-                   for k, (_, setting, a) in enumerate(todo)}
+    with (
+        ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn")) as pool,
+        tqdm(total=len(todo), unit="population", desc="table1" + (" ablation" if args.ablation else "")) as bar,
+    ):
+        futures = {
+            pool.submit(run_population, setting, a, args.seeds, args.ticks): k for k, (_, setting, a) in enumerate(todo)
+        }
         for future in as_completed(futures):
             k = futures[future]
             rows[k] = summarise(todo[k][0], todo[k][1], future.result(), args.seeds, args.ticks)

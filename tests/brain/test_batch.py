@@ -72,6 +72,7 @@ def test_run_in_one_call_equals_step_by_step(semantics):
     """run() steps all its ticks in one compiled call: the same spikes, potentials and weights as
     step() tick by tick, and it refuses feeds of another shape."""
     from services.brain.engine import Engine
+
     c = load_circuit("insect").with_learning_rate(0.05)
     feeds = random_feeds(2, 2000, 3, len(c.inputs))
     whole, stepped = Engine(c, agents=3, semantics=semantics, seed=4), Engine(c, agents=3, semantics=semantics, seed=4)

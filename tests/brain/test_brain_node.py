@@ -53,9 +53,11 @@ def test_older_ticks_are_ignored_and_what_does_not_fit_is_refused():
     for t in range(10):
         node.answer(sensors(t))
     assert node.answer(sensors(5)) is None  # older than the last answered: the world moved on
-    for other, reason in ((sensors(10, agents=2), "does not fit the run: 2 agents"),
-                          (sensors(10, names=INSECT_SENSORS[::-1]), "does not fit the run"),
-                          (sensors(10, run="r2"), "another run: sensors of run 'r2' at tick 10")):
+    for other, reason in (
+        (sensors(10, agents=2), "does not fit the run: 2 agents"),
+        (sensors(10, names=INSECT_SENSORS[::-1]), "does not fit the run"),
+        (sensors(10, run="r2"), "another run: sensors of run 'r2' at tick 10"),
+    ):
         with pytest.raises(BusError, match=reason):
             node.answer(other)
     assert node.last_tick == 9
@@ -105,8 +107,9 @@ def test_sensors_and_actions_are_bound_by_name_in_any_order():
     feeds = [sensors(t).values.numpy("values", "<f8", 2) for t in range(300)]
     order = [4, 2, 0, 3, 1]
     plain = Brain(CIRCUIT, INSECT_SENSORS, INSECT_ACTIONS, agents=AGENTS, seed=5)
-    shuffled = Brain(CIRCUIT, tuple(INSECT_SENSORS[k] for k in order), ("jump",) + INSECT_ACTIONS[::-1],
-                     agents=AGENTS, seed=5)
+    shuffled = Brain(
+        CIRCUIT, tuple(INSECT_SENSORS[k] for k in order), ("jump",) + INSECT_ACTIONS[::-1], agents=AGENTS, seed=5
+    )
     fired = 0
     for feed in feeds:
         expected = plain.step(feed)

@@ -14,9 +14,17 @@ INSECT_SYNAPSES = {
     "H1->H2": (15.0, 2, False, False),
     "H2->H1": (15.0, 3, False, False),
     "H1->REWARD": (3.5, 3, False, False),
-    **{f"{i}->{n}": (20.0, 0, False, False) for i, n in (
-        ("smell_black", "BLACK"), ("smell_red", "RED"), ("smell_green", "GREEN"),
-        ("nociceptor", "PAIN"), ("reward", "REWARD"), ("kick", "H1"))},
+    **{
+        f"{i}->{n}": (20.0, 0, False, False)
+        for i, n in (
+            ("smell_black", "BLACK"),
+            ("smell_red", "RED"),
+            ("smell_green", "GREEN"),
+            ("nociceptor", "PAIN"),
+            ("reward", "REWARD"),
+            ("kick", "H1"),
+        )
+    },
 }
 
 
@@ -68,13 +76,13 @@ plastic = true
         ("weight = 5", "weight = -2", "synapses[0]", "weight must be > 0"),
         ("plastic = true", "plastic = true\ninhibitory = true", "synapses[0]", "not plastic"),
         ("plastic = true", "plastic = true\nstrength = 2", "synapses[0]", "unknown key(s) strength"),
-        ('[inputs.a_in]', '[inputs.B]', "inputs.B", "duplicate name 'B'"),
+        ("[inputs.a_in]", "[inputs.B]", "inputs.B", "duplicate name 'B'"),
         ('target = "A"', 'target = "X"', "inputs.a_in", "unknown target neuron 'X'"),
         ('from = "A"', 'from = "a_in"', "synapses[0] (a_in -> B)", "an input neuron"),
-        ('weight = 5', 'weight = "heavy"', "synapses[0]", "weight must be a number"),
+        ("weight = 5", 'weight = "heavy"', "synapses[0]", "weight must be a number"),
         ("[neurons]", "[neurones]", "top level", "unknown key(s) neurones"),
         ("[neurons]", "types = 3\n[neurons]", "types", "must be a table, got 3"),
-        ("[neurons]", "actuators = \"B\"\n[neurons]", "actuators", "must be a table, got 'B'"),
+        ("[neurons]", 'actuators = "B"\n[neurons]', "actuators", "must be a table, got 'B'"),
     ],
 )
 def test_wrong_files_name_file_entry_and_problem(tmp_path, old, new, entry, problem):
@@ -91,13 +99,15 @@ def test_wrong_files_name_file_entry_and_problem(tmp_path, old, new, entry, prob
 def test_duplicate_synapse(tmp_path):
     path = tmp_path / "dup.toml"
     path.write_text(GOOD + '\n[[synapses]]\nfrom = "A"\nto = "B"\nweight = 3\ndelay = 1\n')
-    with pytest.raises(CircuitError, match=r"synapses\[1\] \(A -> B\): duplicate synapse, already defined in synapses\[0\]"):
+    with pytest.raises(
+        CircuitError, match=r"synapses\[1\] \(A -> B\): duplicate synapse, already defined in synapses\[0\]"
+    ):
         load_circuit(path)
 
 
 def test_bad_type_values(tmp_path):
     path = tmp_path / "t.toml"
-    path.write_text('[types.odd]\ndecay = 1.5\n' + GOOD)
+    path.write_text("[types.odd]\ndecay = 1.5\n" + GOOD)
     with pytest.raises(CircuitError, match=r"types.odd: decay must be in \(0, 1\)"):
         load_circuit(path)
 

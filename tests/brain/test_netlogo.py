@@ -15,11 +15,13 @@ from .test_batch import random_feeds
 
 def chain(order, delay, weight=20):
     """a_in -> A -> B (delay `delay`); the neurons are declared in `order`, the file order."""
-    return build_circuit({
-        "neurons": {n: "regular" for n in order},
-        "inputs": {"a_in": {"target": "A"}},
-        "synapses": [{"from": "A", "to": "B", "weight": weight, "delay": delay}],
-    })
+    return build_circuit(
+        {
+            "neurons": {n: "regular" for n in order},
+            "inputs": {"a_in": {"target": "A"}},
+            "synapses": [{"from": "A", "to": "B", "weight": weight, "delay": delay}],
+        }
+    )
 
 
 @pytest.mark.parametrize("delay", [1, 2, 3, 5])
@@ -52,11 +54,13 @@ def test_a_refractory_neuron_reopens_in_its_turn_and_takes_later_arrivals():
     # again at -75. C's pulse (weight 20, delay 2, C fired at 2) arrives at 3 in C's turn:
     # after B's turn it lifts B to -55 and B fires at 4; before B's turn it is lost.
     def circuit(order):
-        return build_circuit({
-            "neurons": {n: "regular" for n in order},
-            "inputs": {"b_in": {"target": "B"}, "c_in": {"target": "C"}},
-            "synapses": [{"from": "C", "to": "B", "weight": 20, "delay": 2}],
-        })
+        return build_circuit(
+            {
+                "neurons": {n: "regular" for n in order},
+                "inputs": {"b_in": {"target": "B"}, "c_in": {"target": "C"}},
+                "synapses": [{"from": "C", "to": "B", "weight": 20, "delay": 2}],
+            }
+        )
 
     events = {0: {"b_in": 0}, 2: {"c_in": 0}}
     taken = run_with_events(Engine(circuit(("B", "C")), semantics="netlogo", order="file"), 10, events)
@@ -125,16 +129,22 @@ def test_each_rule_switched_off_alone():
         e = Engine(chain(order, 3), semantics="netlogo", order="file", without=("delay_count",))
         assert run_with_events(e, 12, {0: {"a_in": 0}})["B"] == [expected]
     # reopening: without it the neuron opens at the start of the next tick, and C's pulse is lost
-    doc = {"neurons": {"B": "regular", "C": "regular"},
-           "inputs": {"b_in": {"target": "B"}, "c_in": {"target": "C"}},
-           "synapses": [{"from": "C", "to": "B", "weight": 20, "delay": 2}]}
+    doc = {
+        "neurons": {"B": "regular", "C": "regular"},
+        "inputs": {"b_in": {"target": "B"}, "c_in": {"target": "C"}},
+        "synapses": [{"from": "C", "to": "B", "weight": 20, "delay": 2}],
+    }
     e = Engine(build_circuit(doc), semantics="netlogo", order="file", without=("reopen",))
     assert run_with_events(e, 10, {0: {"b_in": 0}, 2: {"c_in": 0}})["B"] == [0]
     # dt = 0: the arrival potentiates once, at its own arrival
-    doc = {"neurons": {"U": "regular", "M": "regular", "C": "regular"},
-           "inputs": {"u_in": {"target": "U"}, "c_in": {"target": "C"}},
-           "synapses": [{"from": "U", "to": "M", "weight": 20, "delay": 1},
-                        {"from": "C", "to": "M", "weight": 5, "delay": 1, "plastic": True}]}
+    doc = {
+        "neurons": {"U": "regular", "M": "regular", "C": "regular"},
+        "inputs": {"u_in": {"target": "U"}, "c_in": {"target": "C"}},
+        "synapses": [
+            {"from": "U", "to": "M", "weight": 20, "delay": 1},
+            {"from": "C", "to": "M", "weight": 5, "delay": 1, "plastic": True},
+        ],
+    }
     c = build_circuit(doc).with_learning_rate(0.05)
     e = Engine(c, semantics="netlogo", order="file", without=("dt0",))
     run_with_events(e, 11, {0: {"u_in": 0, "c_in": 0}, 10: {"c_in": 0}})

@@ -42,8 +42,12 @@ def test_no_change_outside_the_windows(dt):
 def test_pacemaker_type_uses_its_own_window_and_rates():
     # type 2: A 0.09, tau+ 8, tau- 15, window -25 .. +55
     pace = {"base": "pacemaker"}
-    for dt, expected in ((-25, 5 + 0.09 * math.exp(-25 / 8)), (-26, 5.0),
-                         (55, 5 - 0.09 * math.exp(-55 / 15)), (56, 5.0)):
+    for dt, expected in (
+        (-25, 5 + 0.09 * math.exp(-25 / 8)),
+        (-26, 5.0),
+        (55, 5 - 0.09 * math.exp(-55 / 15)),
+        (56, 5.0),
+    ):
         assert pairing(dt, pm=pace) == pytest.approx(expected, rel=1e-12)
 
 

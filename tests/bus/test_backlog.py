@@ -8,14 +8,18 @@ from services.bus.session import DROPPED, Inbox, make_config, wait_until
 
 
 def test_a_reader_that_falls_behind_keeps_its_backlog_and_counts_the_rest():
-    message = BrainState(tick=0, run="0123456789abcdef", spiked=Array.of(np.zeros((50, 20, 15), np.uint8)),
-                         potentials=Array.of(np.zeros((50, 20, 11), np.float32)),
-                         weights=Array.of(np.ones((20, 16))))
+    message = BrainState(
+        tick=0,
+        run="0123456789abcdef",
+        spiked=Array.of(np.zeros((50, 20, 15), np.uint8)),
+        potentials=Array.of(np.zeros((50, 20, 11), np.float32)),
+        weights=Array.of(np.ones((20, 16))),
+    )
     payload = encode(message)  # about 60 KB
     with zenoh.open(make_config()) as session:
         inbox = Inbox(session, "backlog/test", BrainState, backlog_bytes=1 << 20)
         try:
-            for k in range(100):  # 6 MB sent while nobody reads
+            for _ in range(100):  # 6 MB sent while nobody reads
                 session.put("backlog/test", payload)
             held = (1 << 20) // len(payload)
             assert wait_until(lambda: inbox.dropped == 100 - held, 5), inbox.dropped

@@ -4,7 +4,8 @@ are spikinglab.bench.fuzz's, whose bench runs them longer and counts the outcome
 
 from __future__ import annotations
 
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from spikinglab.bench.fuzz import KINDS, SOURCES, Services, payloads
 
@@ -50,6 +51,7 @@ def test_the_sources_reach_the_services():
     """The generators are worth running: real messages of each kind are taken, and the bench's
     sources are the ones tested here."""
     from spikinglab.bench.fuzz import EXAMPLES, encode
+
     assert SOURCES == ("bytes", "byte", "structure", "any-shape")
     services = Services()  # not the fuzzed ones: a forged tick 0 of another run may have restarted their brain
     for message in EXAMPLES:

@@ -3,7 +3,8 @@
 import msgspec
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from services.bus import keys
 from services.bus.schemas import (
@@ -26,13 +27,26 @@ GOOD = [
     Sensors(tick=7, names=("smell_black", "pain"), values=Array.of(np.array([[0.4, np.nan]] * A)), seed=4),
     Motor(tick=7, names=("rotate", "move"), actions=Array.of(np.array([[1, 0]] * A, np.uint8))),
     Control(tick=40000, command="end"),
-    BrainState(tick=7, spiked=Array.of(np.zeros((50, A, 15), np.uint8)),
-               potentials=Array.of(np.full((50, A, 9), -65, np.float32)), weights=Array.of(np.zeros((A, 21)))),
-    WorldState(tick=7, sensor_names=("pain", "reward"), sensors=Array.of(np.full((50, A, 2), np.nan)),
-               pos=Array.of(np.zeros((50, A, 2))), heading=Array.of(np.zeros((50, A))),
-               events=Array.of(np.zeros((50, A, 4), np.int64)), collisions=Array.of(np.zeros((50, A), np.int64)),
-               food=Array.of(np.zeros((50, A), np.int64)), changes=Array.of(np.zeros((0, 5), np.int64))),
-    BrainLayout(tick=0, circuit="insect", nodes=("A", "B", "a_in"), neurons=2, synapses=("A->B", "a_in->A"), plastic=(0,)),
+    BrainState(
+        tick=7,
+        spiked=Array.of(np.zeros((50, A, 15), np.uint8)),
+        potentials=Array.of(np.full((50, A, 9), -65, np.float32)),
+        weights=Array.of(np.zeros((A, 21))),
+    ),
+    WorldState(
+        tick=7,
+        sensor_names=("pain", "reward"),
+        sensors=Array.of(np.full((50, A, 2), np.nan)),
+        pos=Array.of(np.zeros((50, A, 2))),
+        heading=Array.of(np.zeros((50, A))),
+        events=Array.of(np.zeros((50, A, 4), np.int64)),
+        collisions=Array.of(np.zeros((50, A), np.int64)),
+        food=Array.of(np.zeros((50, A), np.int64)),
+        changes=Array.of(np.zeros((0, 5), np.int64)),
+    ),
+    BrainLayout(
+        tick=0, circuit="insect", nodes=("A", "B", "a_in"), neurons=2, synapses=("A->B", "a_in->A"), plastic=(0,)
+    ),
     WorldMap(tick=0, grid=Array.of(np.zeros((1, 41, 60), np.uint8)), x_min=80, y_min=1),
 ]
 
@@ -50,24 +64,40 @@ def test_arrays_come_back_exactly():
 
 
 raw = msgspec.msgpack.Encoder().encode
-sensors_dict = {"kind": "sensors", "tick": 1, "version": VERSION, "names": ["a"],
-                "values": {"dtype": "<f8", "shape": [1, 1], "data": np.zeros(1).tobytes()}}
+sensors_dict = {
+    "kind": "sensors",
+    "tick": 1,
+    "version": VERSION,
+    "names": ["a"],
+    "values": {"dtype": "<f8", "shape": [1, 1], "data": np.zeros(1).tobytes()},
+}
 
 
-@pytest.mark.parametrize("payload,reason", [
-    (encode(GOOD[0])[:-5], "not a message: Input data was truncated"),
-    (b"\x00\x01garbage", "invalid message"),
-    (raw({**sensors_dict, "version": VERSION + 1}), f"schema version {VERSION + 1}, this program speaks {VERSION}"),
-    (raw({**sensors_dict, "kind": "teleport"}), "invalid message"),
-    (raw({k: v for k, v in sensors_dict.items() if k != "values"}), "missing required field `values`"),
-    (raw({**sensors_dict, "tick": "soon"}), "Expected `int`, got `str` - at `$.tick`"),
-    (raw({**sensors_dict, "values": {"dtype": "<f4", "shape": [1, 1], "data": b"1234"}}), "values: dtype '<f4', expected '<f8'"),
-    (raw({**sensors_dict, "values": {"dtype": "<f8", "shape": [1, 1], "data": b"1234"}}), "values: 4 bytes do not hold shape [1, 1]"),
-    (raw({**sensors_dict, "values": {"dtype": "<f8", "shape": [1, 2], "data": np.zeros(2).tobytes()}}),
-     "values has 2 columns for 1 sensor names"),
-    (encode(GOOD[1]), "a Motor message where Sensors/Control was expected"),
-    (encode(Control(tick=1, command="dance")), "unknown control command 'dance'"),
-])
+@pytest.mark.parametrize(
+    "payload,reason",
+    [
+        (encode(GOOD[0])[:-5], "not a message: Input data was truncated"),
+        (b"\x00\x01garbage", "invalid message"),
+        (raw({**sensors_dict, "version": VERSION + 1}), f"schema version {VERSION + 1}, this program speaks {VERSION}"),
+        (raw({**sensors_dict, "kind": "teleport"}), "invalid message"),
+        (raw({k: v for k, v in sensors_dict.items() if k != "values"}), "missing required field `values`"),
+        (raw({**sensors_dict, "tick": "soon"}), "Expected `int`, got `str` - at `$.tick`"),
+        (
+            raw({**sensors_dict, "values": {"dtype": "<f4", "shape": [1, 1], "data": b"1234"}}),
+            "values: dtype '<f4', expected '<f8'",
+        ),
+        (
+            raw({**sensors_dict, "values": {"dtype": "<f8", "shape": [1, 1], "data": b"1234"}}),
+            "values: 4 bytes do not hold shape [1, 1]",
+        ),
+        (
+            raw({**sensors_dict, "values": {"dtype": "<f8", "shape": [1, 2], "data": np.zeros(2).tobytes()}}),
+            "values has 2 columns for 1 sensor names",
+        ),
+        (encode(GOOD[1]), "a Motor message where Sensors/Control was expected"),
+        (encode(Control(tick=1, command="dance")), "unknown control command 'dance'"),
+    ],
+)
 def test_malformed_messages_are_rejected_with_the_reason(payload, reason):
     with pytest.raises(BusError) as err:
         decode(payload, (Sensors, Control))
@@ -106,9 +136,14 @@ def test_an_array_viewed_encodes_as_one_copied():
     array's memory as it is when encoded."""
     values = np.arange(20, dtype="<f8").reshape(4, 5)
     for a in (values, values[:, 1:3], values.astype(">f8"), values[1:3]):
-        assert encode(Sensors(tick=1, names=("a",), values=Array.view(a))) == \
-            encode(Sensors(tick=1, names=("a",), values=Array.of(a)))
+        assert encode(Sensors(tick=1, names=("a",), values=Array.view(a))) == encode(
+            Sensors(tick=1, names=("a",), values=Array.of(a))
+        )
     viewed = Array.view(values)
     values[0, 0] = 99.0
-    assert decode(encode(Sensors(tick=1, names=tuple("abcde"), values=viewed)), Sensors).values.numpy(
-        "values", "<f8", 2)[0, 0] == 99.0
+    assert (
+        decode(encode(Sensors(tick=1, names=tuple("abcde"), values=viewed)), Sensors).values.numpy("values", "<f8", 2)[
+            0, 0
+        ]
+        == 99.0
+    )

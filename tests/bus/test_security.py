@@ -31,8 +31,9 @@ def secure_bus(tmp_path):
     folder = tmp_path / "certs"
     assert certs.main([str(folder)]) == 0
     endpoint = f"tls/127.0.0.1:{free_port()}"
-    router = start("router", "--listen", endpoint, "--zenoh-config", folder / "router.json5",
-                   log=tmp_path / "router.log")
+    router = start(
+        "router", "--listen", endpoint, "--zenoh-config", folder / "router.json5", log=tmp_path / "router.log"
+    )
     try:
         wait_for(lambda: "listening on" in (tmp_path / "router.log").read_text(), 30, "the router")
         yield endpoint, folder
@@ -96,8 +97,17 @@ class Forger:
         reading = decode(sample.payload.to_bytes(), Sensors)
         self.seen += 1
         agents = reading.values.numpy("values", "<f8", 2).shape[0]
-        self.motor.put(encode(Motor(tick=reading.tick, run=reading.run, names=("rotate", "move"),
-                                    actions=Array.of(np.ones((agents, 2), np.uint8)))), attachment=b"brain@1")
+        self.motor.put(
+            encode(
+                Motor(
+                    tick=reading.tick,
+                    run=reading.run,
+                    names=("rotate", "move"),
+                    actions=Array.of(np.ones((agents, 2), np.uint8)),
+                )
+            ),
+            attachment=b"brain@1",
+        )
         if reading.tick % 50 == 0:
             self.control.put(encode(Control(tick=reading.tick, run=reading.run, command="end")), attachment=b"world@1")
 
@@ -116,10 +126,31 @@ def test_another_role_reads_the_run_but_cannot_steer_or_end_it(secure_bus, tmp_p
     closed_loop(world, brain, ticks)  # the run as it must come out, undisturbed
 
     forger = Forger(role, folder, endpoint)
-    p_world = start("world", "--connect", endpoint, "--zenoh-config", folder / "world.json5", "--ticks", ticks,
-                    "--seed", seed, "--out", tmp_path, log=tmp_path / "world.log")
-    p_brain = start("brain", "--connect", endpoint, "--zenoh-config", folder / "brain.json5", "--once",
-                    "--save", tmp_path / "weights.npz", log=tmp_path / "brain.log")
+    p_world = start(
+        "world",
+        "--connect",
+        endpoint,
+        "--zenoh-config",
+        folder / "world.json5",
+        "--ticks",
+        ticks,
+        "--seed",
+        seed,
+        "--out",
+        tmp_path,
+        log=tmp_path / "world.log",
+    )
+    p_brain = start(
+        "brain",
+        "--connect",
+        endpoint,
+        "--zenoh-config",
+        folder / "brain.json5",
+        "--once",
+        "--save",
+        tmp_path / "weights.npz",
+        log=tmp_path / "brain.log",
+    )
     try:
         assert finish(p_world, 120, tmp_path / "world.log") == 0
         assert finish(p_brain, 30, tmp_path / "brain.log") == 0
@@ -137,8 +168,16 @@ def test_another_role_reads_the_run_but_cannot_steer_or_end_it(secure_bus, tmp_p
 def test_only_the_brain_role_moves_the_robot(secure_bus, tmp_path):
     endpoint, folder = secure_bus
     with FakeBrick() as brick:
-        gateway = start("gateway", "--backend", "ev3", "--connect", endpoint, "--zenoh-config",
-                        folder / "gateway.json5", log=tmp_path / "gateway.log")
+        gateway = start(
+            "gateway",
+            "--backend",
+            "ev3",
+            "--connect",
+            endpoint,
+            "--zenoh-config",
+            folder / "gateway.json5",
+            log=tmp_path / "gateway.log",
+        )
         try:
             wait_for(lambda: brick.reads > 200, 60, "the gateway to poll the brick")
             viewer = Forger("viewer", folder, endpoint)

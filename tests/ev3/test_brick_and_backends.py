@@ -27,8 +27,12 @@ def test_global_variable_encodings_decode(address):
 
 
 def frame(ops: bytes, counter=7, reply=True, global_mem=0) -> bytes:
-    return struct.pack("<HH", len(ops) + 5, counter) + bytes([0x00 if reply else 0x80]) + \
-        struct.pack("<H", global_mem) + ops
+    return (
+        struct.pack("<HH", len(ops) + 5, counter)
+        + bytes([0x00 if reply else 0x80])
+        + struct.pack("<H", global_mem)
+        + ops
+    )
 
 
 def test_fake_brick_answers_reads_and_refuses_what_a_brick_would():
@@ -36,8 +40,10 @@ def test_fake_brick_answers_reads_and_refuses_what_a_brick_would():
     read = bytes([0x99, 0x1D]) + LCX(0) + LCX(2) + LCX(29) + LCX(2) + LCX(1) + GVX(0)
     reply = brick.execute(frame(read, global_mem=4))
     assert reply[:5] == struct.pack("<HH", 7, 7) + b"\x02" and struct.unpack("<f", reply[5:]) == (5.0,)
-    assert brick.execute(frame(bytes([0xB1]) + LCX(0) + LCX(6) + LCX(50) + LCX(0) + LCX(500) + LCX(1),
-                               reply=False)) is None
+    assert (
+        brick.execute(frame(bytes([0xB1]) + LCX(0) + LCX(6) + LCX(50) + LCX(0) + LCX(500) + LCX(1), reply=False))
+        is None
+    )
     assert (brick.commands[-1].kind, brick.commands[-1].ms, brick.commands[-1].ports) == ("time_sync", 500, 6)
     wrong_type = bytes([0x99, 0x1D]) + LCX(0) + LCX(2) + LCX(30) + LCX(0) + LCX(1) + GVX(0)
     assert brick.execute(frame(wrong_type, global_mem=4))[4] == 0x04  # the colour sensor is on port 3
@@ -80,6 +86,7 @@ def test_no_brick_is_a_clear_error(monkeypatch):
     class NoBeacon:
         def __init__(self, *a, **k):
             raise dc.NoEV3("No EV3 device found")
+
     monkeypatch.setattr(dc, "_PhysicalEV3", NoBeacon)  # spare the test ev3-dc's 10 s wait for a beacon
     with pytest.raises(RobotLinkError, match="cannot connect to the EV3 over WiFi: No EV3 device found"):
         EV3Backend("WiFi").connect()
@@ -87,8 +94,11 @@ def test_no_brick_is_a_clear_error(monkeypatch):
 
 def test_readings_map_onto_the_insects_senses():
     def sensed(**kw):
-        row = sensor_values(Reading(**{"colour": 6, "distance_cm": 100.0, "touch": False, "at": 0.0, **kw}), 5.0, 0.0)[0]
+        row = sensor_values(Reading(**{"colour": 6, "distance_cm": 100.0, "touch": False, "at": 0.0, **kw}), 5.0, 0.0)[
+            0
+        ]
         return {name: row[k] for k, name in enumerate(INSECT_SENSORS) if not math.isnan(row[k])}
+
     assert sensed() == {}
     assert sensed(colour=1) == {"smell_black": 0.0}
     assert sensed(colour=5) == {"smell_red": 0.0}

@@ -17,12 +17,32 @@ from ..recorder.test_recorder import read
 def test_robot_chain_senses_moves_survives_a_lost_link_and_stops_without_a_brain(tmp_path):
     gateway_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
     with FakeBrick() as brick:
-        recorder = start("record", "--connect", gateway_ep, "--connect", brain_ep, "--out", tmp_path / "robot.rrd",
-                         log=tmp_path / "recorder.log")
-        gateway = start("gateway", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json",
-                        log=tmp_path / "gateway.log")
-        brain = start("brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", 1000, "--publish-state",
-                      "--stats", tmp_path / "brain.json", log=tmp_path / "brain.log")
+        recorder = start(
+            "record",
+            "--connect",
+            gateway_ep,
+            "--connect",
+            brain_ep,
+            "--out",
+            tmp_path / "robot.rrd",
+            log=tmp_path / "recorder.log",
+        )
+        gateway = start(
+            "gateway", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json", log=tmp_path / "gateway.log"
+        )
+        brain = start(
+            "brain",
+            "--listen",
+            brain_ep,
+            "--connect",
+            gateway_ep,
+            "--clock",
+            1000,
+            "--publish-state",
+            "--stats",
+            tmp_path / "brain.json",
+            log=tmp_path / "brain.log",
+        )
         processes = [recorder, gateway, brain]
         try:
             # the pacemaker keeps the insect walking: MOVE spikes -> forward 500 ms on both drive motors
@@ -40,8 +60,11 @@ def test_robot_chain_senses_moves_survives_a_lost_link_and_stops_without_a_brain
             reads = brick.reads
             brick.disconnect()  # the link breaks: reported, and the gateway connects again
             log = tmp_path / "gateway.log"
-            wait_for(lambda: "robot link lost" in log.read_text() and "robot linked again" in log.read_text(), 30,
-                     "the gateway to reconnect")
+            wait_for(
+                lambda: "robot link lost" in log.read_text() and "robot linked again" in log.read_text(),
+                30,
+                "the gateway to reconnect",
+            )
             wait_for(lambda: brick.reads > reads + 100, 10, "polls on the new link")
             assert brick.connections == 2 and brain.poll() is None  # the brain kept running
 
@@ -62,16 +85,19 @@ def test_robot_chain_senses_moves_survives_a_lost_link_and_stops_without_a_brain
     stats = json.loads((tmp_path / "gateway.json").read_text())
     assert stats["link_losses"] == 1 and stats["commands"] > 0 and stats["polls"] > 1000
     data = read(tmp_path / "robot.rrd")
-    spikes = {name: len(data.get(f"/brain/agent0/spikes/{k:02d}_{name}", {}).get("tick", []))
-              for k, name in enumerate(("BLACK", "RED", "GREEN"))}
+    spikes = {
+        name: len(data.get(f"/brain/agent0/spikes/{k:02d}_{name}", {}).get("tick", []))
+        for k, name in enumerate(("BLACK", "RED", "GREEN"))
+    }
     assert spikes["RED"] > 50 and spikes["BLACK"] == spikes["GREEN"] == 0  # red reached the RED afferent
 
 
 def gateway_and_brain(tmp_path):
     """The gateway (ev3 backend: the fake brick) and a free-running brain driving it, as processes."""
     gateway_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
-    gateway = start("gateway", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json",
-                    log=tmp_path / "gateway.log")
+    gateway = start(
+        "gateway", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json", log=tmp_path / "gateway.log"
+    )
     brain = start("brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", 1000, log=tmp_path / "brain.log")
     return gateway, brain
 
@@ -85,8 +111,11 @@ def test_a_stalled_brain_stops_the_robot_and_sends_no_backlog_when_it_resumes(tm
             before = len(brick.commands)
             time.sleep(1.0)
             per_second = len(brick.commands) - before  # forwards of an insect walking freely
-            wait_for(lambda: brick.commands[-1].kind == "time_sync" and time.monotonic() - brick.commands[-1].at < 0.1,
-                     10, "a command under way")
+            wait_for(
+                lambda: brick.commands[-1].kind == "time_sync" and time.monotonic() - brick.commands[-1].at < 0.1,
+                10,
+                "a command under way",
+            )
             brain.send_signal(signal.SIGSTOP)  # frozen: its token stays on the bus, it says nothing
             stalled_at = time.monotonic()
             wait_for(lambda: any(c.kind == "stop" and c.at > stalled_at for c in brick.commands), 5, "a stop")
@@ -130,8 +159,10 @@ def test_a_link_gone_silent_is_noticed_the_robot_stops_by_itself_and_nothing_arr
             wait_for(lambda: "robot linked again" in log.read_text(), 10, "the link back")
             polls = brick.reads
             wait_for(lambda: brick.reads > polls + 100, 10, "polls on the new link")
-            print(f"link silent -> gateway says so in {noticed_s * 1000:.0f} ms; the motors stood still "
-                  f"{(still_at - dropped_at) * 1000:.0f} ms after the drop")
+            print(
+                f"link silent -> gateway says so in {noticed_s * 1000:.0f} ms; the motors stood still "
+                f"{(still_at - dropped_at) * 1000:.0f} ms after the drop"
+            )
             assert noticed_s < 1.5 and brick.connections == 2
             late = [c for c in brick.commands if c.link == 1 and c.at > dropped_at]
             assert not late, late  # what was in flight on the lost link never reached the motors
@@ -151,8 +182,16 @@ def test_commands_answering_old_or_unpublished_readings_are_dropped(tmp_path):
     with FakeBrick() as brick:
         # At most 1,000 polls/s: unbounded, the fake brick answers ~20,000/s and this test's Python
         # subscriber fell up to 0.6 s behind, so its "latest" reading was itself too old to answer.
-        gateway = start("gateway", "--listen", gateway_ep, "--max-polls", 1000, "--stats", tmp_path / "gateway.json",
-                        log=tmp_path / "gateway.log")
+        gateway = start(
+            "gateway",
+            "--listen",
+            gateway_ep,
+            "--max-polls",
+            1000,
+            "--stats",
+            tmp_path / "gateway.json",
+            log=tmp_path / "gateway.log",
+        )
         brain = Watcher([gateway_ep], [keys.sensors(keys.DEFAULT_GROUP)])  # a brain: its token, its motor key
         token = brain.session.liveliness().declare_token(keys.alive(keys.DEFAULT_GROUP, "brain"))
         motor = brain.session.declare_publisher(keys.motor(keys.DEFAULT_GROUP))
@@ -163,8 +202,16 @@ def test_commands_answering_old_or_unpublished_readings_are_dropped(tmp_path):
             latest = readings[-1]
 
             def rotate(reading: int) -> bytes:
-                return encode(Motor(tick=1, names=INSECT_ACTIONS, actions=Array.of(np.array([[1, 0]], np.uint8)),
-                                    run=latest.run, reading=reading))
+                return encode(
+                    Motor(
+                        tick=1,
+                        names=INSECT_ACTIONS,
+                        actions=Array.of(np.array([[1, 0]], np.uint8)),
+                        run=latest.run,
+                        reading=reading,
+                    )
+                )
+
             motor.put(rotate(0))
             motor.put(rotate(latest.tick + 10**9))  # a reading not published yet
             time.sleep(0.3)
@@ -185,8 +232,18 @@ def test_commands_answering_old_or_unpublished_readings_are_dropped(tmp_path):
 
 def test_the_brain_drives_a_simulated_ev3(tmp_path):
     gateway_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
-    gateway = start("gateway", "--backend", "sim", "--listen", gateway_ep, "--duration", 4, "--stats",
-                    tmp_path / "gateway.json", log=tmp_path / "gateway.log")
+    gateway = start(
+        "gateway",
+        "--backend",
+        "sim",
+        "--listen",
+        gateway_ep,
+        "--duration",
+        4,
+        "--stats",
+        tmp_path / "gateway.json",
+        log=tmp_path / "gateway.log",
+    )
     brain = start("brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", 1000, log=tmp_path / "brain.log")
     try:
         assert finish(gateway, 60, tmp_path / "gateway.log") == 0

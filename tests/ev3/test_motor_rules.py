@@ -101,11 +101,14 @@ def test_motor_messages_for_this_runs_robot(rows, expected):
     assert motor_actions(motor(rows), "r1") == expected
 
 
-@pytest.mark.parametrize("message,reason", [
-    (motor([]), "does not fit the run: actions of shape [0, 2]"),  # for no robot: once an IndexError in the thread
-    (motor([[1, 0], [0, 1]]), "does not fit the run: actions of shape [2, 2]"),  # two robots: which one is this?
-    (motor([[0, 1]], run="r0"), "another run: motor for run 'r0'"),  # an old run's, or a forger's guess
-])
+@pytest.mark.parametrize(
+    "message,reason",
+    [
+        (motor([]), "does not fit the run: actions of shape [0, 2]"),  # for no robot: once an IndexError in the thread
+        (motor([[1, 0], [0, 1]]), "does not fit the run: actions of shape [2, 2]"),  # two robots: which one is this?
+        (motor([[0, 1]], run="r0"), "another run: motor for run 'r0'"),  # an old run's, or a forger's guess
+    ],
+)
 def test_other_motor_messages_are_refused(message, reason):
     with pytest.raises(BusError, match=re.escape(reason)):
         motor_actions(message, "r1")

@@ -43,17 +43,36 @@ def test_run_view_opens_the_rerun_viewer_on_a_display(tmp_path):
     xvfb = shutil.which("Xvfb")
     assert xvfb, "Xvfb is needed (scripts/test.sh installs it: apt-get install xvfb)"
     display = free_display()
-    screen = subprocess.Popen([xvfb, f":{display}", "-screen", "0", "1280x800x24"], stdout=subprocess.DEVNULL,
-                              stderr=subprocess.DEVNULL)
+    screen = subprocess.Popen(
+        [xvfb, f":{display}", "-screen", "0", "1280x800x24"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
     viewers, said = [], ""
     try:
         while not os.path.exists(f"/tmp/.X11-unix/X{display}"):
             assert screen.poll() is None, "Xvfb did not start"
             time.sleep(0.1)
         env = {**os.environ, "DISPLAY": f":{display}"}
-        run = subprocess.Popen([sys.executable, "-m", "spikinglab", "run", "--view", "--ticks", "400000",
-                                "--quiet", "--runs", str(tmp_path), "--id", "native"], cwd=ROOT, env=env,
-                               stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+        run = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "spikinglab",
+                "run",
+                "--view",
+                "--ticks",
+                "400000",
+                "--quiet",
+                "--runs",
+                str(tmp_path),
+                "--id",
+                "native",
+            ],
+            cwd=ROOT,
+            env=env,
+            stderr=subprocess.PIPE,
+            stdout=subprocess.DEVNULL,
+            text=True,
+        )
         try:
             while "live view" not in said:
                 line = run.stderr.readline()

@@ -45,9 +45,29 @@ def read(path):
 @pytest.fixture(scope="module")
 def recorded_run(tmp_path_factory):
     runs = tmp_path_factory.mktemp("runs")
-    done = subprocess.run([sys.executable, "-m", "spikinglab", "run", "--ticks", str(TICKS), "--seed", str(SEED),
-                           "--a-plus", "0.04", "--runs", str(runs), "--id", "r", "--quiet"],
-                          cwd=ROOT, capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "spikinglab",
+            "run",
+            "--ticks",
+            str(TICKS),
+            "--seed",
+            str(SEED),
+            "--a-plus",
+            "0.04",
+            "--runs",
+            str(runs),
+            "--id",
+            "r",
+            "--quiet",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stderr
     replay = next(line for line in done.stdout.splitlines() if line.startswith("replay it: ")).split()
     assert (ROOT / replay[2]).exists() and (runs / "r" / "recording.rrd").samefile(replay[3])  # works where it ran
@@ -59,6 +79,7 @@ def recorded_run(tmp_path_factory):
         pos.append(world.pos[0].copy())
         sensed.append(dict(zip(SENSORS, world.sensors[0])))
         spikes[:] += brain.engine.spiked[0]
+
     closed_loop(world, brain, TICKS, keep)
     return runs / "r", read(runs / "r" / "recording.rrd"), np.array(pos), spikes, world, sensed
 
@@ -114,9 +135,23 @@ def test_screenshot_of_the_replay_is_not_blank(recorded_run, tmp_path):
 
     folder = recorded_run[0]
     before = headless_viewers()
-    done = subprocess.run([sys.executable, "-m", "spikinglab", "screenshot", str(folder / "recording.rrd"),
-                           "--out", str(tmp_path / "replay.png"), "--tick", "2500"],
-                          cwd=ROOT, capture_output=True, text=True, timeout=180)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "spikinglab",
+            "screenshot",
+            str(folder / "recording.rrd"),
+            "--out",
+            str(tmp_path / "replay.png"),
+            "--tick",
+            "2500",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
     assert done.returncode == 0, done.stderr[-2000:]
     assert headless_viewers() == before  # the viewer it started is gone, the real one behind the wrapper too
     image = imread(tmp_path / "replay.png")[..., :3]
@@ -132,14 +167,28 @@ def test_a_killed_recorder_leaves_a_readable_file(tmp_path):
     from ..processes import endpoint, free_port
 
     world_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
-    recorder = start("record", "--connect", world_ep, "--connect", brain_ep, "--out", tmp_path / "rec.rrd",
-                     "--flush-every", 500, log=tmp_path / "recorder.log")
+    recorder = start(
+        "record",
+        "--connect",
+        world_ep,
+        "--connect",
+        brain_ep,
+        "--out",
+        tmp_path / "rec.rrd",
+        "--flush-every",
+        500,
+        log=tmp_path / "recorder.log",
+    )
     world = start("world", "--listen", world_ep, "--ticks", 20000, "--publish-state", log=tmp_path / "world.log")
-    brain = start("brain", "--listen", brain_ep, "--connect", world_ep, "--once", "--publish-state",
-                  log=tmp_path / "brain.log")
+    brain = start(
+        "brain", "--listen", brain_ep, "--connect", world_ep, "--once", "--publish-state", log=tmp_path / "brain.log"
+    )
     try:
-        wait_for(lambda: (tmp_path / "rec.rrd").exists() and (tmp_path / "rec.rrd").stat().st_size > 200_000, 60,
-                 "some of the run in the file")
+        wait_for(
+            lambda: (tmp_path / "rec.rrd").exists() and (tmp_path / "rec.rrd").stat().st_size > 200_000,
+            60,
+            "some of the run in the file",
+        )
         recorder.kill()
         assert finish(world, 120, tmp_path / "world.log") == 0  # the run goes on without it
         assert finish(brain, 30, tmp_path / "brain.log") == 0
@@ -159,13 +208,21 @@ def test_a_late_recorder_says_from_which_tick_it_has_data(tmp_path):
     early = Watcher([world_ep, brain_ep], [keys.world_state("insect"), keys.brain_state("insect")])
     # long enough (several seconds) for the late recorder to start up before the run ends
     world = start("world", "--listen", world_ep, "--ticks", 30000, "--publish-state", log=tmp_path / "world.log")
-    brain = start("brain", "--listen", brain_ep, "--connect", world_ep, "--once", "--publish-state",
-                  log=tmp_path / "brain.log")
+    brain = start(
+        "brain", "--listen", brain_ep, "--connect", world_ep, "--once", "--publish-state", log=tmp_path / "brain.log"
+    )
     try:
-        wait_for(lambda: len(ticks_in(early.messages[keys.world_state("insect")])) > 1500, 60,
-                 "the run to get going")
-        recorder = start("record", "--connect", world_ep, "--connect", brain_ep, "--out", tmp_path / "late.rrd",
-                         log=tmp_path / "recorder.log")
+        wait_for(lambda: len(ticks_in(early.messages[keys.world_state("insect")])) > 1500, 60, "the run to get going")
+        recorder = start(
+            "record",
+            "--connect",
+            world_ep,
+            "--connect",
+            brain_ep,
+            "--out",
+            tmp_path / "late.rrd",
+            log=tmp_path / "recorder.log",
+        )
         assert finish(world, 120, tmp_path / "world.log") == 0
         assert finish(recorder, 60, tmp_path / "recorder.log") == 0
     finally:
@@ -188,19 +245,41 @@ def test_each_run_gets_its_own_recording(tmp_path):
     from ..processes import endpoint, free_port
 
     world_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
-    recorder = start("record", "--connect", world_ep, "--connect", brain_ep, "--out", tmp_path / "rec.rrd",
-                     "--forever", log=tmp_path / "recorder.log")
+    recorder = start(
+        "record",
+        "--connect",
+        world_ep,
+        "--connect",
+        brain_ep,
+        "--out",
+        tmp_path / "rec.rrd",
+        "--forever",
+        log=tmp_path / "recorder.log",
+    )
     brain = start("brain", "--listen", brain_ep, "--connect", world_ep, "--publish-state", log=tmp_path / "brain.log")
     try:
         for seed in (1, 2):
-            world = start("world", "--listen", world_ep, "--ticks", 2000, "--seed", seed, "--publish-state",
-                          log=tmp_path / f"world{seed}.log")
+            world = start(
+                "world",
+                "--listen",
+                world_ep,
+                "--ticks",
+                2000,
+                "--seed",
+                seed,
+                "--publish-state",
+                log=tmp_path / f"world{seed}.log",
+            )
             assert finish(world, 120, tmp_path / f"world{seed}.log") == 0
-        runs = re.findall(r"run ([0-9a-f]{16}): 2000 ticks", "".join((tmp_path / f"world{s}.log").read_text()
-                                                                      for s in (1, 2)))
+        runs = re.findall(
+            r"run ([0-9a-f]{16}): 2000 ticks", "".join((tmp_path / f"world{s}.log").read_text() for s in (1, 2))
+        )
         second = tmp_path / f"rec-{runs[1]}.rrd"
-        wait_for(lambda: "run " + runs[1] + " starts" in (tmp_path / "recorder.log").read_text(), 30,
-                 "the recorder to take the second run")
+        wait_for(
+            lambda: "run " + runs[1] + " starts" in (tmp_path / "recorder.log").read_text(),
+            30,
+            "the recorder to take the second run",
+        )
         time.sleep(2)  # its last batches
         recorder.terminate()
         assert finish(recorder, 30, tmp_path / "recorder.log") == 0
@@ -222,8 +301,10 @@ def test_vision_rays_and_pain_marks_are_what_the_insect_sensed(recorded_run):
     assert rays["tick"] == list(range(TICKS))
     strips = np.array([row[0] for row in rays["LineStrips2D:strips"]])  # [T, 2 ends, 2]
     np.testing.assert_allclose(strips[1:, 0], view(pos[:-1], world.params), atol=1e-4)
-    nearest = [min([s[n] for n in ("smell_black", "smell_red", "smell_green") if not np.isnan(s[n])], default=4.0)
-               for s in sensed]
+    nearest = [
+        min([s[n] for n in ("smell_black", "smell_red", "smell_green") if not np.isnan(s[n])], default=4.0)
+        for s in sensed
+    ]
     np.testing.assert_allclose(np.linalg.norm(strips[:, 1] - strips[:, 0], axis=1), nearest, atol=1e-4)
     pain = data["/world/pain"]
     felt = [t for t, marks in zip(pain["tick"], pain["Points2D:positions"]) if marks]
@@ -244,16 +325,24 @@ def test_brain_states_unlike_the_first_are_refused_whole_even_before_the_layout(
     nodes, neurons, synapses = len(circuit.node_names), len(circuit.neuron_names), len(circuit.synapses)
 
     def state(tick, agents=1, nodes=nodes, neurons=neurons, synapses=synapses):
-        return BrainState(tick=tick, run=run, spiked=Array.of(np.ones((10, agents, nodes), np.uint8)),
-                          potentials=Array.of(np.zeros((10, agents, neurons), np.float32)),
-                          weights=Array.of(np.ones((agents, synapses))))
+        return BrainState(
+            tick=tick,
+            run=run,
+            spiked=Array.of(np.ones((10, agents, nodes), np.uint8)),
+            potentials=Array.of(np.zeros((10, agents, neurons), np.float32)),
+            weights=Array.of(np.ones((agents, synapses))),
+        )
 
     rec = rr.RecordingStream("spikinglab-test", recording_id="t")
     rec.save(str(tmp_path / "t.rrd"))
     recorder = Recorder(rec, flush_every=15)
     recorder.on(state(0))
-    for unlike in (state(10, agents=2), state(10, nodes=nodes + 1), state(10, neurons=neurons - 1),
-                   state(10, synapses=synapses + 1)):
+    for unlike in (
+        state(10, agents=2),
+        state(10, nodes=nodes + 1),
+        state(10, neurons=neurons - 1),
+        state(10, synapses=synapses + 1),
+    ):
         with pytest.raises(BusError, match="does not fit the recording: a brain state of"):
             recorder.on(unlike)
     recorder.on(layout(circuit, 0, run))

@@ -31,9 +31,27 @@ def test_run_view_serves_a_web_viewer_that_renders_the_run(tmp_path):
     chromium = shutil.which("chromium")
     assert chromium, "Debian's chromium is needed (scripts/test.sh installs it: apt-get install chromium)"
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    run = subprocess.Popen([sys.executable, "-m", "spikinglab", "run", "--view", "--ticks", "400000", "--quiet",
-                            "--runs", str(tmp_path), "--id", "live"], cwd=ROOT, env=env, stderr=subprocess.PIPE,
-                           stdout=subprocess.DEVNULL, text=True)
+    run = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "spikinglab",
+            "run",
+            "--view",
+            "--ticks",
+            "400000",
+            "--quiet",
+            "--runs",
+            str(tmp_path),
+            "--id",
+            "live",
+        ],
+        cwd=ROOT,
+        env=env,
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+    )
     try:
         said = ""
         while "live view" not in said:
@@ -60,8 +78,9 @@ def test_run_view_serves_a_web_viewer_that_renders_the_run(tmp_path):
         assert title == "Rerun Viewer"
         # the map of the run, drawn from the served data: walls, predators and food in their colours
         logs = "\n".join(f"--- {log.name}\n{log.read_text()[-1500:]}" for log in (tmp_path / "live").glob("*.log"))
-        assert min(found.values()) > 500, f"pixels of each map colour: {found} (screenshot: {tmp_path}/web_view.png)" \
-                                          f"\n{logs}"
+        assert min(found.values()) > 500, (
+            f"pixels of each map colour: {found} (screenshot: {tmp_path}/web_view.png)\n{logs}"
+        )
         assert pixels_of(shot, (0, 0, 0), tolerance=0) < 0.9 * 1400 * 800  # not a blank page
     finally:
         run.send_signal(signal.SIGINT)  # the run ends at its ticks done, with viewer servers and services

@@ -40,7 +40,7 @@ def test_default_map():
     for x in p.wall_columns:
         column = grid[x - p.x_min, 4 - p.y_min : -1]
         assert set(np.unique(column)) <= {BLACK, RED, GREEN} and (column == BLACK).mean() > 0.7
-        assert (grid[x - p.x_min, 1 : 3] != BLACK).all()  # the gap under each column
+        assert (grid[x - p.x_min, 1:3] != BLACK).all()  # the gap under each column
     assert grid[102 - p.x_min, 30 - p.y_min] == EMPTY  # the start patch is cleared
     np.testing.assert_array_equal(grid, generate_map(p, seed=7))
     assert not np.array_equal(grid, generate_map(p, seed=8))
@@ -59,12 +59,15 @@ def corridor(cells: str, start=(1.0, 1.0), **kw):
     return w
 
 
-@pytest.mark.parametrize("cells,colour,distance", [
-    ("S..R....", RED, 2.6),  # patch 4 starts at x = 3.5: the first sample inside is 1 + 2.6 = 3.6
-    ("S.G.R...", GREEN, 1.6),  # the first non-empty patch is the one seen
-    ("S......", BLACK, None),  # the east wall at x = 8 is 7 away: beyond the view distance
-    ("S..", BLACK, 2.6),
-])
+@pytest.mark.parametrize(
+    "cells,colour,distance",
+    [
+        ("S..R....", RED, 2.6),  # patch 4 starts at x = 3.5: the first sample inside is 1 + 2.6 = 3.6
+        ("S.G.R...", GREEN, 1.6),  # the first non-empty patch is the one seen
+        ("S......", BLACK, None),  # the east wall at x = 8 is 7 away: beyond the view distance
+        ("S..", BLACK, 2.6),
+    ],
+)
 def test_vision_sees_the_first_patch_ahead(cells, colour, distance):
     w = corridor(cells)
     s = w.sense()[0]
@@ -84,9 +87,11 @@ def test_touching_a_noxious_patch_hurts_counts_once_and_pushes_in_training():
     w.act(NOTHING)
     assert w.metrics.collisions[0] == 1 and w.metrics.collisions_by_colour[0, RED] == 1
     assert w.pos[0, 0] == pytest.approx(2.5)  # pushed 0.5 forward (east)
-    w.sense(); w.act(NOTHING)  # x = 2.5 is in patch 3 (nearest centre, ties go up): another red patch
+    w.sense()
+    w.act(NOTHING)  # x = 2.5 is in patch 3 (nearest centre, ties go up): another red patch
     assert w.metrics.collisions[0] == 2  # entering a second noxious patch is a second event
-    w.sense(); w.act(NOTHING)
+    w.sense()
+    w.act(NOTHING)
     assert w.metrics.collisions[0] == 2  # pushed within patch 3: the same patch, no new event
     assert w.metrics.last_collision[0] == 1
 
@@ -121,7 +126,9 @@ def test_actions_follow_netlogo_headings():
     netlogo.heading[:] = 90.0
     netlogo.act(np.array([[1, 1]], np.uint8))  # both: rotate, then move along the new heading
     assert netlogo.heading[0] == 94.0
-    assert netlogo.pos[0] == pytest.approx([102 + 0.4 * math.sin(math.radians(94)), 30 + 0.4 * math.cos(math.radians(94))])
+    assert netlogo.pos[0] == pytest.approx(
+        [102 + 0.4 * math.sin(math.radians(94)), 30 + 0.4 * math.cos(math.radians(94))]
+    )
     assert netlogo.metrics.distance[0] == pytest.approx(0.4)
 
 
@@ -135,11 +142,13 @@ def test_leaving_the_arena_returns_to_start():
 def test_learning_time_is_the_last_collision_before_w_free_ticks():
     w = corridor("SR......", start=(2.0, 1.0), learned_after=50)
     w.training = False  # stay on the red patch: no push
-    for t in range(10):
-        w.sense(); w.act(NOTHING)
+    for _ in range(10):
+        w.sense()
+        w.act(NOTHING)
     w.pos[0] = (5.0, 1.0)  # step off, onto empty floor facing the wall at 8
-    for t in range(10, 80):
-        w.sense(); w.act(NOTHING)
+    for _ in range(10, 80):
+        w.sense()
+        w.act(NOTHING)
     assert w.metrics.collisions[0] == 1  # entering once; staying is not a new event
     # but every tick on it resets the count (NetLogo's error_free_counter): the last was tick 9
     assert w.metrics.last_noxious[0] == 9
@@ -154,7 +163,8 @@ def test_collision_bins_per_thousand_ticks():
             w.pos[0] = (4.0, 1.0)
         if t == 1600:
             w.pos[0] = (2.0, 1.0)
-        w.sense(); w.act(NOTHING)
+        w.sense()
+        w.act(NOTHING)
     assert [b.tolist() for b in w.metrics.bins] == [[1], [1]]
 
 
@@ -168,7 +178,8 @@ def test_agents_have_their_own_arenas_or_share_one():
     g = shared.grid[0]
     fx, fy = np.argwhere(g == GREEN)[0]
     shared.pos[0] = (fx + shared.params.x_min, fy + shared.params.y_min)
-    shared.sense(); shared.act(np.zeros((2, 2), np.uint8))
+    shared.sense()
+    shared.act(np.zeros((2, 2), np.uint8))
     assert shared.grid[0, fx, fy] == EMPTY and shared.metrics.food.tolist() == [1, 0]
 
 
@@ -200,13 +211,16 @@ def test_map_file(tmp_path):
     np.testing.assert_array_equal(w.pos, [[1.0, 3.0]] * 2)
 
 
-@pytest.mark.parametrize("text,problem", [
-    ("####\n#S.#\n#..\n####\n", "line 3: row has 3 cells, the first row has 4"),
-    ("####\n#SX#\n####\n", "line 2, column 3: unknown cell 'X'"),
-    ("####\n#..#\n####\n", "no start 'S'"),
-    ("####\n#SS#\n####\n", "line 2: a second start"),
-    ("", "empty map"),
-])
+@pytest.mark.parametrize(
+    "text,problem",
+    [
+        ("####\n#S.#\n#..\n####\n", "line 3: row has 3 cells, the first row has 4"),
+        ("####\n#SX#\n####\n", "line 2, column 3: unknown cell 'X'"),
+        ("####\n#..#\n####\n", "no start 'S'"),
+        ("####\n#SS#\n####\n", "line 2: a second start"),
+        ("", "empty map"),
+    ],
+)
 def test_wrong_map_files_say_where(tmp_path, text, problem):
     path = tmp_path / "bad.txt"
     path.write_text(text)

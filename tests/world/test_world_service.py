@@ -31,6 +31,7 @@ def test_a_checkpoint_resumes_only_under_the_options_that_made_it(tmp_path):
         resume,
         world_from_args,
     )
+
     made = parser().parse_args(["--seed", "4", "--ticks", "3000", "--checkpoint", str(tmp_path)])
     world = world_from_args(made)
     for _ in range(1200):
