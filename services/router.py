@@ -9,7 +9,7 @@ import logging
 import sys
 import time
 
-from services.bus.session import add_bus_args, open_session
+from services.bus.config import BusConfigError, add_bus_args, open_session
 from services.options import Parser
 
 log = logging.getLogger("spikinglab.router")
@@ -26,7 +26,10 @@ def main(argv=None) -> int:
     args = parser().parse_args(argv)
     if not args.listen:
         args.listen = ["tcp/0.0.0.0:7447"]
-    session = open_session(args, mode="router")
+    try:
+        session = open_session(args, mode="router")
+    except BusConfigError as e:
+        raise SystemExit(str(e)) from None
     log.info("router %s listening on %s", session.zid(), ", ".join(args.listen))
     try:
         while True:

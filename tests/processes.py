@@ -10,8 +10,8 @@ from pathlib import Path
 
 import zenoh
 
+from services.bus.config import make_config
 from services.bus.schemas import BusError, decode
-from services.bus.session import make_config
 from services.launch import spawn
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -11,7 +11,7 @@ import numpy as np
 
 from services.brain.checkpoint import load_weights
 from services.brain.circuit import load_circuit
-from services.bus.schemas import state_batch
+from services.bus.batching import state_batch
 
 from .processes import ROOT, running_with
 

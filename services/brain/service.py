@@ -23,11 +23,14 @@ from pathlib import Path
 import numpy as np
 
 from services import snapshots
-from services.bus import keys, schemas
-from services.bus.schemas import QUIET_S, Array, BrainLayout, BrainState, BusError, Control, Motor, Sensors, TickBatch
-from services.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
+from services.bus import keys
+from services.bus.batching import TickBatch, state_batch
+from services.bus.config import add_bus_args
+from services.bus.schemas import Array, BrainLayout, BrainState, BusError, Control, Motor, Sensors
+from services.bus.transport import QUIET_S, Bus, wait_for_subscriber
 from services.options import Parser, at_least, not_negative, number, positive, shard
 from services.params import file_rows, read_params, side_of
+from services.runtime import service_main
 
 from .brain import Brain, check_sensors
 from .checkpoint import load_weights, save_weights
@@ -181,7 +184,7 @@ class BrainNode:
         self.quiet_s, self.heard_at = quiet_s, 0.0  # when the run served last asked (monotonic)
 
     def new_batch(self) -> TickBatch:
-        return TickBatch(FREE_STATE_BATCH if self.free_running else schemas.state_batch(self.brain.agents))
+        return TickBatch(FREE_STATE_BATCH if self.free_running else state_batch(self.brain.agents))
 
     def start(self, message: Sensors) -> None:
         """A fresh brain for the sensors and agents of `message` (a new run)."""

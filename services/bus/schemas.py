@@ -19,19 +19,11 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
+from services.vocabulary import EVENT_COLUMNS
+
 VERSION = 6  # 2: brain and world states come in batches of consecutive ticks; 3: no training switch on the bus;
 # 4: sensors, motor and control name the run they belong to; 5: motor names the reading it answers, the states
 # name their run; 6: sensors say when the world keeps a checkpoint
-# The insect's senses and actions: what a world or a robot gateway publishes and takes. The brain
-# binds them to its circuit by name (circuit files: `sensor = ...`, [actuators]).
-INSECT_SENSORS = ("smell_black", "smell_red", "smell_green", "pain", "reward")
-INSECT_ACTIONS = ("rotate", "move")
-# Patch colours in WorldMap grids and WorldState changes and events.
-EMPTY, BLACK, RED, GREEN = 0, 1, 2, 3
-# WorldState events columns: the colour of a collision entered this tick (0: none), food eaten,
-# put back at the start, learning time reached.
-EVENT_COLUMNS = ("collision", "ate", "reset", "learned")
-EV_COLLISION, EV_ATE, EV_RESET, EV_LEARNED = range(len(EVENT_COLUMNS))
 _MAX_ELEMENTS = 1 << 26
 _ITEMSIZE = {"<f8": 8, "<f4": 4, "<i8": 8, "|u1": 1}  # the dtypes messages carry
 
@@ -81,8 +73,6 @@ class Array(msgspec.Struct, frozen=True):
 
 RunId = Annotated[str, msgspec.Meta(max_length=64)]  # chosen by the world (or gateway) when its run starts
 RUN_ID = re.compile("[0-9a-f]{16}")  # what new_run_id() gives
-QUIET_S = 2.0  # another run may take over a brain or a recording only once the run served has been silent
-# this long (its world re-sends every second while it lives), so a message of another run cannot take a live one
 
 
 def new_run_id() -> str:
@@ -252,45 +242,6 @@ class WorldMap(Message, tag="world_map", kw_only=True):
     def check(self):
         if 0 in self.grid.numpy("grid", "|u1", 3).shape:
             raise BusError(f"grid of shape {list(self.grid.shape)}: no arena")
-
-
-def state_batch(agents: int) -> int:
-    """Ticks per WorldState or BrainState message of a lock-step run: 250 for a few agents, whose
-    messages are small (fewer of them cost the recorder less CPU on the cores the loop shares: the
-    recorded 1-agent loop ran 5-6 % faster than at 50), down to 50 from 1,600 agents, so that no
-    message holds more agent-ticks than a 1,600-agent one of 50 ticks did."""
-    return max(50, min(250, 80_000 // agents))
-
-
-class TickBatch:
-    """Arrays of consecutive ticks, kept until there are `size` of them; `take()` gives the first
-    tick and each array with a leading tick axis (for BrainState and WorldState). The buffers are
-    made at the first add(), each [size, ...] of that array's shape and dtype, so a tick costs one
-    copy per array (the recorded lock-step loop adds every tick)."""
-
-    def __init__(self, size: int):
-        self.size, self.first, self.count = size, None, 0
-        self.rows: dict[str, np.ndarray] = {}
-
-    def add(self, tick: int, **arrays) -> None:
-        if self.first is None:
-            self.first = tick
-        for name, value in arrays.items():
-            rows = self.rows.get(name)
-            if rows is None:
-                value = np.asarray(value)
-                rows = self.rows[name] = np.empty((self.size, *value.shape), value.dtype)
-            rows[self.count] = value
-        self.count += 1
-
-    @property
-    def full(self) -> bool:
-        return self.count >= self.size
-
-    def take(self) -> tuple[int, dict[str, np.ndarray]]:
-        first, count = self.first, self.count
-        self.first, self.count = None, 0
-        return first, {name: rows[:count].copy() for name, rows in self.rows.items()}
 
 
 KINDS = (Sensors, Motor, Control, BrainState, BrainLayout, WorldState, WorldMap)

@@ -34,9 +34,12 @@ from pathlib import Path
 import numpy as np
 
 from services.bus import keys
-from services.bus.schemas import INSECT_SENSORS, Array, BusError, Control, Motor, Sensors, new_run_id
-from services.bus.session import Bus, add_bus_args, guard_threads, open_session, thread_died
+from services.bus.config import BusConfigError, add_bus_args, open_session
+from services.bus.schemas import Array, BusError, Control, Motor, Sensors, new_run_id
+from services.bus.transport import Bus
 from services.options import Parser, at_least, not_negative, number, positive
+from services.runtime import guard_threads, thread_died
+from services.vocabulary import INSECT_SENSORS
 
 from .backends import BLACK, GREEN, RED, EV3Backend, Reading, RobotLinkError, SimBackend, Wiring
 
@@ -393,7 +396,10 @@ def main(argv=None) -> int:
     except (RobotLinkError, ValueError, OSError) as e:
         log.error("%s", e)
         return 2
-    session = open_session(args)
+    try:
+        session = open_session(args)
+    except BusConfigError as e:
+        raise SystemExit(str(e)) from None
     bus = Bus(session, args.group, "gateway")
     gateway = Gateway(backend, bus, args)
     bus.watch_others(lambda: f" ({gateway.stats['polls']} polls, {time.monotonic() - gateway.started:.1f} s in)")

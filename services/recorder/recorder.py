@@ -25,19 +25,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from services.bus.schemas import (
-    BLACK,
-    EMPTY,
-    EV_LEARNED,
-    GREEN,
-    RED,
-    RUN_ID,
-    BrainLayout,
-    BrainState,
-    BusError,
-    WorldMap,
-    WorldState,
-)
+from services.bus.schemas import RUN_ID, BrainLayout, BrainState, BusError, WorldMap, WorldState
+from services.vocabulary import BLACK, EMPTY, EV_LEARNED, GREEN, RED
 
 PATCH_COLOURS = [
     (EMPTY, "floor", (24, 24, 28)),

@@ -27,9 +27,11 @@ from pathlib import Path
 import rerun as rr
 
 from services.bus import keys
-from services.bus.schemas import QUIET_S, RUN_ID, BrainLayout, BrainState, BusError, WorldMap, WorldState
-from services.bus.session import Bus, add_bus_args, service_main
+from services.bus.config import add_bus_args
+from services.bus.schemas import RUN_ID, BrainLayout, BrainState, BusError, WorldMap, WorldState
+from services.bus.transport import QUIET_S, Bus
 from services.options import Parser, agent_list, at_least, port
+from services.runtime import service_main
 
 from .recorder import Recorder, blueprint
 

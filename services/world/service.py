@@ -23,23 +23,14 @@ import numpy as np
 
 from services import snapshots
 from services.bus import keys
-from services.bus.schemas import (
-    EVENT_COLUMNS,
-    RUN_ID,
-    Array,
-    BusError,
-    Control,
-    Motor,
-    Sensors,
-    TickBatch,
-    WorldMap,
-    WorldState,
-    new_run_id,
-    state_batch,
-)
-from services.bus.session import Bus, add_bus_args, service_main, wait_for_subscriber
+from services.bus.batching import TickBatch, state_batch
+from services.bus.config import add_bus_args
+from services.bus.schemas import RUN_ID, Array, BusError, Control, Motor, Sensors, WorldMap, WorldState, new_run_id
+from services.bus.transport import Bus, wait_for_subscriber
 from services.options import Parser, at_least
 from services.params import file_for_agents, side_of
+from services.runtime import service_main
+from services.vocabulary import EVENT_COLUMNS
 
 from .world import PRESETS, SENSORS, MapError, World, map_world, params_for, world_actions
 

@@ -20,7 +20,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit, prange
 
-from services.bus.schemas import (
+from services.kernels import Kernel
+from services.params import PARALLEL_FROM, agent_columns
+from services.snapshots import copy_into
+from services.vocabulary import (
     BLACK,
     EMPTY,
     EV_ATE,
@@ -33,9 +36,6 @@ from services.bus.schemas import (
     INSECT_SENSORS,
     RED,
 )
-from services.kernels import Kernel
-from services.params import PARALLEL_FROM, agent_columns
-from services.snapshots import copy_into
 
 # Sensor columns the world publishes and action columns it takes (the bus's names; the circuit
 # binds them by name).

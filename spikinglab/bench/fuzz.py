@@ -33,8 +33,6 @@ from services.brain.circuit import load_circuit
 from services.brain.service import BrainNode, layout
 from services.bus import keys
 from services.bus.schemas import (
-    INSECT_ACTIONS,
-    INSECT_SENSORS,
     KINDS,
     Array,
     BrainLayout,
@@ -51,6 +49,7 @@ from services.bus.schemas import (
 from services.ev3_gateway.service import motor_actions
 from services.options import Parser, at_least
 from services.recorder.recorder import Recorder
+from services.vocabulary import INSECT_ACTIONS, INSECT_SENSORS
 from services.world.service import actions_from
 
 raw_encode, raw_decode = msgspec.msgpack.Encoder().encode, msgspec.msgpack.Decoder().decode

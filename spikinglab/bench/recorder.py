@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.bus.schemas import state_batch
+from services.bus.batching import state_batch
 from services.launch import local_endpoints, spawn
 from services.options import Parser, at_least
 from spikinglab.bench import steady_rate
@@ -60,7 +60,8 @@ def alone(ticks: int) -> float:
 
     from services.brain.circuit import load_circuit
     from services.brain.service import BrainNode, layout
-    from services.bus.schemas import Array, Sensors, TickBatch, WorldMap, decode, encode, new_run_id
+    from services.bus.batching import TickBatch
+    from services.bus.schemas import Array, Sensors, WorldMap, decode, encode, new_run_id
     from services.recorder.recorder import Recorder, blueprint
     from services.world.service import keep_state, state_message
     from services.world.world import SENSORS, World, world_actions

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from services.bus.config import make_config
 from services.bus.schemas import encode
-from services.bus.session import make_config
 from services.launch import local_endpoints, spawn
 from services.options import Parser, at_least, positive
 

@@ -8,7 +8,8 @@ import pytest
 from services.brain.brain import Brain
 from services.brain.circuit import load_circuit
 from services.brain.service import BrainNode
-from services.bus.schemas import INSECT_ACTIONS, INSECT_SENSORS, Array, BusError, Control, Sensors
+from services.bus.schemas import Array, BusError, Control, Sensors
+from services.vocabulary import INSECT_ACTIONS, INSECT_SENSORS
 
 AGENTS = 3
 CIRCUIT = load_circuit("insect")

@@ -3,8 +3,9 @@
 import numpy as np
 import zenoh
 
+from services.bus.config import make_config
 from services.bus.schemas import Array, BrainState, encode
-from services.bus.session import DROPPED, Inbox, make_config, wait_until
+from services.bus.transport import DROPPED, Inbox, wait_until
 
 
 def test_a_reader_that_falls_behind_keeps_its_backlog_and_counts_the_rest():

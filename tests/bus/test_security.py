@@ -16,8 +16,8 @@ from services import certs
 from services.brain.checkpoint import load_weights
 from services.brain.circuit import load_circuit
 from services.bus import keys
+from services.bus.config import make_config, zenoh_config_file
 from services.bus.schemas import Array, Control, Motor, Sensors, decode, encode
-from services.bus.session import make_config, zenoh_config_file
 from services.ev3_gateway.fake_brick import FakeBrick
 from services.loop import brain_for, closed_loop
 from services.world.world import World

@@ -1,4 +1,4 @@
-"""A thread that dies takes its process down, cleanly and loudly (bus.session.guard_threads)."""
+"""A thread that dies takes its process down, cleanly and loudly (services.runtime.guard_threads)."""
 
 import subprocess
 import sys
@@ -6,7 +6,7 @@ import textwrap
 
 SERVICE = textwrap.dedent("""
     import logging, sys, threading, time
-    from services.bus.session import guard_threads, thread_died
+    from services.runtime import guard_threads, thread_died
     logging.basicConfig(level=logging.INFO)
     guard_threads()
     def motor_commands():

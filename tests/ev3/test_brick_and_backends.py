@@ -8,10 +8,10 @@ import time
 import pytest
 from ev3_dc import GVX, LCX
 
-from services.bus.schemas import INSECT_SENSORS
 from services.ev3_gateway.backends import EV3Backend, Reading, RobotLinkError, SimBackend, Wiring
 from services.ev3_gateway.fake_brick import FakeBrick, parameter
 from services.ev3_gateway.service import sensor_values
+from services.vocabulary import INSECT_SENSORS
 
 
 @pytest.mark.parametrize("value", [0, 5, 31, -1, -32, 100, -127, 1000, -20000, 70000, -70000])

@@ -7,8 +7,9 @@ import time
 import numpy as np
 
 from services.bus import keys
-from services.bus.schemas import INSECT_ACTIONS, Array, Motor, encode
+from services.bus.schemas import Array, Motor, encode
 from services.ev3_gateway.fake_brick import FakeBrick
+from services.vocabulary import INSECT_ACTIONS
 
 from ..processes import Watcher, endpoint, finish, free_port, start, wait_for
 from ..recorder.test_recorder import read

@@ -5,8 +5,9 @@ import re
 import numpy as np
 import pytest
 
-from services.bus.schemas import INSECT_ACTIONS, Array, BusError, Motor
+from services.bus.schemas import Array, BusError, Motor
 from services.ev3_gateway.service import MotorCall, MotorRules, motor_actions
+from services.vocabulary import INSECT_ACTIONS
 
 ROTATE, MOVE, BOTH = {"rotate": 1, "move": 0}, {"rotate": 0, "move": 1}, {"rotate": 1, "move": 1}
 

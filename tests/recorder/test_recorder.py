@@ -14,7 +14,7 @@ from rerun.chunk import RrdReader
 from services.brain.checkpoint import load_weights
 from services.brain.circuit import load_circuit
 from services.bus import keys
-from services.bus.schemas import state_batch
+from services.bus.batching import state_batch
 from services.loop import brain_for, closed_loop
 from services.world.world import SENSORS, World, generate_map, params_for
 

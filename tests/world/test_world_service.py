@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 import rerun as rr
 
-from services.bus.schemas import TickBatch, WorldState, decode, encode
+from services.bus.batching import TickBatch
+from services.bus.schemas import WorldState, decode, encode
 from services.recorder.recorder import Recorder
 from services.world.service import state_message
 from services.world.world import World

@@ -1,27 +1,19 @@
-"""Zenoh sessions, publishers, strict inboxes and liveliness: the only code that imports zenoh.
+"""Messages on the bus: strict inboxes, outboxes, liveliness, one service's place on the bus.
 
-Every service adds the same options (`add_bus_args`): --connect/--listen endpoints, --zenoh-config
-FILE for anything else (TLS, access control), --group. Multicast scouting is off unless the config
-file turns it on: sessions find each other through the endpoints given.
+The only code besides bus/config.py that imports zenoh. A message is decoded strictly on arrival
+(bus/schemas.py); what does not decode is counted and logged by key and reason, never used.
 """
 
 from __future__ import annotations
 
-import _thread
-import argparse
 import collections
-import json
 import logging
 import os
 import queue
-import signal
-import sys
 import threading
 import time
 from collections import Counter
-from pathlib import Path
 
-import json5
 import zenoh
 
 from . import keys
@@ -29,144 +21,10 @@ from .schemas import BusError, Message, decode, encode
 
 log = logging.getLogger("spikinglab.bus")
 
-
-PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream", "unixpipe", "vsock", "serial")
+QUIET_S = 2.0  # another run may take over a brain or a recording only once the run served has been silent
+# this long (its world re-sends every second while it lives), so a message of another run cannot take a live one
 DROPPED = "dropped, backlog full"  # the reason counted for messages a Backlog dropped
 REASONS_KEPT = 32  # distinct rejection reasons counted per key; the rest as "other reasons"
-NOTHING_ANSWERS_AFTER = 10.0  # seconds: then a --connect that reached nobody is reported
-
-
-def endpoint(text: str) -> str:
-    """A Zenoh endpoint, checked before anything starts: <protocol>/<address>, and host:port for
-    the IP protocols (argparse turns the ArgumentTypeError into a usage error naming the option)."""
-    protocol, _, address = text.partition("/")
-    if protocol not in PROTOCOLS or not address:
-        raise argparse.ArgumentTypeError(
-            f"{text!r} is not an endpoint: expected <protocol>/<address> with protocol "
-            f"one of {', '.join(PROTOCOLS)}, e.g. tcp/192.168.1.10:7447"
-        )
-    if protocol in ("tcp", "udp", "tls", "quic"):
-        host, _, port = address.split("#")[0].split("?")[0].rpartition(":")
-        if not host or not port.isdigit() or not 0 <= int(port) <= 65535:
-            raise argparse.ArgumentTypeError(
-                f"{text!r}: a {protocol} endpoint needs host:port with a port of 0-65535, e.g. tcp/192.168.1.10:7447"
-            )
-    return text
-
-
-def add_bus_args(parser: argparse.ArgumentParser) -> None:
-    bus = parser.add_argument_group("bus")
-    bus.add_argument(
-        "--connect",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        type=endpoint,
-        help="endpoint to connect to, e.g. tcp/192.168.1.10:7447 (repeatable)",
-    )
-    bus.add_argument(
-        "--listen",
-        action="append",
-        default=[],
-        metavar="ENDPOINT",
-        type=endpoint,
-        help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)",
-    )
-    bus.add_argument(
-        "--zenoh-config",
-        metavar="FILE",
-        type=zenoh_config_file,
-        help="a Zenoh JSON5 config file (TLS, access control: spikinglab certs writes them)",
-    )
-    bus.add_argument(
-        "--group",
-        default=keys.DEFAULT_GROUP,
-        help=f"the insect or population this service belongs to (default {keys.DEFAULT_GROUP})",
-    )
-    bus.add_argument(
-        "--cpu",
-        type=int,
-        metavar="N",
-        help="run this process on CPU N only (a lock-step pair on separate cores is ~30 %% faster)",
-    )
-
-
-def zenoh_config_file(text: str) -> dict:
-    """A --zenoh-config file, read as JSON5 before anything starts (argparse names the option)."""
-    try:
-        settings = json5.loads(Path(text).read_text())
-    except OSError as e:
-        raise argparse.ArgumentTypeError(
-            f"cannot read {text}: {e.strerror} (`spikinglab certs DIR` writes one for each service)"
-        ) from None
-    except ValueError as e:  # json5's parse errors, and a file that is not UTF-8
-        raise argparse.ArgumentTypeError(f"{text} is not a JSON5 config: {e}") from None
-    if not isinstance(settings, dict):
-        raise argparse.ArgumentTypeError(f"{text} should hold one JSON5 object {{...}}, not {type(settings).__name__}")
-    return {"file": text, "settings": settings}
-
-
-def make_config(connect=(), listen=(), config_file: dict | None = None, mode: str | None = None) -> zenoh.Config:
-    """A session's config: the --zenoh-config file's settings if given, then these. The mode is
-    `mode` if given (a router), else the file's, else peer; multicast scouting stays off unless
-    the file turns it on (sessions find each other through the endpoints given); a client waits up
-    to NOTHING_ANSWERS_AFTER for its router unless the file says otherwise."""
-    settings = dict(config_file["settings"]) if config_file else {}
-    if mode is not None or "mode" not in settings:
-        settings["mode"] = mode or "peer"
-    scouting = settings.setdefault("scouting", {})
-    scouting.setdefault("multicast", {}).setdefault("enabled", False)
-    if settings["mode"] == "client":  # a client cannot open without its router: wait for one started with it
-        timeouts = settings.setdefault("connect", {}).setdefault("timeout_ms", {})
-        if isinstance(timeouts, dict):
-            timeouts.setdefault("client", int(NOTHING_ANSWERS_AFTER * 1000))
-    if connect:
-        settings.setdefault("connect", {})["endpoints"] = list(connect)
-    if listen:
-        settings.setdefault("listen", {})["endpoints"] = list(listen)
-    try:
-        return zenoh.Config.from_json5(json.dumps(settings))
-    except Exception as e:  # zenoh's own error type: a key or value it does not take
-        where = f"--zenoh-config {config_file['file']}" if config_file else "the bus config"
-        raise SystemExit(f"{where}: {str(e).split(' at /')[0]}") from None
-
-
-def open_session(args: argparse.Namespace, mode: str | None = None) -> zenoh.Session:
-    if getattr(args, "cpu", None) is not None:  # before zenoh starts its threads, so they stay there too
-        try:
-            os.sched_setaffinity(0, {args.cpu})
-        except (OSError, AttributeError) as e:
-            log.warning("cannot pin to CPU %d: %s", args.cpu, e)
-    try:
-        session = zenoh.open(make_config(args.connect, args.listen, args.zenoh_config, mode))
-    except zenoh.ZError as e:
-        reason = str(e).split(" at /")[0]  # without the Rust source location
-        raise SystemExit(
-            f"cannot open the bus session (connect {args.connect}, listen {args.listen}): {reason}"
-        ) from None
-    if args.connect:
-        threading.Thread(
-            target=report_if_alone, args=(session, args.connect), daemon=True, name="connection check"
-        ).start()
-    return session
-
-
-def report_if_alone(session: zenoh.Session, connect: list[str]) -> None:
-    """Say so when none of the --connect endpoints answered within NOTHING_ANSWERS_AFTER seconds;
-    Zenoh keeps trying meanwhile (the other side may start later)."""
-    deadline = time.monotonic() + NOTHING_ANSWERS_AFTER
-    while time.monotonic() < deadline:
-        try:
-            if any(True for _ in session.info.peers_zid()) or any(True for _ in session.info.routers_zid()):
-                return
-        except Exception:  # the session closed meanwhile
-            return
-        time.sleep(0.25)
-    log.warning(
-        "nothing answers at %s after %.0f s (is the other side running, and is the endpoint right?); still trying",
-        ", ".join(connect),
-        NOTHING_ANSWERS_AFTER,
-    )
 
 
 def by_key(rejected: Counter) -> dict[str, dict[str, int]]:
@@ -448,63 +306,6 @@ class Bus:
             self.session.close()
         except zenoh.ZError as e:  # a peer that no longer answers (a frozen process): the work is done, say so
             log.warning("the bus session did not close cleanly (%s): a peer does not answer", str(e).split(" at /")[0])
-
-
-_thread_died = threading.Event()
-
-
-def guard_threads() -> None:
-    """A thread of this process that dies of an exception takes the process down with it, the
-    clean way: logged with its traceback, then the main thread is interrupted as by Ctrl-C (so the
-    service stops its robot, saves and says goodbye) and the process exits 1. Never a process that
-    stays on the bus looking alive while a part of it is dead."""
-
-    def died(hook) -> None:
-        if hook.exc_type is SystemExit:
-            return
-        log.critical(
-            "thread %r died, so this process stops: %s: %s",
-            hook.thread.name if hook.thread else "?",
-            hook.exc_type.__name__,
-            hook.exc_value,
-            exc_info=(hook.exc_type, hook.exc_value, hook.exc_traceback),
-        )
-        _thread_died.set()
-        _thread.interrupt_main(signal.SIGINT)
-
-    threading.excepthook = died
-
-
-def thread_died() -> bool:
-    return _thread_died.is_set()
-
-
-def service_main(
-    name: str, parser: argparse.ArgumentParser, run, argv=None, interrupted: int = 130, prepare=None
-) -> int:
-    """The common start of a service: logging, its options, SIGTERM handled like Ctrl-C (the
-    service saves, flushes or reports on its way out), a dead thread ends it, the session, then
-    run(args, session)."""
-    logging.basicConfig(level=logging.INFO, format=f"%(asctime)s {name} %(levelname)s %(message)s", stream=sys.stderr)
-    # numba's OpenMP threads spin after each parallel kernel by default (about 3 ms), on the cores
-    # that the other side of a lock-step tick needs next: sleeping made world + brain 1.4-1.6x
-    # faster at A = 1,000-16,000 on 2 cores. Sleeping at once, though, each of a tick's back-to-back
-    # kernels waits for its threads to wake: a spin of about 10 us (GNU OpenMP's count; others
-    # ignore it) bridges them and no more, 1.2x faster again at A = 1,000 (docs/results.md).
-    # Read when OpenMP loads, at the first kernel.
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    os.environ.setdefault("GOMP_SPINCOUNT", "1000")
-    args = parser.parse_args(argv)
-    signal.signal(signal.SIGTERM, signal.default_int_handler)
-    guard_threads()
-    if prepare is not None:
-        prepare(args)
-    session = open_session(args)
-    try:
-        code = run(args, session)
-    except KeyboardInterrupt:
-        code = interrupted
-    return 1 if thread_died() else code
 
 
 def wait_for_subscriber(outbox: Outbox, what: str, presence: Presence | None = None, every: float = 5.0) -> None:

@@ -1,0 +1,164 @@
+"""A service's bus options and its Zenoh session config.
+
+Every service adds the same options (`add_bus_args`): --connect/--listen endpoints, --zenoh-config
+FILE for anything else (TLS, access control), --group, --cpu. Multicast scouting is off unless the
+config file turns it on: sessions find each other through the endpoints given.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import threading
+import time
+from pathlib import Path
+
+import json5
+import zenoh
+
+from . import keys
+
+log = logging.getLogger("spikinglab.bus")
+
+
+class BusConfigError(ValueError):
+    """The bus session cannot be configured or opened; the text says with what."""
+
+
+NOTHING_ANSWERS_AFTER = 10.0  # seconds: then a --connect that reached nobody is reported
+PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream", "unixpipe", "vsock", "serial")
+
+
+def endpoint(text: str) -> str:
+    """A Zenoh endpoint, checked before anything starts: <protocol>/<address>, and host:port for
+    the IP protocols (argparse turns the ArgumentTypeError into a usage error naming the option)."""
+    protocol, _, address = text.partition("/")
+    if protocol not in PROTOCOLS or not address:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not an endpoint: expected <protocol>/<address> with protocol "
+            f"one of {', '.join(PROTOCOLS)}, e.g. tcp/192.168.1.10:7447"
+        )
+    if protocol in ("tcp", "udp", "tls", "quic"):
+        host, _, port = address.split("#")[0].split("?")[0].rpartition(":")
+        if not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+            raise argparse.ArgumentTypeError(
+                f"{text!r}: a {protocol} endpoint needs host:port with a port of 0-65535, e.g. tcp/192.168.1.10:7447"
+            )
+    return text
+
+
+def add_bus_args(parser: argparse.ArgumentParser) -> None:
+    bus = parser.add_argument_group("bus")
+    bus.add_argument(
+        "--connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        type=endpoint,
+        help="endpoint to connect to, e.g. tcp/192.168.1.10:7447 (repeatable)",
+    )
+    bus.add_argument(
+        "--listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        type=endpoint,
+        help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)",
+    )
+    bus.add_argument(
+        "--zenoh-config",
+        metavar="FILE",
+        type=zenoh_config_file,
+        help="a Zenoh JSON5 config file (TLS, access control: spikinglab certs writes them)",
+    )
+    bus.add_argument(
+        "--group",
+        default=keys.DEFAULT_GROUP,
+        help=f"the insect or population this service belongs to (default {keys.DEFAULT_GROUP})",
+    )
+    bus.add_argument(
+        "--cpu",
+        type=int,
+        metavar="N",
+        help="run this process on CPU N only (a lock-step pair on separate cores is ~30 %% faster)",
+    )
+
+
+def zenoh_config_file(text: str) -> dict:
+    """A --zenoh-config file, read as JSON5 before anything starts (argparse names the option)."""
+    try:
+        settings = json5.loads(Path(text).read_text())
+    except OSError as e:
+        raise argparse.ArgumentTypeError(
+            f"cannot read {text}: {e.strerror} (`spikinglab certs DIR` writes one for each service)"
+        ) from None
+    except ValueError as e:  # json5's parse errors, and a file that is not UTF-8
+        raise argparse.ArgumentTypeError(f"{text} is not a JSON5 config: {e}") from None
+    if not isinstance(settings, dict):
+        raise argparse.ArgumentTypeError(f"{text} should hold one JSON5 object {{...}}, not {type(settings).__name__}")
+    return {"file": text, "settings": settings}
+
+
+def make_config(connect=(), listen=(), config_file: dict | None = None, mode: str | None = None) -> zenoh.Config:
+    """A session's config: the --zenoh-config file's settings if given, then these. The mode is
+    `mode` if given (a router), else the file's, else peer; multicast scouting stays off unless
+    the file turns it on (sessions find each other through the endpoints given); a client waits up
+    to NOTHING_ANSWERS_AFTER for its router unless the file says otherwise."""
+    settings = dict(config_file["settings"]) if config_file else {}
+    if mode is not None or "mode" not in settings:
+        settings["mode"] = mode or "peer"
+    scouting = settings.setdefault("scouting", {})
+    scouting.setdefault("multicast", {}).setdefault("enabled", False)
+    if settings["mode"] == "client":  # a client cannot open without its router: wait for one started with it
+        timeouts = settings.setdefault("connect", {}).setdefault("timeout_ms", {})
+        if isinstance(timeouts, dict):
+            timeouts.setdefault("client", int(NOTHING_ANSWERS_AFTER * 1000))
+    if connect:
+        settings.setdefault("connect", {})["endpoints"] = list(connect)
+    if listen:
+        settings.setdefault("listen", {})["endpoints"] = list(listen)
+    try:
+        return zenoh.Config.from_json5(json.dumps(settings))
+    except Exception as e:  # zenoh's own error type: a key or value it does not take
+        where = f"--zenoh-config {config_file['file']}" if config_file else "the bus config"
+        raise BusConfigError(f"{where}: {str(e).split(' at /')[0]}") from None
+
+
+def open_session(args: argparse.Namespace, mode: str | None = None) -> zenoh.Session:
+    if getattr(args, "cpu", None) is not None:  # before zenoh starts its threads, so they stay there too
+        try:
+            os.sched_setaffinity(0, {args.cpu})
+        except (OSError, AttributeError) as e:
+            log.warning("cannot pin to CPU %d: %s", args.cpu, e)
+    try:
+        session = zenoh.open(make_config(args.connect, args.listen, args.zenoh_config, mode))
+    except zenoh.ZError as e:
+        reason = str(e).split(" at /")[0]  # without the Rust source location
+        raise BusConfigError(
+            f"cannot open the bus session (connect {args.connect}, listen {args.listen}): {reason}"
+        ) from None
+    if args.connect:
+        threading.Thread(
+            target=report_if_alone, args=(session, args.connect), daemon=True, name="connection check"
+        ).start()
+    return session
+
+
+def report_if_alone(session: zenoh.Session, connect: list[str]) -> None:
+    """Say so when none of the --connect endpoints answered within NOTHING_ANSWERS_AFTER seconds;
+    Zenoh keeps trying meanwhile (the other side may start later)."""
+    deadline = time.monotonic() + NOTHING_ANSWERS_AFTER
+    while time.monotonic() < deadline:
+        try:
+            if any(True for _ in session.info.peers_zid()) or any(True for _ in session.info.routers_zid()):
+                return
+        except Exception:  # the session closed meanwhile
+            return
+        time.sleep(0.25)
+    log.warning(
+        "nothing answers at %s after %.0f s (is the other side running, and is the endpoint right?); still trying",
+        ", ".join(connect),
+        NOTHING_ANSWERS_AFTER,
+    )

@@ -1,0 +1,75 @@
+"""How a service process starts and ends: logging, its options, signals, a thread that dies,
+OpenMP's waiting threads, then its bus session and its run(args, session)."""
+
+from __future__ import annotations
+
+import _thread
+import argparse
+import logging
+import os
+import signal
+import sys
+import threading
+
+from services.bus.config import BusConfigError, open_session
+
+log = logging.getLogger("spikinglab")
+
+_thread_died = threading.Event()
+
+
+def guard_threads() -> None:
+    """A thread of this process that dies of an exception takes the process down with it, the
+    clean way: logged with its traceback, then the main thread is interrupted as by Ctrl-C (so the
+    service stops its robot, saves and says goodbye) and the process exits 1. Never a process that
+    stays on the bus looking alive while a part of it is dead."""
+
+    def died(hook) -> None:
+        if hook.exc_type is SystemExit:
+            return
+        log.critical(
+            "thread %r died, so this process stops: %s: %s",
+            hook.thread.name if hook.thread else "?",
+            hook.exc_type.__name__,
+            hook.exc_value,
+            exc_info=(hook.exc_type, hook.exc_value, hook.exc_traceback),
+        )
+        _thread_died.set()
+        _thread.interrupt_main(signal.SIGINT)
+
+    threading.excepthook = died
+
+
+def thread_died() -> bool:
+    return _thread_died.is_set()
+
+
+def service_main(
+    name: str, parser: argparse.ArgumentParser, run, argv=None, interrupted: int = 130, prepare=None
+) -> int:
+    """The common start of a service: logging, its options, SIGTERM handled like Ctrl-C (the
+    service saves, flushes or reports on its way out), a dead thread ends it, the session, then
+    run(args, session)."""
+    logging.basicConfig(level=logging.INFO, format=f"%(asctime)s {name} %(levelname)s %(message)s", stream=sys.stderr)
+    # numba's OpenMP threads spin after each parallel kernel by default (about 3 ms), on the cores
+    # that the other side of a lock-step tick needs next: sleeping made world + brain 1.4-1.6x
+    # faster at A = 1,000-16,000 on 2 cores. Sleeping at once, though, each of a tick's back-to-back
+    # kernels waits for its threads to wake: a spin of about 10 us (GNU OpenMP's count; others
+    # ignore it) bridges them and no more, 1.2x faster again at A = 1,000 (docs/results.md).
+    # Read when OpenMP loads, at the first kernel.
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    os.environ.setdefault("GOMP_SPINCOUNT", "1000")
+    args = parser.parse_args(argv)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    guard_threads()
+    if prepare is not None:
+        prepare(args)
+    try:
+        session = open_session(args)
+    except BusConfigError as e:
+        raise SystemExit(str(e)) from None
+    try:
+        code = run(args, session)
+    except KeyboardInterrupt:
+        code = interrupted
+    return 1 if thread_died() else code
