@@ -1,4 +1,5 @@
-"""Learning time under several stated definitions, from the ticks each agent spent on a noxious patch.
+"""How fast an insect learns: its learning time under several stated definitions, from the ticks it
+spent on a noxious patch, and its collisions in the first and the last quarter of its run.
 
 A "collision" here is a tick on a noxious patch: NetLogo's demo resets its error_free_counter in
 every such tick, so an insect stuck on a wall is not collision-free.
@@ -49,8 +50,9 @@ def noxious_ticks(world, brain, ticks: int, on_tick: Callable[[int], None] | Non
         for start in range(0, ticks, BIN):
             stretch = range(start, min(start + BIN, ticks))
             fused_loop(world, brain, len(stretch), fed[stretch.start : stretch.stop])
-            for t in stretch if on_tick else ():  # the same calls as tick by tick, after the stretch
-                on_tick(t)
+            if on_tick is not None:  # the same calls as tick by tick, after the stretch
+                for t in stretch:
+                    on_tick(t)
         return [np.flatnonzero(fed[:, a]).tolist() for a in range(world.agents)]
     noxious = [[] for _ in range(world.agents)]
 
@@ -62,6 +64,15 @@ def noxious_ticks(world, brain, ticks: int, on_tick: Callable[[int], None] | Non
 
     closed_loop(world, brain, ticks, keep)
     return noxious
+
+
+def quarter_collisions(bins) -> tuple[np.ndarray, np.ndarray]:
+    """Each agent's collisions in the first and in the last quarter of its run, from its collisions
+    per bin, [agents, bins]. A quarter is a quarter of the bins, at least one: a run of fewer than
+    four bins compares its first bin with its last."""
+    bins = np.asarray(bins)
+    q = max(bins.shape[1] // 4, 1)
+    return bins[:, :q].sum(axis=1), bins[:, -q:].sum(axis=1)
 
 
 def learning_time(collision_ticks, ticks: int, window: int, allowed: int = 0) -> int | None:

@@ -17,6 +17,7 @@ from numba import njit
 from services.brain.brain import Brain, bind
 from services.brain.circuit import Circuit, load_circuit
 from services.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, serial_tick
+from services.learning import quarter_collisions
 from services.params import AGENT_PARAMS, agent_columns, setting_count
 from services.world.world import ACTIONS, BIN, PAIN, SENSORS, World, _act, _sense, _touch, params_for, world_actions
 
@@ -268,7 +269,7 @@ def evaluate(
     n, agents = setting_count(params), world.agents
     m = world.metrics
     bins = np.array(m.bins, np.int64).reshape(-1, agents)
-    last_quarter = bins[-max(len(bins) // 4, 1) :].sum(axis=0) if len(bins) else np.zeros(agents, np.int64)
+    _, last_quarter = quarter_collisions(bins.T)
     shape = (n, len(seeds))
     return {
         "learning_time": m.learned_at.reshape(shape),

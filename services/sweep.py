@@ -16,7 +16,7 @@ import numpy as np
 
 from services.brain.engine import DEFAULT_SEMANTICS
 from services.brain.service import add_engine_args
-from services.learning import PAPER, all_definitions, noxious_ticks, plot_table1, stats
+from services.learning import PAPER, all_definitions, noxious_ticks, plot_table1, quarter_collisions, stats
 from services.loop import population
 from services.options import Parser, at_least, positive
 from services.world.world import BIN, PRESETS
@@ -48,7 +48,7 @@ def sweep(
     for k, a_plus in enumerate(a_values):
         mine = slice(k * seeds, (k + 1) * seeds)
         bins = all_bins[mine]
-        q = bins.shape[1] // 4
+        first_quarter, last_quarter = quarter_collisions(bins)
         definitions = all_definitions(noxious[mine], ticks)
         times = [int(t) if t >= 0 else None for t in world.metrics.learned_at[mine]]  # the world's own counter
         main = {"times": times, **stats(times, ticks)}
@@ -64,8 +64,8 @@ def sweep(
                 "median": main["median"],
                 "quartiles": [main["q1"], main["q3"]],
                 "definitions": {**definitions, "project": main},
-                "collisions_first_quarter": bins[:, :q].sum(axis=1).tolist(),
-                "collisions_last_quarter": bins[:, -q:].sum(axis=1).tolist(),
+                "collisions_first_quarter": first_quarter.tolist(),
+                "collisions_last_quarter": last_quarter.tolist(),
                 "collisions_per_1000_ticks_mean": bins.mean(axis=0).round(2).tolist(),
             }
         )
@@ -128,7 +128,7 @@ def plot(rows: list[dict], path: Path) -> None:
 
 
 def main(argv=None) -> int:
-    p = Parser(prog="spikinglab sweep", description=__doc__.splitlines()[0])
+    p = Parser(prog="spikinglab sweep", description=(__doc__ or "").partition("\n")[0])
     p.add_argument("--a-plus", type=positive, nargs="+", default=[0.01, 0.02, 0.03, 0.04])
     p.add_argument("--seeds", type=at_least(1), default=16, help="seeds (arenas 0..N-1) per value (default 16)")
     p.add_argument(
