@@ -167,17 +167,21 @@ def load_map(path) -> tuple[np.ndarray, tuple[float, float]]:
     [x, y] and the start position.
     """
     try:
-        lines = [ln.rstrip("\n") for ln in open(path)]
+        with open(path, encoding="utf-8") as f:
+            lines = f.read().splitlines()
     except OSError as e:
         raise MapError(f"{path}: cannot read map file: {e.strerror or e}") from None
-    rows = [ln for ln in lines if ln.strip() and not ln.lstrip().startswith(";")]
-    if not rows:
+    except UnicodeDecodeError as e:
+        raise MapError(f"{path}: not a text map (not UTF-8: byte {e.start})") from None
+    # (line number, row): blank lines and ; comments are not rows, but count as lines
+    numbered = [(n, ln) for n, ln in enumerate(lines, 1) if ln.strip() and not ln.lstrip().startswith(";")]
+    if not numbered:
         raise MapError(f"{path}: empty map")
+    rows = [row for _, row in numbered]
     width = len(rows[0])
     start = None
     grid = np.zeros((width, len(rows)), dtype=np.uint8)
-    for r, row in enumerate(rows):
-        line_no = lines.index(row) + 1
+    for r, (line_no, row) in enumerate(numbered):
         if len(row) != width:
             raise MapError(f"{path}: line {line_no}: row has {len(row)} cells, the first row has {width}")
         y = len(rows) - 1 - r

@@ -1,6 +1,8 @@
 """The world against MODEL.md section 7: map, vision, touch, actions, boundary, metrics."""
 
+import gc
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -218,6 +220,8 @@ def test_map_file(tmp_path):
         ("####\n#SX#\n####\n", "line 2, column 3: unknown cell 'X'"),
         ("####\n#..#\n####\n", "no start 'S'"),
         ("####\n#SS#\n####\n", "line 2: a second start"),
+        ("#####\n#.S.#\n#...#\n#.S.#\n#####\n", "line 4: a second start"),  # line 4 repeats line 2
+        ("; a comment\n####\n#S.#\n\n####\n#..\n", "line 6: row has 3 cells"),
         ("", "empty map"),
     ],
 )
@@ -228,6 +232,19 @@ def test_wrong_map_files_say_where(tmp_path, text, problem):
         load_map(path)
     with pytest.raises(MapError, match="cannot read map file"):
         load_map(tmp_path / "missing.txt")
+    (tmp_path / "picture.png").write_bytes(b"\x89PNG\r\n")
+    with pytest.raises(MapError, match="not a text map"):
+        load_map(tmp_path / "picture.png")
+
+
+def test_a_map_file_is_closed_once_read(tmp_path):
+    path = tmp_path / "map.txt"
+    path.write_text("####\n#S.#\n####\n")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ResourceWarning)
+        load_map(path)
+        gc.collect()
+    assert not [w for w in caught if issubclass(w.category, ResourceWarning)]
 
 
 def test_actions_of_another_shape_are_refused_and_other_integer_types_taken():
