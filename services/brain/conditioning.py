@@ -19,6 +19,18 @@ from .circuit import load_circuit
 from .engine import Engine
 
 TRIAL = 100  # ticks between trials: longer than the STDP windows, so trials do not interact
+# (title, circuit, schedule: input -> offset in ticks, (stimulus, target) pairs watched, figure or "")
+DEMOS = (
+    ("fig. 2, C paired 2 ticks before U", "conditioning", {"c_in": 0, "u_in": 2}, [("c_in", "M")], "fig2.png"),
+    ("fig. 2, reverse order: U 2 ticks before C", "conditioning", {"u_in": 0, "c_in": 2}, [("c_in", "M")], ""),
+    (
+        "fig. 4, A before U, B after",
+        "association",
+        {"a_in": 0, "u_in": 2, "b_in": 6},
+        [("a_in", "M"), ("b_in", "M")],
+        "fig4.png",
+    ),
+)
 
 
 def feed_for(engine: Engine, values: dict[str, float]) -> np.ndarray:
@@ -88,6 +100,32 @@ def plot_rasters(
     plt.close(fig)
 
 
+def show(
+    title: str, circuit, schedule: dict[str, int], watch, trials: int, out: Path | None = None, figure: str = ""
+) -> None:
+    """Pair the inputs of `schedule` `trials` times on a fresh network of `circuit` and print, for
+    each (stimulus, target) of `watch`, its synapse's weight before and after and whether the
+    stimulus alone fires the target before and after; `figure`: the rasters to out/figure too."""
+    engine = Engine(circuit)
+    before = {(stim, tgt): responds(engine, stim, tgt) for stim, tgt in watch}
+    initial = engine.get_weights()[0]
+    history = train(engine, schedule, trials)
+    if figure and out is not None:
+        learning = circuit.neuron_types[circuit.neuron_index(watch[0][1])]
+        title_line = f"{title}: {circuit.name} ({trials} pairings, A+ {learning.a_plus}, A- {learning.a_minus})"
+        plot_rasters(out / figure, title_line, circuit, initial, history[-1], schedule, watch[0][0])
+    print(f"\n{title}  ({circuit.source}; trial schedule {schedule}, {trials} trials)")
+    for stim, tgt in watch:
+        syn = circuit.synapse_index(stim.removesuffix("_in").upper(), tgt)
+        marks = [history[k][syn] for k in range(0, trials, max(1, trials // 8))]
+        after = responds(engine, stim, tgt)
+        print(
+            f"  {circuit.synapse_label(syn):8s} weight {initial[syn]:.2f} -> {history[-1][syn]:5.2f}  "
+            f"({' '.join(f'{m:.1f}' for m in marks)})   {stim} alone fires {tgt}: "
+            f"before {'yes' if before[(stim, tgt)] else 'no'}, after {'yes' if after else 'no'}"
+        )
+
+
 def main(argv=None) -> None:
     parser = Parser(prog="spikinglab conditioning", description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=at_least(1), default=400, help="pairings (default 400)")
@@ -97,42 +135,8 @@ def main(argv=None) -> None:
     out = args.out or Path("runs") / f"conditioning-{datetime.datetime.now():%Y%m%d-%H%M%S}"
     out.mkdir(parents=True, exist_ok=True)
 
-    def show(title, circuit_name, schedule, watch, figure=None):
-        circuit = load_circuit(circuit_name).with_learning_rate(args.a_plus)
-        engine = Engine(circuit)
-        before = {(stim, tgt): responds(engine, stim, tgt) for stim, tgt in watch}
-        initial = engine.get_weights()[0]
-        history = train(engine, schedule, args.trials)
-        if figure:
-            plot_rasters(
-                out / figure,
-                f"{title}: {circuit.name} ({args.trials} pairings, A+ = A- = {args.a_plus})",
-                circuit,
-                initial,
-                history[-1],
-                schedule,
-                watch[0][0],
-            )
-        print(f"\n{title}  ({circuit.source}; trial schedule {schedule}, {args.trials} trials)")
-        for stim, tgt in watch:
-            syn = circuit.synapse_index(stim.removesuffix("_in").upper(), tgt)
-            marks = [history[k][syn] for k in range(0, args.trials, max(1, args.trials // 8))]
-            after = responds(engine, stim, tgt)
-            print(
-                f"  {circuit.synapse_label(syn):8s} weight 5.00 -> {history[-1][syn]:5.2f}  "
-                f"({' '.join(f'{m:.1f}' for m in marks)})   {stim} alone fires {tgt}: "
-                f"before {'yes' if before[(stim, tgt)] else 'no'}, after {'yes' if after else 'no'}"
-            )
-
-    show("fig. 2, C paired 2 ticks before U", "conditioning", {"c_in": 0, "u_in": 2}, [("c_in", "M")], "fig2.png")
-    show("fig. 2, reverse order: U 2 ticks before C", "conditioning", {"u_in": 0, "c_in": 2}, [("c_in", "M")])
-    show(
-        "fig. 4, A before U, B after",
-        "association",
-        {"a_in": 0, "u_in": 2, "b_in": 6},
-        [("a_in", "M"), ("b_in", "M")],
-        "fig4.png",
-    )
+    for title, name, schedule, watch, figure in DEMOS:
+        show(title, load_circuit(name).with_learning_rate(args.a_plus), schedule, watch, args.trials, out, figure)
     print(f"\nspike rasters before and after pairing: {out}/fig2.png, {out}/fig4.png")
 
 

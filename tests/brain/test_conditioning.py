@@ -1,9 +1,11 @@
 """Classical conditioning on the paper's building blocks (fig. 2, fig. 4 and fig. 6)."""
 
-from services.brain.circuit import load_circuit
-from services.brain.conditioning import TRIAL, responds, train
+import dataclasses
 
-from .helpers import phased
+from services.brain.circuit import load_circuit
+from services.brain.conditioning import TRIAL, responds, show, train
+
+from .helpers import phased, relay_circuit
 
 TRIALS = 400  # ~0.017 per pairing at A+ = 0.02 and dt = -2: 5 -> 10 needs ~300
 
@@ -45,3 +47,12 @@ def test_fig6_each_action_learns_its_own_stimulus():
     assert w["A->M"] == 5.0 and w["B->R"] == 5.0
     assert responds(e, "a_in", "R") and not responds(e, "a_in", "M")
     assert responds(e, "b_in", "M") and not responds(e, "b_in", "R")
+
+
+def test_the_report_gives_each_synapse_its_own_starting_weight(capsys):
+    circuit = relay_circuit()  # C -> M plastic, weight 5
+    start = dataclasses.replace(circuit.synapses[0], weight=3.0)
+    circuit = dataclasses.replace(circuit, synapses=(start, *circuit.synapses[1:]))
+    show("C before U", circuit, {"c_in": 0, "u_in": 2}, [("c_in", "M")], trials=2)
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if "weight" in ln)
+    assert line.split()[:3] == ["C->M", "weight", "3.00"]
