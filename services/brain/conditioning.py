@@ -18,6 +18,7 @@ from services.options import Parser, at_least, positive
 from .circuit import load_circuit
 from .engine import Engine
 
+DESCRIPTION = "Classical conditioning on the paper's building blocks (fig. 2 and fig. 4), as a demo."
 TRIAL = 100  # ticks between trials: longer than the STDP windows, so trials do not interact
 # (title, circuit, schedule: input -> offset in ticks, (stimulus, target) pairs watched, figure or "")
 DEMOS = (
@@ -127,7 +128,7 @@ def show(
 
 
 def main(argv=None) -> None:
-    parser = Parser(prog="spikinglab conditioning", description=__doc__.splitlines()[0])
+    parser = Parser(prog="spikinglab conditioning", description=DESCRIPTION)
     parser.add_argument("--trials", type=at_least(1), default=400, help="pairings (default 400)")
     parser.add_argument("--a-plus", type=positive, default=0.02, help="A+ = A- of the learning neurons")
     parser.add_argument("--out", type=Path, help="folder for the raster PNGs (default runs/conditioning-<date>)")
