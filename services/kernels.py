@@ -21,3 +21,10 @@ class Kernel:
             self.compiled = self.dispatcher.overloads[tuple(typeof(a) for a in args)].entry_point
             return result
         return self.compiled(*args)
+
+
+def compiled(dispatcher, signature: tuple):
+    """The machine code of a numba function for these argument types (loaded from numba's cache
+    or compiled now), to be called without the dispatcher's per-call type checks. The caller
+    passes arguments of those types only: the compiled function does not check them."""
+    return dispatcher.compile(signature)

@@ -96,7 +96,7 @@ def fused_loop(world: World, brain: Brain, ticks: int, noxious: np.ndarray | Non
             actuators,
             brain.feed,
             noxious[done : done + n],
-            *engine.serial_args,
+            *engine.structs,
         )
         world.tick += n
         done += n
@@ -139,49 +139,17 @@ def _fused(
     actuators,
     feed,
     noxious,
-    clock,
-    syn,
-    npar,
-    lrn,
-    inpar,
-    v,
-    w,
-    state,
-    last_spike,
-    hist,
-    ring,
-    spiked,
-    out_start,
-    out_syn,
-    order_key,
-    rules,
+    net,
+    st,
 ):
+    spiked = st.spiked  # the engine's own [nodes, agents]
     for k in range(ticks):
         _sense(grid, arena_of, pos, heading, fpar, kind, sensors)
         if noxious.shape[0] > 0:
             for a in range(sensors.shape[0]):
                 noxious[k, a] = sensors[a, PAIN] == sensors[a, PAIN]  # fed: not NaN
         bind(sensors, sensor_cols, input_cols, feed)
-        serial_tick(
-            netlogo,
-            feed,
-            clock,
-            syn,
-            npar,
-            lrn,
-            inpar,
-            v,
-            w,
-            state,
-            last_spike,
-            hist,
-            ring,
-            spiked,
-            out_start,
-            out_syn,
-            order_key,
-            rules,
-        )
+        serial_tick(netlogo, feed, net, st)
         for a in range(feed.shape[0]):  # not bind(spiked.T, ...): the kernel's own [nodes, agents], 5-10 % faster
             for j in range(world_cols.shape[0]):
                 actions[a, world_cols[j]] = spiked[actuators[j], a]

@@ -1,8 +1,9 @@
 """The spiking-network engine: A agents of one circuit stepped together, one tick per call.
 
-State is a struct of arrays with an agent axis (no per-neuron objects); inside, the agent axis is
-last so that each phase is one vectorised loop across agents, and the public views `v`, `w` and
-`spiked` are [A, ...]. One tick runs five named phases in a fixed order (docs/tick.md):
+State is a struct of arrays with an agent axis (no per-neuron objects), laid out by build.py;
+inside, the agent axis is last so that each phase is one vectorised loop across agents, and the
+public views `v`, `w` and `spiked` are [A, ...]. One tick runs five named phases in a fixed order
+(docs/tick.md):
 
   1. feed     an idle input neuron latches a sensor value x: it will spike floor(x) + 1 ticks
               on, counting this one (so at t + floor(x)); a busy one ignores the value
@@ -25,52 +26,68 @@ are stepped alone or together: the only randomness (the netlogo order) is a pure
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
-from numba import get_num_threads, njit, prange
+from numba import get_num_threads, njit, prange, typeof
+from numba.core import types
 
-from services.kernels import Kernel
-from services.params import LEARNING_FIELDS, PARALLEL_FROM, agent_columns
+from services.kernels import compiled
+from services.params import PARALLEL_FROM as PARALLEL_FROM
+from services.params import agent_columns
 from services.snapshots import copy_into
 
+from .build import (
+    AT_START,
+    COUNT,
+    COUNT_FROM_SEND,
+    DECAY,
+    DELAY,
+    DT0_AGAIN,
+    FLAGS,
+    FLOOR,
+    HI,
+    HIST_LEN,
+    HISTORY,
+    INHIBITORY,
+    LATENCY,
+    LEFT,
+    LO,
+    NEVER,
+    PLASTIC,
+    POST,
+    PRE,
+    PULSES,
+    REFR_LEFT,
+    REFR_PERIOD,
+    REFR_V,
+    REFRACTORY,
+    REOPEN_IN_TURN,
+    REST,
+    SHUFFLE,
+    STDP_OFFSET,
+    SYN_BITS,
+    SYN_MASK,
+    TABLE,
+    THRESHOLD,
+    TICK,
+    TRAINING,
+    agent_seeds,
+    build_network,
+    check_options,
+    initial_weights,
+    mix,
+    new_state,
+)
+from .build import DEFAULT_SEMANTICS as DEFAULT_SEMANTICS
+from .build import NETLOGO_RULES as NETLOGO_RULES
+from .build import ORDERS as ORDERS
+from .build import SEMANTICS as SEMANTICS
 from .circuit import Circuit
-from .stdp import stdp_table
 
-HISTORY = 30  # arrivals a neuron remembers since its last spike (oldest dropped)
-NEVER = -(2**62)  # last-spike tick of a neuron that has not fired yet
-SYN_BITS = 16  # a history entry packs (arrival tick << SYN_BITS) | synapse index
-SYN_MASK = (1 << SYN_BITS) - 1
-SEMANTICS = ("phased", "netlogo")
-DEFAULT_SEMANTICS = "netlogo"  # the original's engine: the only one that learns in every setting (docs/results.md)
-ORDERS = ("random", "file")  # netlogo: neurons per tick in a seeded random order, or in file order
-# netlogo rules, each of which can be switched off alone to measure what it does (docs/results.md)
-SHUFFLE, COUNT_FROM_SEND, REOPEN_IN_TURN, DT0_AGAIN = 1, 2, 4, 8
-NETLOGO_RULES = {
-    "delay_count": COUNT_FROM_SEND,  # a pulse's count-down starts in the sending tick (else: the next)
-    "reopen": REOPEN_IN_TURN,  # a refractory neuron opens in its turn (else: at the next tick's start)
-    "dt0": DT0_AGAIN,  # arrivals at dt = 0 potentiate again at every later arrival (else: once)
-}
-
-# npar columns: per neuron, these fields of its type (circuit.NeuronType), then the offset of dt = 0
-# in W(dt)
-NEURON_COLUMNS = ("rest", "threshold", "decay", "refractory_potential", "refractory_period", "floor")
-REST, THRESHOLD, DECAY, REFR_V, REFR_PERIOD, FLOOR, STDP_OFFSET = range(len(NEURON_COLUMNS) + 1)
-# learning: stdp[group, profile] holds w_min, w_max, then the table W(dt) (stdp.py), for the agents of
-# one group of per-agent parameters (group[a]) and the neurons of one profile (profile[n])
-LO, HI, TABLE = 0, 1, 2
-# syn columns; flags bits
-PRE, POST, DELAY, FLAGS = 0, 1, 2, 3
-INHIBITORY, PLASTIC = 1, 2
-# node state planes [3, nodes, A] (int32): for neurons ...
-REFR_LEFT, HIST_LEN, REFRACTORY = 0, 1, 2  # REFRACTORY: netlogo's state flag (its counter may be <= 0)
-# ... and for input neurons (the nodes after the neurons): ticks counted, pulses left, latency
-COUNT, LEFT, LATENCY = 0, 1, 2
-# inpar columns: per input neuron
-PULSES, AT_START = 0, 1
-# clock: [tick, training]
-TICK, TRAINING = 0, 1
+FLOAT64 = np.dtype(np.float64)
+# the per-call kernels take any feed of float64 [A, inputs], read only: no per-call check of its layout
+FEED_TYPE = types.Array(types.float64, 2, "A", readonly=True)
 
 
 @njit(cache=True, inline="always")
@@ -88,7 +105,7 @@ def _learn(w, s, a, post, dt, npar, lrn):
 
 
 @njit(cache=True, inline="always")
-def _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, state, ring, spiked):
+def _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, counters, ring, spiked):
     """Phases 1 (feed) and 2 (inputs), in one loop: each input neuron is independent."""
     mask = ring.shape[0] - 1
     n_net = syn.shape[0] - feed.shape[1]  # the input neurons' synapses come last, one each
@@ -101,24 +118,24 @@ def _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, state, ring, spiked
         for a in range(lo, hi):
             # 1. feed: an idle input neuron latches x >= 0 (NaN: nothing fed); busy ones ignore it
             x = inpar[i, AT_START] if start else feed[a, i]
-            left = state[LEFT, node, a]
+            left = counters[LEFT, node, a]
             take = left == 0 and x >= 0.0 and x < 1e9  # NaN and inf fail the tests
             latency = np.int32(x if take else 0.0) + np.int32(1)  # floor(x) + 1; int() is floor() for x >= 0
-            lat = latency if take else state[LATENCY, node, a]
-            count = np.int32(0) if take else state[COUNT, node, a]
+            lat = latency if take else counters[LATENCY, node, a]
+            count = np.int32(0) if take else counters[COUNT, node, a]
             left = pulses if take else left
             # 2. inputs: count this tick; a pulse when the count reaches the latency
             count += left > 0
             fired = left > 0 and count == lat
-            state[LATENCY, node, a] = lat
-            state[COUNT, node, a] = np.int32(0) if fired else count
-            state[LEFT, node, a] = left - fired
+            counters[LATENCY, node, a] = lat
+            counters[COUNT, node, a] = np.int32(0) if fired else count
+            counters[LEFT, node, a] = left - fired
             spiked[node, a] = fired
             ring[slot, s, a] = fired  # empty: delivered and cleared a ring length ago
 
 
 @njit(cache=True, inline="always")
-def _deliver(lo, hi, t, training, syn, npar, lrn, v, w, state, last_spike, hist, ring):
+def _deliver(lo, hi, t, training, syn, npar, lrn, v, w, counters, last_spike, hist, ring):
     """Phase 3: pulses due now. A REFRACTORY post ignores them (w * r * open is exactly 0 or w),
     but they still count for learning: depression now, and a place in the post's history."""
     slot = t & (ring.shape[0] - 1)
@@ -127,11 +144,11 @@ def _deliver(lo, hi, t, training, syn, npar, lrn, v, w, state, last_spike, hist,
         if syn[s, FLAGS] & INHIBITORY:
             floor = npar[post, FLOOR]
             for a in range(lo, hi):  # v >= floor always holds, so max() is exact when dv = 0
-                dv = w[s, a] * ring[slot, s, a] * (state[REFR_LEFT, post, a] == 0)
+                dv = w[s, a] * ring[slot, s, a] * (counters[REFR_LEFT, post, a] == 0)
                 v[post, a] = max(v[post, a] - dv, floor)
         else:
             for a in range(lo, hi):
-                v[post, a] += w[s, a] * ring[slot, s, a] * (state[REFR_LEFT, post, a] == 0)
+                v[post, a] += w[s, a] * ring[slot, s, a] * (counters[REFR_LEFT, post, a] == 0)
         if syn[s, FLAGS] & PLASTIC:
             for a in range(lo, hi):
                 if ring[slot, s, a] == 0:
@@ -139,38 +156,38 @@ def _deliver(lo, hi, t, training, syn, npar, lrn, v, w, state, last_spike, hist,
                 last = last_spike[post, a]
                 if training and last != NEVER:  # once per pulse, against the latest post spike
                     _learn(w, s, a, post, t - last, npar, lrn)
-                n = state[HIST_LEN, post, a]
+                n = counters[HIST_LEN, post, a]
                 if n == HISTORY:  # drop the oldest
                     for h in range(HISTORY - 1):
                         hist[a, post, h] = hist[a, post, h + 1]
                     n -= 1
                 hist[a, post, n] = (t << SYN_BITS) | s
-                state[HIST_LEN, post, a] = n + 1
+                counters[HIST_LEN, post, a] = n + 1
         for a in range(lo, hi):
             ring[slot, s, a] = 0
 
 
 @njit(cache=True, inline="always")
-def _fire(lo, hi, t, training, npar, lrn, v, w, state, last_spike, hist, spiked):
+def _fire(lo, hi, t, training, npar, lrn, v, w, counters, last_spike, hist, spiked):
     """Phase 4: refractory clamp, fire at threshold (STDP potentiation), or decay toward rest."""
     for n in range(v.shape[0]):
         threshold, rest, decay = npar[n, THRESHOLD], npar[n, REST], npar[n, DECAY]
         refr_v, period = npar[n, REFR_V], np.int32(npar[n, REFR_PERIOD])
         for a in range(lo, hi):
-            refractory = state[REFR_LEFT, n, a] > 0
+            refractory = counters[REFR_LEFT, n, a] > 0
             fire = not refractory and v[n, a] >= threshold
             decayed = v[n, a] + (rest - v[n, a]) * decay  # never overshoots rest: decay < 1
             v[n, a] = refr_v if refractory or fire else decayed
-            state[REFR_LEFT, n, a] = period if fire else state[REFR_LEFT, n, a] - refractory
+            counters[REFR_LEFT, n, a] = period if fire else counters[REFR_LEFT, n, a] - refractory
             last_spike[n, a] = t if fire else last_spike[n, a]
             spiked[n, a] = fire
         for a in range(lo, hi):
-            if spiked[n, a] and state[HIST_LEN, n, a] > 0:
+            if spiked[n, a] and counters[HIST_LEN, n, a] > 0:
                 if training:  # every remembered arrival is paired with this spike
-                    for h in range(state[HIST_LEN, n, a]):
+                    for h in range(counters[HIST_LEN, n, a]):
                         entry = hist[a, n, h]
                         _learn(w, entry & SYN_MASK, a, n, (entry >> SYN_BITS) - t, npar, lrn)
-                state[HIST_LEN, n, a] = 0
+                counters[HIST_LEN, n, a] = 0
 
 
 @njit(cache=True, inline="always")
@@ -186,83 +203,32 @@ def _emit(lo, hi, t, syn, n_inputs, ring, spiked):
 
 
 @njit(cache=True, inline="always")
-def _step_range(lo, hi, feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked):
+def _step_range(lo, hi, feed, net, st):
     """One tick for agents lo..hi-1 (unsigned). Arrays have the agent axis last, so each phase is
     a loop across agents; only events (plastic arrivals, spikes of learning neurons) branch."""
-    t = clock[TICK]
-    training = clock[TRAINING] != 0
-    _feed_and_inputs(lo, hi, t, feed, inpar, syn, v.shape[0], state, ring, spiked)
-    _deliver(lo, hi, t, training, syn, npar, lrn, v, w, state, last_spike, hist, ring)
-    _fire(lo, hi, t, training, npar, lrn, v, w, state, last_spike, hist, spiked)
+    t = st.clock[TICK]
+    training = st.clock[TRAINING] != 0
+    syn, npar, lrn = net.syn, net.npar, (net.stdp, net.group, net.profile)
+    v, w, counters, last_spike, hist, ring, spiked = st.v, st.w, st.counters, st.last_spike, st.hist, st.ring, st.spiked
+    _feed_and_inputs(lo, hi, t, feed, net.inpar, syn, v.shape[0], counters, ring, spiked)
+    _deliver(lo, hi, t, training, syn, npar, lrn, v, w, counters, last_spike, hist, ring)
+    _fire(lo, hi, t, training, npar, lrn, v, w, counters, last_spike, hist, spiked)
     _emit(lo, hi, t, syn, feed.shape[1], ring, spiked)
 
 
 @njit(cache=True)
-def _step_serial(
-    feed,
-    clock,
-    syn,
-    npar,
-    lrn,
-    inpar,
-    v,
-    w,
-    state,
-    last_spike,
-    hist,
-    ring,
-    spiked,
-    out_start,
-    out_syn,
-    order_key,
-    rules,
-):
-    _step_range(
-        np.uint64(0),
-        np.uint64(v.shape[1]),
-        feed,
-        clock,
-        syn,
-        npar,
-        lrn,
-        inpar,
-        v,
-        w,
-        state,
-        last_spike,
-        hist,
-        ring,
-        spiked,
-    )
-    clock[TICK] += 1
+def _step_serial(feed, net, st):
+    _step_range(np.uint64(0), np.uint64(st.v.shape[1]), feed, net, st)
+    st.clock[TICK] += 1
 
 
 @njit(cache=True, parallel=True)
-def _step_parallel(
-    feed,
-    clock,
-    syn,
-    npar,
-    lrn,
-    inpar,
-    v,
-    w,
-    state,
-    last_spike,
-    hist,
-    ring,
-    spiked,
-    out_start,
-    out_syn,
-    order_key,
-    rules,
-    chunks,
-):
-    agents = v.shape[1]
+def _step_parallel(feed, net, st, chunks):
+    agents = st.v.shape[1]
     for c in prange(chunks):  # one contiguous block of agents per thread
         lo, hi = np.uint64(c * agents // chunks), np.uint64((c + 1) * agents // chunks)
-        _step_range(lo, hi, feed, clock, syn, npar, lrn, inpar, v, w, state, last_spike, hist, ring, spiked)
-    clock[TICK] += 1
+        _step_range(lo, hi, feed, net, st)
+    st.clock[TICK] += 1
 
 
 # --- netlogo semantics: the original SpikingLab engine, turn by turn ------------------------------
@@ -274,16 +240,7 @@ def _step_parallel(
 
 
 @njit(cache=True, inline="always")
-def _mix(x):
-    """splitmix64 of a uint64: the netlogo order is a pure function of (agent seed, tick)."""
-    z = x + np.uint64(0x9E3779B97F4A7C15)
-    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    return z ^ (z >> np.uint64(31))
-
-
-@njit(cache=True, inline="always")
-def _netlogo_receive(a, t, s, training, rules, syn, npar, lrn, v, w, state, last_spike, hist):
+def _netlogo_receive(a, t, s, training, rules, syn, npar, lrn, v, w, counters, last_spike, hist):
     """NetLogo receive-pulse: potential change unless REFRACTORY; a plastic arrival in training is
     remembered and the STDP rule runs over the whole history since the post's last spike.
 
@@ -294,19 +251,19 @@ def _netlogo_receive(a, t, s, training, rules, syn, npar, lrn, v, w, state, last
     arrival itself (depressed once if dt > 0). Running just those, in history order, gives the
     same weights as NetLogo's full pass."""
     post = syn[s, POST]
-    if state[REFRACTORY, post, a] == 0:
+    if counters[REFRACTORY, post, a] == 0:
         if syn[s, FLAGS] & INHIBITORY:
             v[post, a] = max(v[post, a] - w[s, a], npar[post, FLOOR])
         else:
             v[post, a] += w[s, a]
     if training and syn[s, FLAGS] & PLASTIC:
-        n = state[HIST_LEN, post, a]
+        n = counters[HIST_LEN, post, a]
         if n > HISTORY:  # NetLogo drops the oldest when it holds more than 30, then appends: up to 31
             for h in range(n - 1):
                 hist[a, post, h] = hist[a, post, h + 1]
             n -= 1
         hist[a, post, n] = (t << SYN_BITS) | s
-        state[HIST_LEN, post, a] = n + 1
+        counters[HIST_LEN, post, a] = n + 1
         last = last_spike[post, a]
         if rules & DT0_AGAIN:
             for h in range(n + 1):  # the dt = 0 prefix (the new arrival too, when it is at dt = 0)
@@ -321,32 +278,16 @@ def _netlogo_receive(a, t, s, training, rules, syn, npar, lrn, v, w, state, last
 
 
 @njit(cache=True, inline="always")
-def _netlogo_range(
-    lo,
-    hi,
-    feed,
-    clock,
-    syn,
-    npar,
-    lrn,
-    inpar,
-    v,
-    w,
-    state,
-    last_spike,
-    hist,
-    ring,
-    spiked,
-    out_start,
-    out_syn,
-    order_key,
-    rules,
-):
+def _netlogo_range(lo, hi, feed, net, st):
     """One NetLogo tick for agents lo..hi-1: each agent is a sequence of turns (no vector loop)."""
+    syn, npar, inpar, lrn = net.syn, net.npar, net.inpar, (net.stdp, net.group, net.profile)
+    out_start, out_syn, order_key, rules = net.out_start, net.out_syn, net.order_key, net.rules
+    clock, v, w, counters, last_spike, hist = st.clock, st.v, st.w, st.counters, st.last_spike, st.hist
+    ring, spiked = st.ring, st.spiked
     t = clock[TICK]
     training = clock[TRAINING] != 0
     n_neurons = v.shape[0]
-    _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, state, ring, spiked)  # input pulses: slot t
+    _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, counters, ring, spiked)  # input pulses: slot t
     mask = ring.shape[0] - 1
     now = np.uint64(t & mask)
     n_net = syn.shape[0] - feed.shape[1]
@@ -355,18 +296,18 @@ def _netlogo_range(
     for a in range(lo, hi):
         if not rules & REOPEN_IN_TURN:  # refractory periods that ended in the last tick end now
             for n in range(n_neurons):
-                if state[REFRACTORY, n, a] and state[REFR_LEFT, n, a] <= 0:
-                    state[REFRACTORY, n, a] = 0
+                if counters[REFRACTORY, n, a] and counters[REFR_LEFT, n, a] <= 0:
+                    counters[REFRACTORY, n, a] = 0
         for s in range(n_net, syn.shape[0]):  # input neurons: straight to their target, not plastic
             if ring[now, s, a]:
                 ring[now, s, a] = 0
                 post = syn[s, POST]
-                if state[REFRACTORY, post, a] == 0:
+                if counters[REFRACTORY, post, a] == 0:
                     v[post, a] += w[s, a]
         for n in range(n_neurons):
             order[n] = np.uint64(n)
         if rules & SHUFFLE:  # Fisher-Yates: a hashed (seed, tick) start, then LCG steps, j by multiply-shift
-            r = _mix(order_key[a] + np.uint64(t))
+            r = mix(order_key[a] + np.uint64(t))
             for i in range(n_neurons - 1, 0, -1):
                 r = r * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
                 j = ((r >> np.uint64(32)) * np.uint64(i + 1)) >> np.uint64(32)
@@ -374,235 +315,65 @@ def _netlogo_range(
         for k in range(n_neurons):
             n = order[k]
             spiked[n, a] = 0
-            if state[REFRACTORY, n, a] == 0:
+            if counters[REFRACTORY, n, a] == 0:
                 if v[n, a] != npar[n, REST]:
                     if v[n, a] >= npar[n, THRESHOLD]:  # fire: potentiation over the history, pulses out
                         last_spike[n, a] = t
-                        for h in range(state[HIST_LEN, n, a]):
+                        for h in range(counters[HIST_LEN, n, a]):
                             entry = hist[a, n, h]
                             _learn(w, entry & SYN_MASK, a, n, (entry >> SYN_BITS) - t, npar, lrn)
-                        state[HIST_LEN, n, a] = 0
+                        counters[HIST_LEN, n, a] = 0
                         for q in range(out_start[n], out_start[n + 1]):
                             s = out_syn[q]
                             ring[np.uint64((t + syn[s, DELAY] - send) & mask), s, a] = 1
-                        state[REFRACTORY, n, a] = 1
-                        state[REFR_LEFT, n, a] = np.int32(npar[n, REFR_PERIOD])
+                        counters[REFRACTORY, n, a] = 1
+                        counters[REFR_LEFT, n, a] = np.int32(npar[n, REFR_PERIOD])
                         spiked[n, a] = 1
                     else:
                         v[n, a] += (npar[n, REST] - v[n, a]) * npar[n, DECAY]
             else:  # one tick of the refractory period, held at the refractory potential
-                state[REFR_LEFT, n, a] -= 1
+                counters[REFR_LEFT, n, a] -= 1
                 v[n, a] = npar[n, REFR_V]
-                if state[REFR_LEFT, n, a] <= 0 and rules & REOPEN_IN_TURN:
-                    state[REFRACTORY, n, a] = 0  # open again: later arrivals in this tick count
+                if counters[REFR_LEFT, n, a] <= 0 and rules & REOPEN_IN_TURN:
+                    counters[REFRACTORY, n, a] = 0  # open again: later arrivals in this tick count
             for q in range(out_start[n], out_start[n + 1]):  # its synapses' pulses due now
                 s = out_syn[q]
                 if ring[now, s, a]:
                     ring[now, s, a] = 0
-                    _netlogo_receive(a, t, s, training, rules, syn, npar, lrn, v, w, state, last_spike, hist)
+                    _netlogo_receive(a, t, s, training, rules, syn, npar, lrn, v, w, counters, last_spike, hist)
 
 
 @njit(cache=True)
-def _netlogo_serial(
-    feed,
-    clock,
-    syn,
-    npar,
-    lrn,
-    inpar,
-    v,
-    w,
-    state,
-    last_spike,
-    hist,
-    ring,
-    spiked,
-    out_start,
-    out_syn,
-    order_key,
-    rules,
-):
-    _netlogo_range(
-        np.uint64(0),
-        np.uint64(v.shape[1]),
-        feed,
-        clock,
-        syn,
-        npar,
-        lrn,
-        inpar,
-        v,
-        w,
-        state,
-        last_spike,
-        hist,
-        ring,
-        spiked,
-        out_start,
-        out_syn,
-        order_key,
-        rules,
-    )
-    clock[TICK] += 1
+def _netlogo_serial(feed, net, st):
+    _netlogo_range(np.uint64(0), np.uint64(st.v.shape[1]), feed, net, st)
+    st.clock[TICK] += 1
 
 
 @njit(cache=True, parallel=True)
-def _netlogo_parallel(
-    feed,
-    clock,
-    syn,
-    npar,
-    lrn,
-    inpar,
-    v,
-    w,
-    state,
-    last_spike,
-    hist,
-    ring,
-    spiked,
-    out_start,
-    out_syn,
-    order_key,
-    rules,
-    chunks,
-):
-    agents = v.shape[1]
+def _netlogo_parallel(feed, net, st, chunks):
+    agents = st.v.shape[1]
     for c in prange(chunks):
         lo, hi = np.uint64(c * agents // chunks), np.uint64((c + 1) * agents // chunks)
-        _netlogo_range(
-            lo,
-            hi,
-            feed,
-            clock,
-            syn,
-            npar,
-            lrn,
-            inpar,
-            v,
-            w,
-            state,
-            last_spike,
-            hist,
-            ring,
-            spiked,
-            out_start,
-            out_syn,
-            order_key,
-            rules,
-        )
-    clock[TICK] += 1
+        _netlogo_range(lo, hi, feed, net, st)
+    st.clock[TICK] += 1
 
 
 @njit(cache=True, inline="always")
-def serial_tick(
-    netlogo,
-    feed,
-    clock,
-    syn,
-    npar,
-    lrn,
-    inpar,
-    v,
-    w,
-    state,
-    last_spike,
-    hist,
-    ring,
-    spiked,
-    out_start,
-    out_syn,
-    order_key,
-    rules,
-):
+def serial_tick(netlogo, feed, net, st):
     """One tick of either semantics on one thread, for compiled loops of many ticks (Engine.run,
-    services.loop's fused loop); the arguments after the feed are Engine.serial_args."""
+    services.loop's fused loop); `net` and `st` are Engine.structs."""
     if netlogo:
-        _netlogo_serial(
-            feed,
-            clock,
-            syn,
-            npar,
-            lrn,
-            inpar,
-            v,
-            w,
-            state,
-            last_spike,
-            hist,
-            ring,
-            spiked,
-            out_start,
-            out_syn,
-            order_key,
-            rules,
-        )
+        _netlogo_serial(feed, net, st)
     else:
-        _step_serial(
-            feed,
-            clock,
-            syn,
-            npar,
-            lrn,
-            inpar,
-            v,
-            w,
-            state,
-            last_spike,
-            hist,
-            ring,
-            spiked,
-            out_start,
-            out_syn,
-            order_key,
-            rules,
-        )
+        _step_serial(feed, net, st)
 
 
 @njit(cache=True)
-def _run_serial(
-    feeds,
-    netlogo,
-    out,
-    clock,
-    syn,
-    npar,
-    lrn,
-    inpar,
-    v,
-    w,
-    state,
-    last_spike,
-    hist,
-    ring,
-    spiked,
-    out_start,
-    out_syn,
-    order_key,
-    rules,
-):
+def _run_serial(feeds, netlogo, out, net, st):
     """Engine.run's ticks in one call: feeds [T, A, inputs] -> out [T, A, nodes]."""
+    spiked = st.spiked
     for k in range(feeds.shape[0]):
-        serial_tick(
-            netlogo,
-            feeds[k],
-            clock,
-            syn,
-            npar,
-            lrn,
-            inpar,
-            v,
-            w,
-            state,
-            last_spike,
-            hist,
-            ring,
-            spiked,
-            out_start,
-            out_syn,
-            order_key,
-            rules,
-        )
+        serial_tick(netlogo, feeds[k], net, st)
         for a in range(spiked.shape[1]):
             for n in range(spiked.shape[0]):
                 out[k, a, n] = spiked[n, a] != 0
@@ -637,117 +408,62 @@ class Engine:
         without: tuple[str, ...] = (),
         params=None,
     ):
-        if agents < 1:
-            raise ValueError(f"agents must be >= 1, got {agents}")
-        if semantics not in SEMANTICS:
-            raise ValueError(f"semantics must be one of {', '.join(SEMANTICS)}, got {semantics!r}")
-        if order not in ORDERS:
-            raise ValueError(f"order must be one of {', '.join(ORDERS)}, got {order!r}")
-        self.circuit = circuit
-        self.agents = agents
-        unknown = sorted(set(without) - set(NETLOGO_RULES))
-        if unknown or (without and semantics != "netlogo"):
-            raise ValueError(
-                f"without: NetLogo rules are {', '.join(NETLOGO_RULES)} (netlogo semantics only), "
-                f"got {', '.join(without)}"
-            )
+        check_options(agents, semantics, order, without)
+        self.circuit, self.agents = circuit, agents
         self.semantics, self.order, self.without = semantics, order, tuple(without)
-        self.seeds = seed + np.arange(agents, dtype=np.int64) if np.ndim(seed) == 0 else np.asarray(seed, np.int64)
-        if self.seeds.shape != (agents,):
-            raise ValueError(f"seed: one number, or one per agent ({agents}), got {self.seeds.shape[0]}")
-        c = circuit
-        self.n_neurons, self.n_inputs, self.n_synapses = len(c.neuron_names), len(c.inputs), len(c.synapses)
-        self.syn = np.array(
-            [[s.pre, s.post, s.delay, INHIBITORY * s.inhibitory | PLASTIC * s.plastic] for s in c.synapses],
-            dtype=np.int64,
-        ).reshape(self.n_synapses, 4)
-        _, offset = stdp_table(c.neuron_types)
-        self.npar = np.array(
-            [[getattr(t, name) for name in NEURON_COLUMNS] + [offset] for t in c.neuron_types], dtype=np.float64
-        )
-        self.inpar = np.array(
-            [[i.pulses, np.nan if i.at_start is None else i.at_start] for i in c.inputs], dtype=np.float64
-        ).reshape(self.n_inputs, 2)
+        self.seeds = agent_seeds(seed, agents)
         self.params = agent_columns(agents, params, "brain")
-        self.lrn = learning_tables(c, self.params, agents)
-        self.initial_weights = initial_weights(c, self.params, agents)
-        max_delay = max((sy.delay for sy in c.synapses), default=1)
-        ring_len = 1 << int(max_delay).bit_length()  # > max delay, a power of two for masking
-        if self.n_synapses >= 1 << SYN_BITS:
-            raise ValueError(f"at most {1 << SYN_BITS} synapses, got {self.n_synapses}")
-        A, N, I, S = agents, self.n_neurons, self.n_inputs, self.n_synapses
-        # Internal arrays keep the agent axis last (each phase is a loop across agents); the
-        # public v, w and spiked are [A, ...] views of them.
-        self.no_feed = np.full((A, I), np.nan)  # read-only: the kernel never writes a feed
-        self.clock = np.zeros(2, dtype=np.int64)
-        self._v = np.empty((N, A))
-        self._w = np.empty((S, A))
-        self.state = np.empty((3, N + I, A), dtype=np.int32)
-        self.last_spike = np.empty((N, A), dtype=np.int64)
-        self.hist = np.zeros((A, N, HISTORY + 1), dtype=np.int64)  # per event: agent-major (netlogo keeps 31)
-        self.ring = np.empty((ring_len, S, A), dtype=np.uint8)
-        self._spiked = np.zeros((N + I, A), dtype=np.uint8)
-        self.v = self._v.T  # [A, neurons] membrane potentials
-        self.w = self._w.T  # [A, synapses] weights
-        self.spiked = self._spiked.view(np.bool_).T  # [A, nodes] who spiked in the last tick
-        self._args = (
-            self.clock,
-            self.syn,
-            self.npar,
-            self.lrn,
-            self.inpar,
-            self._v,
-            self._w,
-            self.state,
-            self.last_spike,
-            self.hist,
-            self.ring,
-            self._spiked,
+        self.network = build_network(circuit, self.params, self.seeds, semantics, order, without)
+        self.initial_weights = initial_weights(circuit, self.params, agents)
+        self.state = new_state(circuit, agents)
+        self.n_neurons, self.n_inputs, self.n_synapses = (
+            len(circuit.neuron_names),
+            len(circuit.inputs),
+            len(circuit.synapses),
         )
-        serial, parallel = _step_serial, _step_parallel
-        if semantics == "netlogo":  # each neuron's outgoing synapses, for its turn
-            pre = self.syn[: S - I, PRE]
-            self.out_syn = np.argsort(pre, kind="stable").astype(np.uint64)
-            self.out_start = np.searchsorted(pre[self.out_syn], np.arange(N + 1)).astype(np.uint64)
-            # agent a's order key: the hash of seed + a, once here rather than in every tick
-            self.order_key = _mix(self.seeds.view(np.uint64))
-            rules = SHUFFLE * (order == "random") | sum(f for k, f in NETLOGO_RULES.items() if k not in without)
-            self._args += (self.out_start, self.out_syn, self.order_key, rules)
-            serial, parallel = _netlogo_serial, _netlogo_parallel
-        else:  # the same arguments for both (a fused loop calls either): the phased engine ignores them
-            self._args += (np.zeros(N + 1, np.uint64), np.zeros(0, np.uint64), np.zeros(A, np.uint64), 0)
-        self.serial_args = self._args  # a serial tick's arguments after the feed (services.loop fuses it)
-        if agents >= PARALLEL_FROM:
-            self._call, self._args = Kernel(parallel), self._args + (get_num_threads(),)
-        else:
-            self._call = Kernel(serial)
+        self.no_feed = np.full((agents, self.n_inputs), np.nan)
+        self.no_feed.flags.writeable = False  # the kernels never write a feed
+        self.v = self.state.v.T  # [A, neurons] membrane potentials
+        self.w = self.state.w.T  # [A, synapses] weights
+        self.spiked = self.state.spiked.view(np.bool_).T  # [A, nodes] who spiked in the last tick
+        self.structs = (self.network.struct(), self.state.struct())  # the kernels' arguments after the feed
+        self._tick, self._args = self._kernel()
         self.training = training
         self.reset()
 
+    def _kernel(self):
+        """The compiled per-call tick for this engine's semantics and size, and its arguments after the feed."""
+        netlogo = self.semantics == "netlogo"
+        signature = (FEED_TYPE, *(typeof(s) for s in self.structs))
+        if self.agents >= PARALLEL_FROM:
+            kernel = _netlogo_parallel if netlogo else _step_parallel
+            return compiled(kernel, (*signature, types.int64)), (*self.structs, get_num_threads())
+        return compiled(_netlogo_serial if netlogo else _step_serial, signature), self.structs
+
     def reset(self) -> None:
         """Back to tick 0: potentials at rest, initial weights, nothing in flight."""
-        self.clock[TICK] = 0
-        N = self.n_neurons
-        self.v[:] = self.npar[:N, REST]
+        st = self.state
+        st.clock[TICK] = 0
+        self.v[:] = self.network.npar[: self.n_neurons, REST]
         self.w[:] = self.initial_weights
-        self.state[:] = 0
-        self.last_spike[:] = 0 if self.semantics == "netlogo" else NEVER  # NetLogo's variables start at 0
-        self.hist[:] = 0
-        self.ring[:] = 0
-        self._spiked[:] = 0
+        st.counters[:] = 0
+        st.last_spike[:] = 0 if self.semantics == "netlogo" else NEVER  # NetLogo's variables start at 0
+        st.hist[:] = 0
+        st.ring[:] = 0
+        st.spiked[:] = 0
 
     @property
     def tick(self) -> int:
         """The tick the next step() will run."""
-        return int(self.clock[TICK])
+        return int(self.state.clock[TICK])
 
     @property
     def training(self) -> bool:
-        return bool(self.clock[TRAINING])
+        return bool(self.state.clock[TRAINING])
 
     @training.setter
     def training(self, on: bool) -> None:
-        self.clock[TRAINING] = 1 if on else 0
+        self.state.clock[TRAINING] = 1 if on else 0
 
     def step(self, feed: np.ndarray | None = None) -> np.ndarray:
         """Run one tick with `feed` ([A, inputs] values, NaN = nothing fed; None: nothing at all).
@@ -756,19 +472,13 @@ class Engine:
         """
         if feed is None:
             feed = self.no_feed
-        elif (
-            type(feed) is not np.ndarray
-            or feed.dtype != np.float64
-            or feed.shape != self.no_feed.shape
-            or not feed.flags.c_contiguous
-            or not feed.flags.writeable
-        ):
+        elif feed.__class__ is not np.ndarray or feed.dtype is not FLOAT64 or feed.shape != self.no_feed.shape:
             feed = self._checked_feed(feed)
-        self._call(feed, *self._args)
+        self._tick(feed, *self._args)
         return self.spiked
 
     def _checked_feed(self, feed) -> np.ndarray:
-        feed = np.array(feed, dtype=np.float64, order="C")  # a copy: writeable, as the kernel's type says
+        feed = np.array(feed, dtype=np.float64)  # a copy: a plain ndarray in the machine's byte order
         if feed.shape != self.no_feed.shape:
             raise ValueError(f"feed must have shape {self.no_feed.shape} (agents, inputs), got {feed.shape}")
         return feed
@@ -783,16 +493,9 @@ class Engine:
         copy_into(self._state_arrays(), arrays, "engine snapshot")
 
     def _state_arrays(self) -> dict[str, np.ndarray]:
-        return {
-            "clock": self.clock,
-            "v": self._v,
-            "w": self._w,
-            "state": self.state,
-            "last_spike": self.last_spike,
-            "hist": self.hist,
-            "ring": self.ring,
-            "spiked": self._spiked,
-        }
+        st = self.state
+        arrays = {"clock": st.clock, "v": st.v, "w": st.w, "state": st.counters, "last_spike": st.last_spike}
+        return arrays | {"hist": st.hist, "ring": st.ring, "spiked": st.spiked}
 
     def get_weights(self) -> np.ndarray:
         """A copy of all synapse weights, [A, synapses] (checkpoints)."""
@@ -809,10 +512,10 @@ class Engine:
             raise ValueError(f"weights must have shape {self.w.shape} or ({self.n_synapses},), got {weights.shape}")
         if not np.all(np.isfinite(weights)) or np.any(weights <= 0):
             raise ValueError("weights must be finite and > 0")
-        stdp, group, profile = self.lrn
-        post = self.syn[:, POST]
-        plastic = (self.syn[:, FLAGS] & PLASTIC) != 0
-        limits = stdp[group[:, None], profile[post][None, :]]  # [A, S, LO..HI]
+        net = self.network
+        post = net.syn[:, POST]
+        plastic = (net.syn[:, FLAGS] & PLASTIC) != 0
+        limits = net.stdp[net.group[:, None], net.profile[post][None, :]]  # [A, S, LO..HI]
         lo, hi = limits[..., LO], limits[..., HI]
         bad = plastic & ((weights < lo) | (weights > hi))
         if bad.any():
@@ -826,59 +529,14 @@ class Engine:
     def run(self, feeds: np.ndarray) -> np.ndarray:
         """Step len(feeds) ticks with feeds [T, A, inputs]; returns the spikes [T, A, nodes]. For
         the populations stepped on one thread, all T ticks are one compiled call (no Python
-        between ticks: a per-tick step() is bound by passing its 17 arrays into the kernel)."""
+        between ticks)."""
         feeds = np.ascontiguousarray(feeds, dtype=np.float64)  # only read by the kernels
         if feeds.ndim != 3 or feeds.shape[1:] != self.no_feed.shape:
             raise ValueError(f"feeds must have shape (ticks, {self.agents}, {self.n_inputs}), got {feeds.shape}")
         out = np.zeros((len(feeds), self.agents, self.n_neurons + self.n_inputs), dtype=bool)
         if self.agents < PARALLEL_FROM:
-            _run_serial(feeds, self.semantics == "netlogo", out, *self.serial_args)
+            _run_serial(feeds, self.semantics == "netlogo", out, *self.structs)
         else:
             for k in range(len(feeds)):
                 out[k] = self.step(feeds[k])
         return out
-
-
-def _variant(circuit: Circuit, values: dict) -> Circuit:
-    """The circuit with one agent's learning values: initial weight first (the w_max check is on it)."""
-    if "initial_weight" in values:
-        w = values["initial_weight"]
-        circuit = dataclasses.replace(
-            circuit, synapses=tuple(dataclasses.replace(s, weight=w) if s.plastic else s for s in circuit.synapses)
-        )
-    fields = {k: v for k, v in values.items() if k in LEARNING_FIELDS}
-    return circuit.with_learning_params(**fields) if fields else circuit
-
-
-def learning_tables(circuit: Circuit, params: dict, agents: int) -> tuple:
-    """(stdp [groups, profiles, LO, HI, W(dt)...], group [A], profile [N]): one group per distinct
-    row of the learning columns; a profile per (neuron type, learns or not), as the columns set the
-    learning neurons only."""
-    names = [k for k in params if k in LEARNING_FIELDS or k == "initial_weight"]
-    rows = np.column_stack([params[k] for k in names]) if names else np.zeros((agents, 0))
-    settings, group = np.unique(rows, axis=0, return_inverse=True)
-    learning = {circuit.synapses[k].post for k in circuit.plastic_synapses}
-    keys = [(t, n in learning) for n, t in enumerate(circuit.neuron_types)]
-    kinds = list(dict.fromkeys(keys))
-    profile = np.array([kinds.index(k) for k in keys], dtype=np.int64)
-    first = [keys.index(k) for k in kinds]  # a neuron of each profile
-    tables = []
-    for row in settings:
-        types = _variant(circuit, {k: float(v) for k, v in zip(names, row)}).neuron_types
-        table, _ = stdp_table(types)
-        tables.append(np.column_stack([[types[n].w_min for n in first], [types[n].w_max for n in first], table[first]]))
-    return np.ascontiguousarray(np.stack(tables)), group.reshape(agents).astype(np.int64), profile
-
-
-def initial_weights(circuit: Circuit, params: dict, agents: int) -> np.ndarray:
-    """[A, synapses]: the circuit's weights, the plastic ones at each agent's initial weight, those of
-    the input neurons a sensor feeds times each agent's input gain."""
-    w = np.tile(np.array([s.weight for s in circuit.synapses], dtype=np.float64), (agents, 1))
-    if "initial_weight" in params:
-        plastic = circuit.plastic_synapses
-        w[:, plastic] = params["initial_weight"][:, None]
-    if "input_gain" in params:
-        n_net = len(circuit.synapses) - len(circuit.inputs)  # an input neuron's synapse: n_net + its index
-        sensed = [n_net + k for k in circuit.sensors.values()]
-        w[:, sensed] *= params["input_gain"][:, None]
-    return w

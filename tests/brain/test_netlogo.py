@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 
+from services.brain.build import HIST_LEN
 from services.brain.circuit import build_circuit, load_circuit
 from services.brain.engine import PARALLEL_FROM, Engine
 
@@ -62,7 +63,7 @@ def test_a_refractory_neuron_reopens_in_its_turn_and_takes_later_arrivals():
             }
         )
 
-    events = {0: {"b_in": 0}, 2: {"c_in": 0}}
+    events = {0: {"b_in": 0.0}, 2: {"c_in": 0.0}}
     taken = run_with_events(Engine(circuit(("B", "C")), semantics="netlogo", order="file"), 10, events)
     lost = run_with_events(Engine(circuit(("C", "B")), semantics="netlogo", order="file"), 10, events)
     assert taken["C"] == lost["C"] == [2]
@@ -98,7 +99,7 @@ def test_history_only_fills_in_training():
     e = Engine(c, training=False, semantics="netlogo")
     e.run(feeds)
     np.testing.assert_array_equal(e.w, e.initial_weights)
-    assert (e.state[1] == 0).all()  # no arrival was remembered
+    assert (e.state.counters[HIST_LEN] == 0).all()  # no arrival was remembered
 
 
 @pytest.mark.parametrize("agents", [5, PARALLEL_FROM + 3])  # serial and parallel kernels

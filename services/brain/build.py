@@ -1,0 +1,255 @@
+"""The engine's builder: a Circuit and per-agent parameters turned into the arrays its kernels step.
+
+The builder lays everything out once (columns, flags, learning tables, the netlogo turns' data);
+services/brain/engine.py only steps it, as nengo keeps its builder apart from its simulator. Two
+named structures cross into the compiled kernels: the Network (what a run does not change) and the
+State (what a tick changes). Each is a numba structref as well as a dataclass of numpy arrays
+(the same memory): a kernel call passes two objects instead of 17 arrays, which is most of what a
+one-agent tick costs (docs/tick.md, "Layout and speed").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+from numba.core import types
+from numba.experimental import structref
+
+from services.params import LEARNING_FIELDS
+
+from .circuit import Circuit
+from .stdp import stdp_table
+
+HISTORY = 30  # arrivals a neuron remembers since its last spike (oldest dropped)
+NEVER = -(2**62)  # last-spike tick of a neuron that has not fired yet
+SYN_BITS = 16  # a history entry packs (arrival tick << SYN_BITS) | synapse index
+SYN_MASK = (1 << SYN_BITS) - 1
+SEMANTICS = ("phased", "netlogo")
+DEFAULT_SEMANTICS = "netlogo"  # the original's engine: the only one that learns in every setting (docs/results.md)
+ORDERS = ("random", "file")  # netlogo: neurons per tick in a seeded random order, or in file order
+# netlogo rules, each of which can be switched off alone to measure what it does (docs/results.md)
+SHUFFLE, COUNT_FROM_SEND, REOPEN_IN_TURN, DT0_AGAIN = 1, 2, 4, 8
+NETLOGO_RULES = {
+    "delay_count": COUNT_FROM_SEND,  # a pulse's count-down starts in the sending tick (else: the next)
+    "reopen": REOPEN_IN_TURN,  # a refractory neuron opens in its turn (else: at the next tick's start)
+    "dt0": DT0_AGAIN,  # arrivals at dt = 0 potentiate again at every later arrival (else: once)
+}
+
+# npar columns: per neuron, these fields of its type (circuit.NeuronType), then the offset of dt = 0
+# in W(dt)
+NEURON_COLUMNS = ("rest", "threshold", "decay", "refractory_potential", "refractory_period", "floor")
+REST, THRESHOLD, DECAY, REFR_V, REFR_PERIOD, FLOOR, STDP_OFFSET = range(len(NEURON_COLUMNS) + 1)
+# learning: stdp[group, profile] holds w_min, w_max, then the table W(dt) (stdp.py), for the agents of
+# one group of per-agent parameters (group[a]) and the neurons of one profile (profile[n])
+LO, HI, TABLE = 0, 1, 2
+# syn columns; flags bits
+PRE, POST, DELAY, FLAGS = 0, 1, 2, 3
+INHIBITORY, PLASTIC = 1, 2
+# counters planes [3, nodes, A] (int32): for neurons ...
+REFR_LEFT, HIST_LEN, REFRACTORY = 0, 1, 2  # REFRACTORY: netlogo's state flag (its counter may be <= 0)
+# ... and for input neurons (the nodes after the neurons): ticks counted, pulses left, latency
+COUNT, LEFT, LATENCY = 0, 1, 2
+# inpar columns: per input neuron
+PULSES, AT_START = 0, 1
+# clock: [tick, training]
+TICK, TRAINING = 0, 1
+
+
+@dataclass(frozen=True)
+class Network:
+    """What a run does not change. The phased semantics ignores the last four fields."""
+
+    syn: np.ndarray  # [synapses, PRE..FLAGS] int64: network synapses, then one per input neuron
+    npar: np.ndarray  # [neurons, REST..STDP_OFFSET]
+    inpar: np.ndarray  # [inputs, PULSES..AT_START]
+    stdp: np.ndarray  # [groups, profiles, LO, HI, W(dt)...]
+    group: np.ndarray  # [A]: agent a's row of stdp
+    profile: np.ndarray  # [neurons]: neuron n's column of stdp
+    out_start: np.ndarray  # [neurons + 1] uint64: neuron n's outgoing synapses are out_syn[out_start[n]:out_start[n+1]]
+    out_syn: np.ndarray  # [network synapses] uint64
+    order_key: np.ndarray  # [A] uint64: the hash of agent a's seed, for its netlogo order
+    rules: int  # the NETLOGO_RULES bits in force, and SHUFFLE for the random order
+
+    def struct(self) -> NetworkStruct:
+        return _network_struct(*(getattr(self, f.name) for f in dataclasses.fields(self)))
+
+
+@dataclass(frozen=True)
+class State:
+    """What a tick changes; the agent axis last (each phase is a loop across agents)."""
+
+    clock: np.ndarray  # [TICK, TRAINING] int64
+    v: np.ndarray  # [neurons, A] membrane potentials
+    w: np.ndarray  # [synapses, A] weights
+    counters: np.ndarray  # [3, nodes, A] int32: REFR_LEFT.. for neurons, COUNT.. for input neurons
+    last_spike: np.ndarray  # [neurons, A] int64
+    hist: np.ndarray  # [A, neurons, HISTORY + 1] int64: per event, agent-major (netlogo keeps 31)
+    ring: np.ndarray  # [ring length, synapses, A] uint8: pulses in flight, slot = arrival tick & mask
+    spiked: np.ndarray  # [nodes, A] uint8: who spiked in the last tick
+
+    def struct(self) -> StateStruct:
+        return _state_struct(*(getattr(self, f.name) for f in dataclasses.fields(self)))
+
+
+@structref.register
+class NetworkType(types.StructRef):
+    def preprocess_fields(self, fields):
+        return tuple((name, types.unliteral(t)) for name, t in fields)
+
+
+@structref.register
+class StateType(types.StructRef):
+    def preprocess_fields(self, fields):
+        return tuple((name, types.unliteral(t)) for name, t in fields)
+
+
+class NetworkStruct(structref.StructRefProxy):
+    """A Network as the kernels take it (its arrays, not copies)."""
+
+
+class StateStruct(structref.StructRefProxy):
+    """A State as the kernels take it (its arrays, not copies)."""
+
+
+structref.define_proxy(NetworkStruct, NetworkType, [f.name for f in dataclasses.fields(Network)])
+structref.define_proxy(StateStruct, StateType, [f.name for f in dataclasses.fields(State)])
+
+
+# Made in compiled code, from numba's cache: a proxy's own constructor compiles anew in every process.
+@njit(cache=True)
+def _network_struct(syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key, rules):
+    return NetworkStruct(syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key, rules)
+
+
+@njit(cache=True)
+def _state_struct(clock, v, w, counters, last_spike, hist, ring, spiked):
+    return StateStruct(clock, v, w, counters, last_spike, hist, ring, spiked)
+
+
+def check_options(agents: int, semantics: str, order: str, without) -> None:
+    """ValueError naming a wrong engine option."""
+    if agents < 1:
+        raise ValueError(f"agents must be >= 1, got {agents}")
+    if semantics not in SEMANTICS:
+        raise ValueError(f"semantics must be one of {', '.join(SEMANTICS)}, got {semantics!r}")
+    if order not in ORDERS:
+        raise ValueError(f"order must be one of {', '.join(ORDERS)}, got {order!r}")
+    unknown = sorted(set(without) - set(NETLOGO_RULES))
+    if unknown or (without and semantics != "netlogo"):
+        raise ValueError(
+            f"without: NetLogo rules are {', '.join(NETLOGO_RULES)} (netlogo semantics only), got {', '.join(without)}"
+        )
+
+
+def agent_seeds(seed, agents: int) -> np.ndarray:
+    """[A] int64: seed + a for one number, else the seeds given (one per agent)."""
+    seeds = seed + np.arange(agents, dtype=np.int64) if np.ndim(seed) == 0 else np.asarray(seed, np.int64)
+    if seeds.shape != (agents,):
+        raise ValueError(f"seed: one number, or one per agent ({agents}), got {seeds.shape[0]}")
+    return seeds
+
+
+def build_network(circuit: Circuit, params: dict, seeds: np.ndarray, semantics: str, order: str, without=()) -> Network:
+    """The Network of `circuit` for agents with these per-agent columns (services.params) and seeds."""
+    c, agents = circuit, len(seeds)
+    n_neurons, n_inputs, n_synapses = len(c.neuron_names), len(c.inputs), len(c.synapses)
+    if n_synapses >= 1 << SYN_BITS:
+        raise ValueError(f"at most {1 << SYN_BITS} synapses, got {n_synapses}")
+    syn = np.array(
+        [[s.pre, s.post, s.delay, INHIBITORY * s.inhibitory | PLASTIC * s.plastic] for s in c.synapses],
+        dtype=np.int64,
+    ).reshape(n_synapses, 4)
+    _, offset = stdp_table(c.neuron_types)
+    npar = np.array([[getattr(t, name) for name in NEURON_COLUMNS] + [offset] for t in c.neuron_types], np.float64)
+    inpar = np.array(
+        [[i.pulses, np.nan if i.at_start is None else i.at_start] for i in c.inputs], dtype=np.float64
+    ).reshape(n_inputs, 2)
+    stdp, group, profile = learning_tables(c, params, agents)
+    if semantics == "netlogo":  # each neuron's outgoing synapses, for its turn
+        pre = syn[: n_synapses - n_inputs, PRE]
+        out_syn = np.argsort(pre, kind="stable").astype(np.uint64)
+        out_start = np.searchsorted(pre[out_syn], np.arange(n_neurons + 1)).astype(np.uint64)
+        order_key = mix(seeds.view(np.uint64))  # once here rather than in every tick
+        rules = SHUFFLE * (order == "random") | sum(f for k, f in NETLOGO_RULES.items() if k not in without)
+    else:
+        out_start, out_syn = np.zeros(n_neurons + 1, np.uint64), np.zeros(0, np.uint64)
+        order_key, rules = np.zeros(agents, np.uint64), 0
+    return Network(syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key, rules)
+
+
+def new_state(circuit: Circuit, agents: int) -> State:
+    """The State arrays of `agents` agents of `circuit`, not yet set (Engine.reset sets them)."""
+    N, S, nodes = len(circuit.neuron_names), len(circuit.synapses), len(circuit.node_names)
+    max_delay = max((s.delay for s in circuit.synapses), default=1)
+    ring_len = 1 << int(max_delay).bit_length()  # > max delay, a power of two for masking
+    return State(
+        clock=np.zeros(2, dtype=np.int64),
+        v=np.empty((N, agents)),
+        w=np.empty((S, agents)),
+        counters=np.empty((3, nodes, agents), dtype=np.int32),
+        last_spike=np.empty((N, agents), dtype=np.int64),
+        hist=np.zeros((agents, N, HISTORY + 1), dtype=np.int64),
+        ring=np.empty((ring_len, S, agents), dtype=np.uint8),
+        spiked=np.zeros((nodes, agents), dtype=np.uint8),
+    )
+
+
+@njit(cache=True, inline="always")
+def mix(x):
+    """splitmix64 of a uint64: the netlogo order is a pure function of (agent seed, tick)."""
+    z = x + np.uint64(0x9E3779B97F4A7C15)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
+
+
+def _variant(circuit: Circuit, values: dict) -> Circuit:
+    """The circuit with one agent's learning values: initial weight first (the w_max check is on it)."""
+    if "initial_weight" in values:
+        w = values["initial_weight"]
+        circuit = dataclasses.replace(
+            circuit, synapses=tuple(dataclasses.replace(s, weight=w) if s.plastic else s for s in circuit.synapses)
+        )
+    fields = {k: v for k, v in values.items() if k in LEARNING_FIELDS}
+    return circuit.with_learning_params(**fields) if fields else circuit
+
+
+def learning_tables(circuit: Circuit, params: dict, agents: int) -> tuple:
+    """(stdp [groups, profiles, LO, HI, W(dt)...], group [A], profile [N]): one group per distinct
+    row of the learning columns; a profile per (neuron type, learns or not), as the columns set the
+    learning neurons only."""
+    names = [k for k in params if k in LEARNING_FIELDS or k == "initial_weight"]
+    rows = np.column_stack([params[k] for k in names]) if names else np.zeros((agents, 0))
+    settings, group = np.unique(rows, axis=0, return_inverse=True)
+    learning = {circuit.synapses[k].post for k in circuit.plastic_synapses}
+    keys = [(t, n in learning) for n, t in enumerate(circuit.neuron_types)]
+    kinds = list(dict.fromkeys(keys))
+    profile = np.array([kinds.index(k) for k in keys], dtype=np.int64)
+    first = [keys.index(k) for k in kinds]  # a neuron of each profile
+    tables = []
+    for row in settings:
+        neuron_types = _variant(circuit, {k: float(v) for k, v in zip(names, row)}).neuron_types
+        table, _ = stdp_table(neuron_types)
+        tables.append(
+            np.column_stack(
+                [[neuron_types[n].w_min for n in first], [neuron_types[n].w_max for n in first], table[first]]
+            )
+        )
+    return np.ascontiguousarray(np.stack(tables)), group.reshape(agents).astype(np.int64), profile
+
+
+def initial_weights(circuit: Circuit, params: dict, agents: int) -> np.ndarray:
+    """[A, synapses]: the circuit's weights, the plastic ones at each agent's initial weight, those of
+    the input neurons a sensor feeds times each agent's input gain."""
+    w = np.tile(np.array([s.weight for s in circuit.synapses], dtype=np.float64), (agents, 1))
+    if "initial_weight" in params:
+        plastic = circuit.plastic_synapses
+        w[:, plastic] = params["initial_weight"][:, None]
+    if "input_gain" in params:
+        n_net = len(circuit.synapses) - len(circuit.inputs)  # an input neuron's synapse: n_net + its index
+        sensed = [n_net + k for k in circuit.sensors.values()]
+        w[:, sensed] *= params["input_gain"][:, None]
+    return w
