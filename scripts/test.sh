@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Set up and run the whole test suite on a fresh machine: the system packages the viewer tests need
 # (Mesa's software Vulkan driver for headless screenshots, Chromium for the web viewer, Xvfb as a
-# display for the native viewer), a virtual environment, then pytest.
+# display for the native viewer), a virtual environment, the lint, format and type checks, then
+# pytest (its arguments are this script's).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if command -v apt-get >/dev/null && command -v dpkg >/dev/null; then
@@ -18,4 +19,7 @@ if command -v apt-get >/dev/null && command -v dpkg >/dev/null; then
 fi
 python3 -m venv .venv
 .venv/bin/pip install -q -e '.[test]'
+.venv/bin/ruff check .
+.venv/bin/ruff format --check .
+.venv/bin/pyright || echo "pyright: the errors above do not fail the run yet"  # to fail it: drop from "||"
 .venv/bin/python -m pytest "$@"
