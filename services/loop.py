@@ -19,7 +19,18 @@ from services.brain.circuit import Circuit, load_circuit
 from services.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, serial_tick
 from services.learning import quarter_collisions
 from services.params import AGENT_PARAMS, agent_columns, setting_count
-from services.world.world import ACTIONS, BIN, PAIN, SENSORS, World, _act, _sense, _touch, params_for, world_actions
+from services.world.world import (
+    ACTIONS,
+    BIN,
+    PAIN,
+    SENSORS,
+    World,
+    act_kernel,
+    params_for,
+    sense_kernel,
+    touch_kernel,
+    world_actions,
+)
 
 
 def brain_for(world: World, circuit: Circuit, params: Mapping | None = None, **engine_options) -> Brain:
@@ -57,7 +68,7 @@ def fused_loop(world: World, brain: Brain, ticks: int, noxious: np.ndarray | Non
     if noxious is None:
         noxious = np.zeros((0, world.agents), np.uint8)  # none kept
     # the brain's sensor columns -> its input neurons; its actuators -> the world's action columns
-    bound = [(brain.action_names[c], int(n)) for c, n in zip(brain._action_cols, brain._actuators)]
+    bound = [(brain.action_names[c], int(n)) for c, n in zip(brain.action_cols, brain.actuator_neurons)]
     world_cols = np.array([ACTIONS.index(name) for name, _ in bound if name in ACTIONS], np.int64)
     actuators = np.array([n for name, n in bound if name in ACTIONS], np.int64)
     actions = np.zeros((world.agents, len(ACTIONS)), np.uint8)
@@ -87,23 +98,20 @@ def fused_loop(world: World, brain: Brain, ticks: int, noxious: np.ndarray | Non
             m.last_collision,
             m.last_noxious,
             m.learned_at,
-            world._bin,
+            world.bin_collisions,
             m.resets,
             actions,
-            brain._sensor_cols,
-            brain._input_cols,
+            brain.sensor_cols,
+            brain.input_cols,
             world_cols,
             actuators,
             brain.feed,
             noxious[done : done + n],
             *engine.structs,
         )
-        world.tick += n
+        world.advance(n)
         done += n
-        if world.tick % BIN == 0:
-            world.metrics.bins.append(world._bin.copy())
-            world._bin[:] = 0
-    bind(engine.spiked, brain._actuators, brain._action_cols, brain.actions)
+    bind(engine.spiked, brain.actuator_neurons, brain.action_cols, brain.actions)
 
 
 @njit(cache=True)
@@ -144,7 +152,7 @@ def _fused(
 ):
     spiked = st.spiked  # the engine's own [nodes, agents]
     for k in range(ticks):
-        _sense(grid, arena_of, pos, heading, fpar, kind, sensors)
+        sense_kernel(grid, arena_of, pos, heading, fpar, kind, sensors)
         if noxious.shape[0] > 0:
             for a in range(sensors.shape[0]):
                 noxious[k, a] = sensors[a, PAIN] == sensors[a, PAIN]  # fed: not NaN
@@ -153,7 +161,7 @@ def _fused(
         for a in range(feed.shape[0]):  # not bind(spiked.T, ...): the kernel's own [nodes, agents], 5-10 % faster
             for j in range(world_cols.shape[0]):
                 actions[a, world_cols[j]] = spiked[actuators[j], a]
-        _touch(
+        touch_kernel(
             grid,
             arena_of,
             pos,
@@ -174,7 +182,7 @@ def _fused(
             learned_at,
             bins,
         )
-        _act(grid.shape[1], grid.shape[2], pos, heading, fpar, steps, actions, events, distance, resets)
+        act_kernel(grid.shape[1], grid.shape[2], pos, heading, fpar, steps, actions, events, distance, resets)
 
 
 def population(

@@ -37,11 +37,13 @@ class Brain:
         self.circuit, self.sensor_names, self.action_names = circuit, tuple(sensors), tuple(actions)
         check_sensors(circuit, sensors)
         self.engine = Engine(circuit, agents=agents, training=training, **engine_options)
+        # the bindings, as column indices: sensor_cols[j] of the sensors feeds input neuron input_cols[j];
+        # a spike of neuron actuator_neurons[j] sets column action_cols[j] of the actions
         bound = circuit.sensors
-        self._sensor_cols = np.array([sensors.index(s) for s in bound], dtype=np.int64)
-        self._input_cols = np.array(list(bound.values()), dtype=np.int64)
-        self._action_cols = np.array([actions.index(a) for a in circuit.actuators if a in actions], dtype=np.int64)
-        self._actuators = np.array(
+        self.sensor_cols = np.array([sensors.index(s) for s in bound], dtype=np.int64)
+        self.input_cols = np.array(list(bound.values()), dtype=np.int64)
+        self.action_cols = np.array([actions.index(a) for a in circuit.actuators if a in actions], dtype=np.int64)
+        self.actuator_neurons = np.array(
             [circuit.neuron_index(n) for a, n in circuit.actuators.items() if a in actions], dtype=np.int64
         )
         self.feed = np.full((agents, len(circuit.inputs)), np.nan)
@@ -55,9 +57,9 @@ class Brain:
         """One tick: sensors [A, len(sensors)] (NaN: nothing sensed) -> actions [A, len(actions)]."""
         if sensors.shape != (self.agents, len(self.sensor_names)):  # bind() reads without bounds checks
             raise ValueError(f"sensors of shape {sensors.shape}, expected {(self.agents, len(self.sensor_names))}")
-        bind(sensors, self._sensor_cols, self._input_cols, self.feed)
+        bind(sensors, self.sensor_cols, self.input_cols, self.feed)
         spiked = self.engine.step(self.feed)
-        bind(spiked, self._actuators, self._action_cols, self.actions)
+        bind(spiked, self.actuator_neurons, self.action_cols, self.actions)
         return self.actions
 
 

@@ -284,9 +284,9 @@ class World:
         # large populations: each kernel a loop across agents on every core (numba's threads); the
         # same result, as agents are independent (but for food in a shared arena: first come)
         large = self.world_kernels_parallel = agents >= PARALLEL_FROM
-        self._sense = Kernel(_sense_parallel if large else _sense)
-        self._touch = Kernel(_touch_parallel if large and not shared else _touch)
-        self._act = Kernel(_act_parallel if large else _act)
+        self._sense = Kernel(_sense_parallel if large else sense_kernel)
+        self._touch = Kernel(_touch_parallel if large and not shared else touch_kernel)
+        self._act = Kernel(_act_parallel if large else act_kernel)
         self._actions = np.zeros((agents, len(ACTIONS)), np.uint8)  # act()'s, in the type its kernel was compiled for
         self.kind = np.zeros(4, dtype=np.uint8)  # per colour: 1 noxious, 2 rewarding
         for c in p.noxious:
@@ -377,7 +377,17 @@ class World:
             self.metrics.distance,
             self.metrics.resets,
         )
-        self.tick += 1
+        self.advance(1)
+
+    @property
+    def bin_collisions(self) -> np.ndarray:
+        """[A]: collisions so far in the current bin of BIN ticks (the kernels add to it in place)."""
+        return self._bin
+
+    def advance(self, ticks: int) -> None:
+        """The clock moved on by `ticks` ticks whose kernels ran (act(), or services.loop's fused
+        loop, which stops at a bin's end): a bin that ends there is closed."""
+        self.tick += ticks
         if self.tick % BIN == 0:
             self.metrics.bins.append(self._bin.copy())
             self._bin[:] = 0
@@ -458,7 +468,7 @@ def _sense_one(a, grid, arena_of, pos, heading, fpar, kind, sensors, steps):
 
 
 @njit(cache=True)
-def _sense(grid, arena_of, pos, heading, fpar, kind, sensors):
+def sense_kernel(grid, arena_of, pos, heading, fpar, kind, sensors):
     steps = int(round(fpar[VIEW] / fpar[RAY_STEP]))
     for a in range(pos.shape[0]):
         _sense_one(a, grid, arena_of, pos, heading, fpar, kind, sensors, steps)
@@ -527,7 +537,7 @@ def _touch_one(
 
 
 @njit(cache=True)
-def _touch(
+def touch_kernel(
     grid,
     arena_of,
     pos,
@@ -596,7 +606,7 @@ def _touch_parallel(
     learned_at,
     bins,
 ):
-    """_touch for agents each in an arena of its own (in a shared one, the first on a food patch eats it)."""
+    """touch_kernel for agents each in an arena of its own (in a shared one, the first on a food patch eats it)."""
     for a in prange(pos.shape[0]):
         _touch_one(
             a,
@@ -643,7 +653,7 @@ def _act_one(a, width, height, pos, heading, fpar, steps, actions, events, dista
 
 
 @njit(cache=True)
-def _act(width, height, pos, heading, fpar, steps, actions, events, distance, resets):
+def act_kernel(width, height, pos, heading, fpar, steps, actions, events, distance, resets):
     for a in range(pos.shape[0]):
         _act_one(a, width, height, pos, heading, fpar, steps, actions, events, distance, resets)
 
