@@ -11,8 +11,9 @@ gateway's motor handling, the recorder):
 Each payload ends as: rejected (by the decoder), refused (decoded, but the service refused it as
 not fitting its run), taken, or an escape (any other exception: a crash in a service).
 tests/bus/test_fuzz.py runs the same generators briefly; this prints, per key, how many payloads
-were tried and how each ended. Needs hypothesis (the test extras). The last line printed is JSON.
-Run: `spikinglab bench fuzz [--examples N]`.
+were tried and how each ended. The generators are spikinglab/bench/mutants.py's, which need
+hypothesis (the fuzz extra); the real messages they start from are here, without it (the soak bench
+uses them too). The last line printed is JSON. Run: `spikinglab bench fuzz [--examples N]`.
 """
 
 from __future__ import annotations
@@ -26,11 +27,9 @@ from collections import Counter
 import msgspec
 import numpy as np
 import rerun as rr
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
 
 from services.brain.circuit import load_circuit
-from services.brain.service import BrainNode, layout
+from services.brain.node import BrainNode, layout
 from services.bus import keys
 from services.bus.schemas import (
     KINDS,
@@ -44,15 +43,13 @@ from services.bus.schemas import (
     WorldMap,
     WorldState,
     decode,
-    encode,
 )
 from services.ev3_gateway.service import motor_actions
 from services.options import Parser, at_least
 from services.recorder.recorder import Recorder
 from services.vocabulary import INSECT_ACTIONS, INSECT_SENSORS
-from services.world.service import actions_from
+from services.world.brains import actions_from
 
-raw_encode, raw_decode = msgspec.msgpack.Encoder().encode, msgspec.msgpack.Decoder().decode
 CIRCUIT = load_circuit("insect")
 A = 3
 KEY_OF = {
@@ -104,19 +101,6 @@ EXAMPLES.append(serving_brain().state_message())
 
 def example(kind):
     return next(m for m in EXAMPLES if isinstance(m, kind))
-
-
-# any msgpack value: what a peer could put in a field
-values = st.recursive(
-    st.none()
-    | st.booleans()
-    | st.integers(min_value=-(2**63), max_value=2**64 - 1)
-    | st.floats()
-    | st.text(max_size=20)
-    | st.binary(max_size=64),
-    lambda inner: st.lists(inner, max_size=5) | st.dictionaries(st.text(max_size=8), inner, max_size=5),
-    max_leaves=20,
-)
 
 
 class Services:
@@ -174,200 +158,50 @@ class Services:
         return ends
 
 
-def byte_mutant(data, message) -> bytes:
-    payload = bytearray(encode(message))
-    for _ in range(data.draw(st.integers(1, 4))):
-        where = data.draw(st.integers(0, len(payload) - 1))
-        how = data.draw(st.sampled_from(["flip", "set", "cut", "insert"]))
-        if how == "flip":
-            payload[where] ^= 1 << data.draw(st.integers(0, 7))
-        elif how == "set":
-            payload[where] = data.draw(st.sampled_from([0x00, 0x7F, 0x80, 0xC0, 0xC1, 0xFF, 0xA1, 0xD9, 0xDC, 0xDF]))
-        elif how == "cut":
-            del payload[where:]
-            if not payload:
-                payload.append(0x90)
-        else:
-            payload[where:where] = data.draw(st.binary(min_size=1, max_size=4))
-    return bytes(payload)
-
-
-def paths(tree, prefix=()):
-    """Every place in a decoded message: a key of a map or an index of a list."""
-    if isinstance(tree, dict):
-        for k, v in tree.items():
-            yield (*prefix, k)
-            yield from paths(v, (*prefix, k))
-    elif isinstance(tree, list):
-        for i, v in enumerate(tree):
-            yield (*prefix, i)
-            yield from paths(v, (*prefix, i))
-
-
-def structure_mutants(data, message) -> list[bytes]:
-    """A mutant of the message's structure, and the same with its first string made invalid UTF-8."""
-    tree = raw_decode(encode(message))
-    for _ in range(data.draw(st.integers(1, 3))):
-        place = data.draw(st.sampled_from(list(paths(tree))))
-        parent = tree
-        for step in place[:-1]:
-            parent = parent[step]
-        how = data.draw(st.sampled_from(["replace", "drop", "add"]))
-        if how == "replace":
-            parent[place[-1]] = data.draw(values)
-        elif how == "drop" and isinstance(parent, dict):
-            del parent[place[-1]]
-        elif isinstance(parent, dict):
-            parent[data.draw(st.text(max_size=8))] = data.draw(values)
-        if not isinstance(tree, dict) or not list(paths(tree)):
-            break
-    payload = raw_encode(tree)
-    at = next((i for i, b in enumerate(payload) if 0xA1 <= b <= 0xBF), None)  # a msgpack str of 1..31 bytes
-    if at is None or at + 1 >= len(payload):
-        return [payload]
-    return [payload, payload[: at + 1] + b"\xff" + payload[at + 2 :]]
-
-
-# well-formed messages with any values, their shapes mostly consistent (so that they pass the
-# schema's checks and reach the services' code) and mostly those of the run the consumers serve
-ticks = st.integers(min_value=0, max_value=2**64 - 1) | st.integers(0, 60)
-names = st.lists(st.sampled_from([*INSECT_SENSORS, "rotate", "move", "x"]), max_size=6).map(tuple)
-numbers = st.floats(allow_nan=True, allow_infinity=True) | st.sampled_from([0.0, -1.0, 1e300, 2.0**40, 0.2, 1.0])
-i64 = st.integers(-(2**63), 2**63 - 1) | st.integers(-2, 70)
-places = st.floats(-1e6, 1e6) | numbers
-runs = st.sampled_from(["r1", "r1", "", "r2"]) | st.text(max_size=70)
-NODES, NEURONS, SYNAPSES = len(CIRCUIT.node_names), len(CIRCUIT.neuron_names), len(CIRCUIT.synapses)
-
-
-def array(draw, dtype, shape, elements):
-    shape = tuple(draw(st.sampled_from([n, 0, 1, 2, 5])) if draw(st.integers(0, 9)) == 0 else n for n in shape)
-    flat = np.full(int(np.prod(shape)), draw(elements), dtype=dtype)  # one value, then a few others
-    for _ in range(draw(st.integers(0, 5)) if len(flat) else 0):
-        flat[draw(st.integers(0, len(flat) - 1))] = draw(elements)
-    return Array.of(flat.reshape(shape))
-
-
-@st.composite
-def messages(draw, kind=None):
-    kind = kind or draw(st.sampled_from(KINDS))
-    tick, T, A = draw(ticks), draw(st.integers(0, 3)), draw(st.sampled_from([3, 3, 1, 0, 2]))
-    if kind is Sensors:
-        sensor_names = draw(st.just(INSECT_SENSORS) | names)
-        return Sensors(
-            tick=tick,
-            names=sensor_names,
-            values=array(draw, "<f8", (A, len(sensor_names)), numbers),
-            run=draw(runs),
-            seed=draw(st.integers(0, 2**64 - 1) | st.integers(0, 9)),
-        )
-    if kind is Motor:
-        action_names = draw(st.just(INSECT_ACTIONS) | names)
-        return Motor(
-            tick=tick,
-            names=action_names,
-            actions=array(draw, "|u1", (A, len(action_names)), st.integers(0, 255)),
-            run=draw(runs),
-        )
-    if kind is BrainState:
-        return BrainState(
-            tick=tick,
-            run=draw(runs),
-            spiked=array(draw, "|u1", (T, A, NODES), st.integers(0, 1)),
-            potentials=array(draw, "<f4", (T, A, NEURONS), st.floats(width=32)),
-            weights=array(draw, "<f8", (A, SYNAPSES), numbers),
-        )
-    if kind is BrainLayout:
-        return BrainLayout(
-            tick=tick,
-            run=draw(runs),
-            circuit=draw(st.text(max_size=5)),
-            nodes=draw(names | st.just(CIRCUIT.node_names)),
-            neurons=draw(st.integers(0, 20) | i64),
-            synapses=draw(names),
-            plastic=tuple(draw(st.lists(i64, max_size=3))),
-        )
-    if kind is WorldState:
-        S, K = draw(st.integers(0, 5)), draw(st.integers(0, 3))
-        return WorldState(
-            tick=tick,
-            run=draw(runs),
-            sensor_names=tuple(draw(st.lists(st.sampled_from(INSECT_SENSORS), min_size=S, max_size=S))),
-            sensors=array(draw, "<f8", (T, A, S), numbers),
-            pos=array(draw, "<f8", (T, A, 2), places),
-            heading=array(draw, "<f8", (T, A), places),
-            events=array(draw, "<i8", (T, A, 4), i64),
-            collisions=array(draw, "<i8", (T, A), i64),
-            food=array(draw, "<i8", (T, A), i64),
-            changes=array(draw, "<i8", (K, 5), i64 | st.integers(0, 40)),
-            final=draw(st.booleans()),
-        )
-    if kind is WorldMap:
-        return WorldMap(
-            tick=tick,
-            run=draw(runs),
-            grid=array(draw, "|u1", (draw(st.integers(0, 3)), 41, 60), st.integers(0, 255)),
-            x_min=draw(i64),
-            y_min=draw(i64),
-        )
-    return kind(tick=tick, command=draw(st.text(max_size=5) | st.just("end")), run=draw(runs))
-
-
-def payloads(source: str, kind) -> st.SearchStrategy:
-    """Payloads (lists of bytes) of one source for one kind."""
-    real = example(kind)
-    if source == "bytes":
-        return st.binary(max_size=256).map(lambda b: [b])
-    if source == "byte":
-        return st.composite(lambda draw: [byte_mutant(Drawer(draw), real)])()
-    if source == "structure":
-        return st.composite(lambda draw: structure_mutants(Drawer(draw), real))()
-    return messages(kind).map(lambda m: [encode(m)])
-
-
-class Drawer:
-    """A composite strategy's draw, with the .draw() of st.data() that the mutators call."""
-
-    def __init__(self, draw):
-        self.draw = draw
-
-
 SOURCES = ("bytes", "byte", "structure", "any-shape")
 
 
 def run(examples: int) -> tuple[dict, str | None]:
+    """How the payloads of every source and kind ended, per key, and the first escape's traceback."""
+    from .mutants import payloads
+
     services = Services()
     table: dict[str, Counter] = {}
-    first_escape = None
+    escapes: list[str] = []
     for kind in KINDS:
         for source in SOURCES:
             if source == "bytes" and kind is not Sensors:
                 continue  # arbitrary bytes are no kind's: tried once, under "any key"
             counts = table.setdefault("any key" if source == "bytes" else KEY_OF[kind], Counter())
+            throw_at(services, payloads(source, kind), examples, counts, escapes)
+    return {key: dict(counts) for key, counts in table.items()}, escapes[0] if escapes else None
 
-            @settings(
-                max_examples=examples,
-                deadline=None,
-                database=None,
-                derandomize=True,
-                suppress_health_check=list(HealthCheck),
-            )
-            @given(payloads(source, kind))
-            def throw(batch):
-                nonlocal first_escape
-                for payload in batch:
-                    counts["tried"] += 1
-                    try:
-                        counts.update(services.outcomes(payload))
-                    except Exception:
-                        counts["escapes"] += 1
-                        first_escape = first_escape or traceback.format_exc()
 
-            throw()
-    return {key: dict(counts) for key, counts in table.items()}, first_escape
+def throw_at(services: Services, strategy, examples: int, counts: Counter, escapes: list[str]) -> None:
+    """`examples` payloads of `strategy` thrown at the services: how each ended into `counts`, the
+    traceback of the first escape into `escapes`."""
+    from hypothesis import given, settings
+
+    from .mutants import HEALTH_CHECKS
+
+    @settings(
+        max_examples=examples, deadline=None, database=None, derandomize=True, suppress_health_check=HEALTH_CHECKS
+    )
+    @given(strategy)
+    def throw(batch):
+        for payload in batch:
+            counts["tried"] += 1
+            try:
+                counts.update(services.outcomes(payload))
+            except Exception:
+                counts["escapes"] += 1
+                escapes[:] = escapes or [traceback.format_exc()]  # the first one is shown
+
+    throw()
 
 
 def main(argv=None) -> dict:
-    p = Parser(prog="spikinglab bench fuzz", description=__doc__.split("\n")[0])
+    p = Parser(prog="spikinglab bench fuzz", description=(__doc__ or "").splitlines()[0])
     p.add_argument(
         "--examples",
         type=at_least(1),
@@ -375,6 +209,10 @@ def main(argv=None) -> dict:
         help="payloads per source and kind (default 2000; each is tried as every kind and any kind)",
     )
     args = p.parse_args(argv)
+    try:
+        import hypothesis  # noqa: F401  (the generators' library, which a plain install leaves out)
+    except ModuleNotFoundError:
+        p.exit(2, f"{p.prog}: needs hypothesis, which a plain install leaves out: pip install 'spikinglab[fuzz]'\n")
     warnings.simplefilter("ignore", RuntimeWarning)  # numpy's overflow notes on the extreme values thrown
     logging.getLogger("spikinglab").setLevel(logging.ERROR)  # the services' word on each payload they take
     table, escape = run(args.examples)

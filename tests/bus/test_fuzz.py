@@ -1,15 +1,20 @@
 """No payload, however malformed, gets past a decoder as anything but a rejection, and what decodes,
 the service code that takes it takes or refuses without an exception (Hypothesis; the generators
-are spikinglab.bench.fuzz's, whose bench runs them longer and counts the outcomes per key)."""
+are spikinglab.bench.mutants', which `spikinglab bench fuzz` runs longer, counting the outcomes per key)."""
 
 from __future__ import annotations
 
-from hypothesis import HealthCheck, given, settings
+import sys
+
+import pytest
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from spikinglab.bench.fuzz import KINDS, SOURCES, Services, payloads
+from spikinglab import cli
+from spikinglab.bench.fuzz import KINDS, SOURCES, Services
+from spikinglab.bench.mutants import HEALTH_CHECKS, payloads
 
-FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))
+FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=HEALTH_CHECKS)
 SERVICES = Services()
 
 
@@ -50,9 +55,25 @@ def test_the_nine_byte_message_that_killed_three_services():
 def test_the_sources_reach_the_services():
     """The generators are worth running: real messages of each kind are taken, and the bench's
     sources are the ones tested here."""
-    from spikinglab.bench.fuzz import EXAMPLES, encode
+    from services.bus.schemas import encode
+    from spikinglab.bench.fuzz import EXAMPLES
 
     assert SOURCES == ("bytes", "byte", "structure", "any-shape")
     services = Services()  # not the fuzzed ones: a forged tick 0 of another run may have restarted their brain
     for message in EXAMPLES:
         assert "taken" in services.outcomes(encode(message)), type(message).__name__
+
+
+def test_bench_fuzz_without_hypothesis_names_the_extra_to_install(monkeypatch, capsys):
+    """On a plain install (no hypothesis) the bench says in one line what to install, and the soak
+    bench, which throws the same real messages mutated, still imports."""
+    monkeypatch.setitem(sys.modules, "hypothesis", None)  # `import hypothesis` fails, as where it is not installed
+    for name in [n for n in sys.modules if n.startswith(("hypothesis.", "spikinglab.bench."))]:
+        monkeypatch.delitem(sys.modules, name)  # imported afresh, without it
+    with pytest.raises(SystemExit) as ended:
+        cli.main(["bench", "fuzz", "--examples", "1"])
+    assert ended.value.code == 2
+    assert capsys.readouterr().err == (
+        "spikinglab bench fuzz: needs hypothesis, which a plain install leaves out: pip install 'spikinglab[fuzz]'\n"
+    )
+    __import__("spikinglab.bench.soak")
