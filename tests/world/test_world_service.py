@@ -7,7 +7,7 @@ import rerun as rr
 from services.bus.batching import TickBatch
 from services.bus.schemas import WorldState, decode, encode
 from services.recorder.recorder import Recorder
-from services.world.service import state_message
+from services.world.state import state_message
 from services.world.world import World
 
 
@@ -23,15 +23,10 @@ def test_a_run_ended_before_its_first_tick_still_sends_a_final_state():
 
 
 def test_a_checkpoint_resumes_only_under_the_options_that_made_it(tmp_path):
-    from services.world.service import (
-        CHECKPOINT,
-        PENDING,
-        Trajectory,
-        keep_checkpoint,
-        parser,
-        resume,
-        world_from_args,
-    )
+    from services.world.checkpoint import CHECKPOINT, PENDING, keep_checkpoint, resume
+    from services.world.options import world_from_args
+    from services.world.results import Trajectory
+    from services.world.service import parser
 
     made = parser().parse_args(["--seed", "4", "--ticks", "3000", "--checkpoint", str(tmp_path)])
     world = world_from_args(made)

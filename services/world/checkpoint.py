@@ -1,0 +1,81 @@
+"""The world's whole-run checkpoints (world --checkpoint DIR): kept every --checkpoint-every
+ticks, and resumed by the same command with the same options."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from services import snapshots
+from services.bus.schemas import RUN_ID
+
+from .results import Trajectory
+from .world import World
+
+CHECKPOINT = "world.npz"  # in --checkpoint DIR: the world of one run, at its last checkpoint
+# a checkpoint becomes CHECKPOINT once the brain has answered its tick, so has kept its own there:
+# a world that dies in between leaves the previous pair, never a world without its brain
+PENDING = "world-pending.npz"
+
+
+def run_options(args: argparse.Namespace) -> dict:
+    """The options that make a run what it is: a checkpoint resumes only under the same ones."""
+    return {
+        "ticks": args.ticks,
+        "seed": args.seed,
+        "agents": args.agents,
+        "shared": args.shared,
+        "preset": args.preset,
+        "map": str(args.map) if args.map else None,
+        "no_training": args.no_training,
+        "learned_after": args.learned_after,
+    }
+
+
+def keep_checkpoint(args: argparse.Namespace, world: World, trajectory: Trajectory, run_id: str) -> None:
+    """The world as it is now, kept as PENDING until the brain has kept its own (then CHECKPOINT)."""
+    arrays = {
+        **{f"world.{k}": v for k, v in world.snapshot().items()},
+        **{f"trajectory.{k}": v for k, v in trajectory.arrays().items()},
+    }
+    snapshots.write(
+        args.checkpoint / PENDING, arrays, {"run": run_id, "tick": world.tick, "options": run_options(args)}
+    )
+
+
+def resume(args: argparse.Namespace, world: World, trajectory: Trajectory) -> str | None:
+    """The run kept in --checkpoint, restored into `world` and `trajectory` (None: nothing kept).
+    ValueError when it is not a checkpoint of a run with these options."""
+    path = args.checkpoint / CHECKPOINT
+    if not path.exists():
+        return None
+    arrays, meta = snapshots.read(path)
+    kept, wanted = meta.get("options", {}), run_options(args)
+    differ = [f"--{k.replace('_', '-')} {kept.get(k)} there, {v} here" for k, v in wanted.items() if kept.get(k) != v]
+    if differ:
+        raise ValueError(
+            f"{path} holds run {meta.get('run')} at tick {meta.get('tick')} made with other options "
+            f"({'; '.join(differ)}): resume it with those, or give another --checkpoint folder"
+        )
+    if not RUN_ID.fullmatch(str(meta.get("run"))):
+        raise ValueError(f"{path}: not a world checkpoint (no run id in it)")
+    world.restore({k.removeprefix("world."): v for k, v in arrays.items() if k.startswith("world.")})
+    snapshots.copy_into(
+        trajectory.arrays(),
+        {k.removeprefix("trajectory."): v for k, v in arrays.items() if k.startswith("trajectory.")},
+        str(path),
+    )
+    return meta["run"]
+
+
+def confirm(folder: Path) -> None:
+    """The brain has answered the tick of the checkpoint kept last, so has kept its own: the run
+    resumes from this one."""
+    if (folder / PENDING).exists():
+        (folder / PENDING).replace(folder / CHECKPOINT)
+
+
+def forget(folder: Path) -> None:
+    """The run is whole: nothing is left to resume."""
+    (folder / CHECKPOINT).unlink(missing_ok=True)
+    (folder / PENDING).unlink(missing_ok=True)
