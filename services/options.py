@@ -105,3 +105,10 @@ def shard(text: str) -> tuple[int, int]:
     if not slash or not 1 <= i <= n:
         raise argparse.ArgumentTypeError(f"must be I/N with 1 <= I <= N (e.g. 2/3), got {text!r}")
     return i, n
+
+
+def shard_slice(agents: int, shard: tuple[int, int]) -> tuple[int, int]:
+    """The agents shard (I, N) of a population serves: first, last + 1. The N slices follow one
+    another and differ in size by one agent at most (brain --shard I/N, world --shards N)."""
+    i, n = shard
+    return agents * (i - 1) // n, agents * i // n
