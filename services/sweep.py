@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from services.brain.engine import DEFAULT_SEMANTICS
-from services.brain.service import add_engine_args
+from services.brain.engine_options import add_engine_args
 from services.learning import PAPER, all_definitions, noxious_ticks, plot_table1, quarter_collisions, stats
 from services.loop import population
 from services.options import Parser, at_least, positive

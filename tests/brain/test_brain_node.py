@@ -7,7 +7,7 @@ import pytest
 
 from services.brain.brain import Brain
 from services.brain.circuit import load_circuit
-from services.brain.service import BrainNode
+from services.brain.node import BrainNode
 from services.bus.schemas import Array, BusError, Control, Sensors
 from services.vocabulary import INSECT_ACTIONS, INSECT_SENSORS
 

@@ -317,7 +317,7 @@ def test_brain_states_unlike_the_first_are_refused_whole_even_before_the_layout(
     import msgspec
     import rerun as rr
 
-    from services.brain.service import layout
+    from services.brain.node import layout
     from services.bus.schemas import Array, BrainState, BusError, new_run_id
     from services.recorder.recorder import Recorder
 

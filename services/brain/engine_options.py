@@ -1,0 +1,40 @@
+"""The engine's options, shared by `brain`, `run` and `sweep`: the semantics and order options, and
+the --params file checked against a circuit. No bus here: `sweep` and `run` import this module."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from services.params import file_rows, read_params, side_of
+
+from .build import DEFAULT_SEMANTICS, ORDERS, SEMANTICS, learning_tables
+
+
+def add_engine_args(p: argparse.ArgumentParser) -> None:
+    """The engine's semantics options."""
+    p.add_argument(
+        "--semantics",
+        choices=SEMANTICS,
+        default=DEFAULT_SEMANTICS,
+        help=f"phased: five phases, a delay of d is exactly d; netlogo: the original NetLogo engine's "
+        f"turns (docs/tick.md) (default {DEFAULT_SEMANTICS})",
+    )
+    p.add_argument(
+        "--order",
+        choices=ORDERS,
+        default="random",
+        help="netlogo: neurons each tick in a seeded random order (as NetLogo's ask) or in file order",
+    )
+
+
+def brain_params(path: Path, circuit) -> dict:
+    """The --params file's columns (all of them: a shard slices them by its sensors' agents), checked
+    against the circuit before any run: ValueError for a value it cannot take (a w_max below its
+    initial weights)."""
+    columns = read_params(path)
+    try:
+        learning_tables(circuit, side_of(columns, "brain"), file_rows(columns))
+    except ValueError as e:
+        raise ValueError(f"parameter file {path}: {e}") from None
+    return columns

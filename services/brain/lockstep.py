@@ -1,0 +1,134 @@
+"""The brain in lock-step with a world, run after run: each Sensors message answered by one Motor
+message; on Control "end" the brain saves its weights (--save) and its stats (--stats), then serves
+the next run (or exits, --once). A run that stops without its end keeps its learning so far."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from collections.abc import Callable
+
+from services.bus import keys
+from services.bus.schemas import BusError, Control, Sensors
+from services.bus.transport import Bus, wait_for_subscriber
+
+from .checkpoint import save_weights
+from .node import BrainNode, layout
+
+log = logging.getLogger("spikinglab.brain")
+
+
+class LockStep:
+    """A brain serving worlds on `bus`, a fresh BrainNode (`new_node()`) for each run."""
+
+    def __init__(self, args: argparse.Namespace, bus: Bus, new_node: Callable[[], BrainNode]):
+        self.args, self.bus, self.new_node = args, bus, new_node
+        self.node = new_node()
+        self.kept: tuple | None = None  # (run, tick) whose learning was saved when the run stopped without its end
+        self.sensors = bus.inbox(keys.sensors(args.group, args.shard), Sensors)
+        self.control = bus.inbox(keys.control(args.group), Control)
+        self.motor = bus.outbox(keys.motor(args.group))
+        self.state = bus.outbox(keys.brain_state(args.group), lossy=True) if args.publish_state else None
+        self.world = bus.presence("world")
+        bus.watch_others(self.where)
+
+    def where(self) -> str:
+        """The tick this brain has reached, for the news of others joining or leaving."""
+        return f" at tick {self.node.last_tick + 1} of run {self.node.run}" if self.node.run else ""
+
+    def unsaved(self) -> bool:
+        """Whether there is learning of a run that has not ended, not kept yet."""
+        return self.node.brain is not None and self.kept != (self.node.run, self.node.last_tick)
+
+    def run(self) -> int:
+        shard = self.args.shard
+        log.info(
+            "brain ready on group %s (%s)%s",
+            self.args.group,
+            self.bus.sender,
+            f", shard {shard[0]} of {shard[1]}" if shard[1] > 1 else "",
+        )
+        try:
+            while True:
+                message = self.sensors.get(timeout=0.25)
+                if isinstance(message, Sensors):
+                    if self.unsaved() and self.node.starts_run(message):
+                        self.keep_learning(f"run {message.run} starts before it ended")
+                    self.serve(message)
+                if self.take_orders():
+                    return 0
+                if message is None and self.unsaved() and not self.world.alive:  # gone without an end
+                    self.keep_learning("its world left the bus")
+        except KeyboardInterrupt:  # Ctrl-C or SIGTERM mid-run: the learning so far is kept
+            if self.unsaved():
+                self.keep_learning("the brain was interrupted")
+            raise
+
+    def serve(self, message: Sensors) -> None:
+        """Answer one Sensors message: the Motor first, then the recorder's share."""
+        node, state = self.node, self.state
+        if state is not None and node.last_tick < 0:
+            wait_for_subscriber(state, "a recorder")
+            state.put(layout(node.circuit, message.tick, message.run))
+        try:
+            answer = node.answer(message)
+        except BusError as e:
+            self.sensors.refuse(e, f"(tick {message.tick})")
+            return
+        if answer is not None:
+            self.motor.put(answer)  # first: the world waits for it; the recorder does not
+            if state is not None and node.stepped:
+                node.keep_state()
+                if node.batch.full:
+                    state.put(node.state_message())
+
+    def take_orders(self) -> bool:
+        """Every control message waiting (a flood on the control key must not pile up while the run
+        goes on); an "end" of the run served ends it. True when this brain is done (--once)."""
+        while isinstance(order := self.control.get(timeout=0), Control):
+            try:
+                self.node.ends(order)
+            except BusError as e:
+                self.control.refuse(e)
+                continue
+            self.end_run(order)
+            if self.args.once:
+                return True
+            self.node = self.new_node()
+        return False
+
+    def end_run(self, order: Control) -> None:
+        """The run ended: the last state batch with the final weights, the stats, the weights saved."""
+        args, node = self.args, self.node
+        if self.state is not None and node.brain is not None:
+            self.state.put(node.state_message(final=True))
+        log.info("run ended at tick %d; rejected messages: %s", order.tick, self.bus.rejections() or "none")
+        if args.stats:
+            args.stats.write_text(json.dumps({"ticks": node.last_tick + 1, "rejected_messages": self.bus.rejections()}))
+        if args.save and node.brain is not None:
+            save_weights(args.save, node.brain.engine, node.circuit, tick=order.tick)
+            log.info("weights saved to %s", args.save)
+
+    def keep_learning(self, why: str) -> None:
+        """A run stopped without its end (`why`): its weights so far are saved beside --save, never
+        lost to the next run."""
+        args, node = self.args, self.node
+        self.kept = node.run, node.last_tick
+        if not args.save:
+            log.warning(
+                "run %s stopped at tick %d without its end (%s); its weights are not saved (no --save)",
+                node.run,
+                node.last_tick,
+                why,
+            )
+            return
+        path = args.save.with_name(f"{args.save.stem}-{node.run}-tick{node.last_tick + 1}.npz")
+        save_weights(path, node.running.engine, node.circuit, tick=node.last_tick + 1)
+        log.warning(
+            "run %s stopped at tick %d without its end (%s): its weights so far saved to %s",
+            node.run,
+            node.last_tick + 1,
+            why,
+            path,
+        )
