@@ -37,20 +37,12 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
+from services.commands import ENDLESS, SERVICES
 from services.options import Parser, UsageError
 from services.params import file_for_agents
 
 log = logging.getLogger("spikinglab.launch")
-SERVICES = {  # a launch file's `service` -> the module run as `python -m` (it has parser() and main())
-    "world": "services.world.service",
-    "brain": "services.brain.service",
-    "record": "services.recorder.service",
-    "gateway": "services.ev3_gateway.service",
-    "router": "services.router",
-    "fake-brick": "services.ev3_gateway.fake_brick",
-}
 COLOURS = (36, 33, 35, 32, 34, 31)  # ANSI: cyan, yellow, magenta, green, blue, red
-ENDLESS = ("router", "fake-brick")  # serve the others and never end by themselves: stopped once they have
 ENDING_S = 5.0  # a process that ends before `until` is an error only if `until` has not ended this much later
 PROGRESS_S = 5.0  # a progress bar's state is shown this often (it redraws itself many times a second)
 FINISH_S = 120.0  # after the `until` process ended: how long the others may take to end by themselves
@@ -125,20 +117,15 @@ def spawn(
     only the launcher, which ends the services in order (the world first, so that it writes the
     ticks done). Output (stdout and stderr) goes to the file `output`, to the terminal as it is
     (None), or to subprocess.PIPE / DEVNULL. `env`: variables set for this process only."""
-    out = open(output, "a") if isinstance(output, Path) else output
+    command = [sys.executable, "-m", SERVICES.get(service, service), *map(str, argv)]
     env = dict(os.environ, PYTHONUNBUFFERED="1", **(env or {}))
-    try:
-        return subprocess.Popen(
-            [sys.executable, "-m", SERVICES.get(service, service), *map(str, argv)],
-            stdout=out,
-            stderr=None if out is None else subprocess.STDOUT,
-            env=env,
-            cwd=cwd,
-            start_new_session=True,
-        )
-    finally:
-        if isinstance(output, Path):
-            out.close()  # the child has its own copy
+    if isinstance(output, Path):
+        with open(output, "a") as out:  # closed here once started: the child has its own copy
+            return subprocess.Popen(
+                command, stdout=out, stderr=subprocess.STDOUT, env=env, cwd=cwd, start_new_session=True
+            )
+    stderr = None if output is None else subprocess.STDOUT
+    return subprocess.Popen(command, stdout=output, stderr=stderr, env=env, cwd=cwd, start_new_session=True)
 
 
 def stop(popen: subprocess.Popen, timeout: float = STOP_S) -> None:
@@ -164,13 +151,13 @@ class Child:
             if colour is not None:
                 prefix = f"\033[{colour}m{prefix}\033[0m"
             copy = open(logs / f"{process.name}.log", "w") if logs else None
-            self.reader = threading.Thread(target=self._show, args=(prefix, copy), daemon=True)
+            self.reader = threading.Thread(target=self._show, args=(popen.stdout.fileno(), prefix, copy), daemon=True)
             self.reader.start()
 
-    def _show(self, prefix: str, copy) -> None:
+    def _show(self, pipe: int, prefix: str, copy) -> None:
         """Each line, prefixed; a progress bar (lines ended by \r) every PROGRESS_S at most."""
         shown_at, pending = 0.0, b""
-        for chunk in iter(lambda: self.popen.stdout.read1(65536), b""):
+        for chunk in iter(lambda: os.read(pipe, 65536), b""):
             pending += chunk
             *pieces, pending = re.split(rb"(\r\n|\n|\r)", pending)
             for text, end in zip(pieces[::2], pieces[1::2]):
@@ -257,7 +244,7 @@ class Launcher:
 
     def finish(self, timeout: float = FINISH_S) -> None:
         """Let every process end by itself (a brain saving, a recorder writing) within `timeout`;
-        then stop the rest (a router, a fake brick)."""
+        then stop the rest (a router, a fake brick), in ending order."""
         deadline = time.monotonic() + timeout
         for child in self.children.values():
             if child.process.service in ENDLESS:
@@ -266,6 +253,8 @@ class Launcher:
                 child.popen.wait(max(deadline - time.monotonic(), 0.1))
             except subprocess.TimeoutExpired:
                 log.warning("the %s did not end within %.0f s; stopping it", child.process.name, timeout)
+        for name in self.ending_order():
+            self.stop(name)
 
     def stop(self, name: str, timeout: float = STOP_S) -> None:
         stop(self.children[name].popen, timeout)

@@ -5,39 +5,44 @@ Run it on any machine the others can reach; start each service with --connect tc
 
 from __future__ import annotations
 
+import argparse
 import logging
 import sys
 import time
 
-from services.bus.config import BusConfigError, add_bus_args, open_session
+import zenoh
+
+from services.bus.config import add_bus_args
 from services.options import Parser
+from services.runtime import service_main
 
 log = logging.getLogger("spikinglab.router")
+DEFAULT_LISTEN = "tcp/0.0.0.0:7447"
 
 
 def parser() -> Parser:
-    p = Parser(prog="spikinglab router", description=__doc__.splitlines()[0])
+    p = Parser(prog="spikinglab router", description="A Zenoh router for services on several machines.")
     add_bus_args(p)
     return p
 
 
-def main(argv=None) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s router %(levelname)s %(message)s", stream=sys.stderr)
-    args = parser().parse_args(argv)
+def listen_by_default(args: argparse.Namespace) -> None:
     if not args.listen:
-        args.listen = ["tcp/0.0.0.0:7447"]
-    try:
-        session = open_session(args, mode="router")
-    except BusConfigError as e:
-        raise SystemExit(str(e)) from None
+        args.listen = [DEFAULT_LISTEN]
+
+
+def run(args: argparse.Namespace, session: zenoh.Session) -> int:
+    """Route until Ctrl-C or SIGTERM."""
     log.info("router %s listening on %s", session.zid(), ", ".join(args.listen))
     try:
         while True:
             time.sleep(1)
-    except KeyboardInterrupt:
-        return 0
     finally:
         session.close()
+
+
+def main(argv=None) -> int:
+    return service_main("router", parser(), run, argv, interrupted=0, prepare=listen_by_default, mode="router")
 
 
 if __name__ == "__main__":

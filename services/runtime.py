@@ -44,12 +44,10 @@ def thread_died() -> bool:
     return _thread_died.is_set()
 
 
-def service_main(
-    name: str, parser: argparse.ArgumentParser, run, argv=None, interrupted: int = 130, prepare=None
-) -> int:
-    """The common start of a service: logging, its options, SIGTERM handled like Ctrl-C (the
-    service saves, flushes or reports on its way out), a dead thread ends it, the session, then
-    run(args, session)."""
+def process_main(name: str, parser: argparse.ArgumentParser, run, argv=None, interrupted: int = 130) -> int:
+    """The common start of a process: logging, its options, SIGTERM handled like Ctrl-C (the
+    process saves, flushes or reports on its way out), a dead thread ends it; then run(args).
+    Ctrl-C (KeyboardInterrupt) ends it with `interrupted`; a dead thread with 1."""
     logging.basicConfig(level=logging.INFO, format=f"%(asctime)s {name} %(levelname)s %(message)s", stream=sys.stderr)
     # numba's OpenMP threads spin after each parallel kernel by default (about 3 ms), on the cores
     # that the other side of a lock-step tick needs next: sleeping made world + brain 1.4-1.6x
@@ -62,14 +60,33 @@ def service_main(
     args = parser.parse_args(argv)
     signal.signal(signal.SIGTERM, signal.default_int_handler)
     guard_threads()
-    if prepare is not None:
-        prepare(args)
     try:
-        session = open_session(args)
-    except BusConfigError as e:
-        raise SystemExit(str(e)) from None
-    try:
-        code = run(args, session)
+        code = run(args)
     except KeyboardInterrupt:
         code = interrupted
     return 1 if thread_died() else code
+
+
+def service_main(
+    name: str,
+    parser: argparse.ArgumentParser,
+    run,
+    argv=None,
+    interrupted: int = 130,
+    prepare=None,
+    mode: str | None = None,
+) -> int:
+    """A process on the bus: process_main, then prepare(args) (work before the bus: checks that
+    refuse to start), its bus session (`mode`: Zenoh's, "router" for a router; default: the
+    options' choice), then run(args, session)."""
+
+    def on_the_bus(args: argparse.Namespace) -> int:
+        if prepare is not None:
+            prepare(args)
+        try:
+            session = open_session(args, mode)
+        except BusConfigError as e:
+            raise SystemExit(str(e)) from None
+        return run(args, session)
+
+    return process_main(name, parser, on_the_bus, argv, interrupted)

@@ -1,38 +1,12 @@
-"""`spikinglab <command>`: one entry point, each command a module with its own main(argv)."""
+"""`spikinglab <command>`: one entry point, each command a module with its own main(argv), named
+in the registry (services/commands.py)."""
 
 from __future__ import annotations
 
 import importlib
 import sys
 
-COMMANDS = {
-    "run": ("services.run", "train the insect: world, brain and recorder as processes on the bus (the main job)"),
-    "launch": ("services.launch", "start the services a launch file names (simulation, robot, remote-...)"),
-    "brain": ("services.brain.service", "the brain service on the bus"),
-    "world": ("services.world.service", "the world service on the bus"),
-    "gateway": ("services.ev3_gateway.service", "the robot side: a LEGO EV3 (or a simulated one) on the bus"),
-    "record": ("services.recorder.service", "record a run to a Rerun file (.rrd)"),
-    "screenshot": ("services.recorder.screenshot", "a PNG of a recording's replay, rendered headless"),
-    "router": ("services.router", "a Zenoh router, for brain and world on different machines"),
-    "certs": ("services.certs", "certificates and configs for a bus with mutual TLS and access control"),
-    "sweep": ("services.sweep", "the paper's Table 1: learning time for A+ = A- over seeds"),
-    "conditioning": ("services.brain.conditioning", "classical conditioning demo on fig. 2 and fig. 4"),
-    "bench": (
-        None,
-        "benchmarks and experiments: bench engine | loop | scale | recorder | gateway | table1 | robot | fuzz | soak",
-    ),
-}
-BENCHMARKS = {
-    "engine": "spikinglab.bench.engine",
-    "loop": "spikinglab.bench.loop",
-    "scale": "spikinglab.bench.scale",
-    "recorder": "spikinglab.bench.recorder",
-    "gateway": "spikinglab.bench.gateway",
-    "table1": "spikinglab.bench.table1",
-    "robot": "spikinglab.bench.robot",
-    "fuzz": "spikinglab.bench.fuzz",
-    "soak": "spikinglab.bench.soak",
-}
+from services.commands import BENCHMARKS, COMMANDS
 
 
 def version() -> str:
@@ -49,7 +23,7 @@ def usage() -> str:
         "usage: spikinglab <command> [options]   (spikinglab <command> --help for its options; spikinglab --version)",
         "",
     ]
-    lines += [f"  {name:14s} {about}" for name, (_, about) in COMMANDS.items()]
+    lines += [f"  {name:14s} {command.about}" for name, command in COMMANDS.items()]
     return "\n".join(lines)
 
 
@@ -68,7 +42,7 @@ def main(argv: list[str] | None = None) -> None:
             sys.exit(2)
         module, rest = BENCHMARKS[rest[0]], rest[1:]
     elif name in COMMANDS:
-        module = COMMANDS[name][0]
+        module = COMMANDS[name].module
     else:
         print(f"spikinglab: unknown command {name!r} (spikinglab --help lists the commands)", file=sys.stderr)
         sys.exit(2)

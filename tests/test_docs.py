@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from services.launch import SERVICES
+from services.commands import SERVICES
 
 ROOT = Path(__file__).resolve().parents[1]
 README_OF = {

@@ -7,12 +7,17 @@ import signal
 import subprocess
 import sys
 import time
+import tomllib
+from typing import TextIO
 
 import numpy as np
+import psutil
+import pytest
 
-from services.launch import shipped
+from services.launch import Launcher, Process, local_endpoints, shipped
 
 from .processes import free_port, running_with, wait_for
+from .sockets import process_tree
 
 
 def launch_file(name: str, folder, **replace) -> str:
@@ -27,7 +32,7 @@ def launch_file(name: str, folder, **replace) -> str:
     return str(path)
 
 
-def launch(folder, *args, stdout=subprocess.PIPE) -> subprocess.Popen:
+def launch(folder, *args, stdout: int | TextIO = subprocess.PIPE) -> subprocess.Popen:
     return subprocess.Popen(
         [sys.executable, "-m", "spikinglab", "launch", *map(str, args), "--no-colour"],
         cwd=folder,
@@ -134,14 +139,64 @@ def test_a_service_that_dies_ends_the_launch_and_is_named(tmp_path):
     assert not running_with(str(tmp_path))
 
 
-def test_ctrl_c_ends_every_service_and_the_world_writes_its_ticks(tmp_path):
+READY = {  # lines that say a launch file's services are all up and at work
+    "simulation": ("tick/s", "recording group"),
+    "sharded-simulation": ("tick/s",),
+    "secure-simulation": ("tick/s", "recording group"),
+    "robot": ("first reading published", "brain is on the bus", "recording group"),
+    "secure-robot": ("first reading published", "brain is on the bus", "recording group"),
+    "remote-world": ("waiting for a brain", "recording group"),  # its world waits for a brain from elsewhere
+    "remote-brain": ("brain ready on group",),  # it waits for a world from elsewhere
+}
+CTRL_C_S = 10  # every launch ends within 3 s of Ctrl-C; this bound leaves room for a loaded
+# machine and still catches a service that the launcher has to kill after its 30 s
+
+
+def test_every_shipped_launch_file_is_listed_here():
+    assert set(READY) == set(shipped())
+
+
+@pytest.mark.parametrize("name", sorted(READY))
+def test_ctrl_c_ends_every_service_of_a_launch_file_at_once(tmp_path, name):
+    if name.startswith("secure"):
+        made = subprocess.run(
+            [sys.executable, "-m", "spikinglab", "certs", "certs"], cwd=tmp_path, capture_output=True, text=True
+        )
+        assert made.returncode == 0, made.stderr
     log = tmp_path / "launch.log"
     with open(log, "w") as out:
-        run = launch(tmp_path, launch_file("simulation", tmp_path, **{"ticks = 20000": "ticks = 5000000"}), stdout=out)
-        wait_for(lambda: "tick/s" in log.read_text(), 120, "the world's progress")  # ticking
-        run.send_signal(signal.SIGINT)
-        _, err = run.communicate(timeout=90)
+        run = launch(tmp_path, launch_file(name, tmp_path, **{"ticks = 20000": "ticks = 5000000"}), stdout=out)
+        try:
+            wait_for(lambda: all(line in log.read_text() for line in READY[name]), 120, f"{name} under way")
+            services = process_tree(run.pid)[1:]
+            interrupted_at = time.monotonic()
+            run.send_signal(signal.SIGINT)
+            _, err = run.communicate(timeout=60)
+            ended_s = time.monotonic() - interrupted_at
+        finally:
+            run.kill()
+    print(f"{name}: {len(services)} services ended {ended_s:.2f} s after Ctrl-C")
     assert run.returncode == 130, log.read_text() + err
-    metrics = json.loads((tmp_path / "runs" / "launch-simulation" / "metrics.json").read_text())
-    assert metrics["partial"] is True and metrics["ticks"] > 0
-    assert not running_with(str(tmp_path))
+    assert ended_s < CTRL_C_S, log.read_text() + err
+    left = [p.cmdline() for p in services if p.is_running() and p.status() != psutil.STATUS_ZOMBIE]
+    assert len(services) == len(tomllib.loads(shipped()[name].read_text()).keys() - {"launch"}) and not left, left
+    if name == "simulation":
+        metrics = json.loads((tmp_path / "runs" / "launch-simulation" / "metrics.json").read_text())
+        assert metrics["partial"] is True and metrics["ticks"] > 0  # the world wrote the ticks it did
+
+
+def test_finish_stops_what_did_not_end_in_time_and_then_the_endless_services(tmp_path):
+    """A gateway with no --duration does not end by itself; a router and a fake brick never do."""
+    (router_ep,), folder = local_endpoints("router")
+    launcher = Launcher(colour=False)
+    launcher.start(Process("router", "router", {"listen": [router_ep]}, log=tmp_path / "router.log"))
+    launcher.start(Process("brick", "fake-brick", log=tmp_path / "brick.log"))
+    launcher.start(Process("gateway", "gateway", {"connect": [router_ep]}, log=tmp_path / "gateway.log"))
+    try:
+        wait_for(lambda: "first reading published" in (tmp_path / "gateway.log").read_text(), 60, "the gateway")
+        launcher.finish(timeout=1)
+        ended = {name: child.popen.poll() for name, child in launcher.children.items()}
+    finally:
+        launcher.stop_all()
+        folder.cleanup()
+    assert ended == {"router": 0, "brick": 0, "gateway": 0}, ended  # each stopped the clean way (SIGTERM)

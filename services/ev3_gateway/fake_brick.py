@@ -26,12 +26,17 @@ and a client that went away is replaced by a new one. `moving_at(t)` says whethe
 
 from __future__ import annotations
 
+import argparse
 import logging
 import socket
 import struct
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
+
+from services.options import Parser
+from services.runtime import process_main
 
 log = logging.getLogger("spikinglab.fake_brick")
 
@@ -303,11 +308,9 @@ class FakeBrick:
         return i
 
 
-def parser():
-    from services.options import Parser
-
+def parser() -> Parser:
     p = Parser(
-        prog="python -m services.ev3_gateway.fake_brick",
+        prog="spikinglab fake-brick",
         description="A fake EV3 brick on loopback for the gateway (--backend ev3) to find and drive.",
     )
     p.add_argument("--colour", type=int, default=6, help="the colour sensor's reading (default 6: white)")
@@ -316,21 +319,21 @@ def parser():
     return p
 
 
-def main(argv=None) -> int:  # to try the gateway by hand, or in a launch file (service = "fake-brick")
-    logging.basicConfig(level=logging.INFO)
-    args = parser().parse_args(argv)
+def run(args: argparse.Namespace) -> int:
+    """Serve until Ctrl-C or SIGTERM, with a status line every --report-every seconds."""
     brick = FakeBrick(colour=args.colour, distance_cm=args.distance_cm).start()
     print(f"fake EV3 on 127.0.0.1:{brick.port}, beaconing to UDP {BEACON_PORT}; Ctrl-C to stop", flush=True)
     try:
         while True:
             time.sleep(args.report_every)
             print(f"reads {brick.reads}, motor commands {len(brick.commands)}, connected {brick.connected}", flush=True)
-    except KeyboardInterrupt:
+    finally:
         brick.stop()
-    return 0
+
+
+def main(argv=None) -> int:  # to try the gateway by hand, or in a launch file (service = "fake-brick")
+    return process_main("fake-brick", parser(), run, argv, interrupted=0)
 
 
 if __name__ == "__main__":
-    import sys
-
     sys.exit(main())

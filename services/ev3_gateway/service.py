@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import signal
 import sys
 import threading
@@ -32,13 +33,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import zenoh
 
 from services.bus import keys
-from services.bus.config import BusConfigError, add_bus_args, open_session
+from services.bus.config import add_bus_args
 from services.bus.schemas import Array, BusError, Control, Motor, Sensors, new_run_id
 from services.bus.transport import Bus
 from services.options import Parser, at_least, not_negative, number, positive
-from services.runtime import guard_threads, thread_died
+from services.runtime import service_main
 from services.vocabulary import INSECT_SENSORS
 
 from .backends import BLACK, GREEN, RED, EV3Backend, Reading, RobotLinkError, SimBackend, Wiring
@@ -217,6 +219,7 @@ class Gateway:
         self.rules = MotorRules(args.move_ms, args.spin_ms, args.motor_timeout)
         self.run_id = new_run_id()  # the brain's motor messages answer readings of this run
         self.started = time.monotonic()
+        self.ends_at = math.inf  # --duration: set when the first reading is published
         self.published = np.zeros(READINGS_KEPT)  # when reading k was published, at k % READINGS_KEPT
         self.stats = {
             "polls": 0,
@@ -282,7 +285,7 @@ class Gateway:
         interval = 1.0 / args.max_polls if args.max_polls else 0.0
         next_at = self.started = time.monotonic()
         touching = False
-        while not self.done.is_set():
+        while not self.done.is_set() and time.monotonic() < self.ends_at:
             if interval:
                 next_at += interval
                 time.sleep(max(0.0, next_at - time.monotonic()))
@@ -306,14 +309,23 @@ class Gateway:
                     values=Array.of(sensor_values(reading, args.pain_below_cm, args.contact_value)),
                 )
             )
+            if tick == 0:
+                self.first_reading_out()
             tick += 1
+
+    def first_reading_out(self) -> None:
+        """--duration counts from here, when the robot is linked and the gateway under way (the
+        simulated floor's kernels compile at its first reading: seconds on a cold cache)."""
+        if self.args.duration:
+            self.ends_at = time.monotonic() + self.args.duration
+        log.info("first reading published%s", f"; ending in {self.args.duration:g} s" if self.args.duration else "")
 
     def commands(self) -> None:
         """Motor events -> timed commands, under the MotorRules."""
         while not self.done.is_set():
             message = self.motor.get(timeout=0.02)
             actions = None
-            if message is not None:
+            if isinstance(message, Motor):  # the inbox takes nothing else
                 try:
                     actions = motor_actions(message, self.run_id)
                     if self.too_old(message):
@@ -387,19 +399,7 @@ def backend_from(args: argparse.Namespace):
     return EV3Backend(protocol=args.protocol, host=args.host, wiring=wiring)
 
 
-def main(argv=None) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s gateway %(levelname)s %(message)s", stream=sys.stderr)
-    args = parser().parse_args(argv)
-    guard_threads()  # a dead motor thread stops the gateway (and its motors), exit 1
-    try:
-        backend = backend_from(args)
-    except (RobotLinkError, ValueError, OSError) as e:
-        log.error("%s", e)
-        return 2
-    try:
-        session = open_session(args)
-    except BusConfigError as e:
-        raise SystemExit(str(e)) from None
+def run(args: argparse.Namespace, session: zenoh.Session, backend) -> int:
     bus = Bus(session, args.group, "gateway")
     gateway = Gateway(backend, bus, args)
     bus.watch_others(lambda: f" ({gateway.stats['polls']} polls, {time.monotonic() - gateway.started:.1f} s in)")
@@ -408,8 +408,6 @@ def main(argv=None) -> int:
     # would leave its lock taken, and the final stop command would wait for it forever
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: gateway.done.set())
-    if args.duration:
-        threading.Timer(args.duration, gateway.done.set).start()
     try:
         gateway.run()
     finally:
@@ -421,7 +419,23 @@ def main(argv=None) -> int:
         log.info("gateway done: %s", {k: len(v) if k == "collisions" else v for k, v in gateway.stats.items()})
         if args.stats:
             args.stats.write_text(json.dumps(gateway.stats))
-    return 1 if thread_died() else 0
+    return 0
+
+
+def main(argv=None) -> int:
+    made = {}
+
+    def make_backend(args: argparse.Namespace) -> None:
+        """Before the bus: wiring refused, a map file unread, or the simulated floor built (seconds)."""
+        try:
+            made["backend"] = backend_from(args)
+        except (RobotLinkError, ValueError, OSError) as e:
+            log.error("%s", e)
+            raise SystemExit(2) from None
+
+    return service_main(
+        "gateway", parser(), lambda args, session: run(args, session, made["backend"]), argv, prepare=make_backend
+    )
 
 
 if __name__ == "__main__":
