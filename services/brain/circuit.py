@@ -10,10 +10,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
+from typing import Any, NoReturn
+
+import msgspec
 
 CIRCUITS_DIR = Path(str(resources.files("services.brain") / "circuits"))  # shipped with the package
 
@@ -178,26 +182,128 @@ def load_circuit(path_or_name: str | Path) -> Circuit:
     return build_circuit(doc, source=str(path))
 
 
-# --- validation -------------------------------------------------------------------------------
+# --- validation: msgspec structs check each table's keys and value types; the functions after them
+# check what the values mean. Numbers are floats (TOML integers are taken too); the whole numbers
+# of ticks are checked after, so that 3.0 is 3.
 
-_TOP_KEYS = {"name", "about", "types", "neurons", "inputs", "synapses", "actuators"}
-_TYPE_FIELDS = {f.name: f.type for f in dataclasses.fields(NeuronType) if f.name != "name"}
-_INPUT_KEYS = {"target", "weight", "delay", "pulses", "sensor", "at_start"}
-_SYNAPSE_KEYS = {"from", "to", "weight", "delay", "inhibitory", "plastic"}
+
+class _File(msgspec.Struct, forbid_unknown_fields=True):
+    """The top level. Its sections are checked entry by entry, so that an error names the entry."""
+
+    name: str | None = None
+    about: str | None = None
+    types: dict[str, Any] = {}
+    neurons: dict[str, Any] = {}
+    inputs: dict[str, Any] = {}
+    synapses: list[Any] = []
+    actuators: dict[str, Any] = {}
+
+
+_TypeTable = msgspec.defstruct(
+    "_TypeTable",
+    [("base", str, "regular")]
+    + [(f.name, float | None, None) for f in dataclasses.fields(NeuronType) if f.name != "name"],
+    forbid_unknown_fields=True,
+)
+_TYPE_INTEGERS = {f.name for f in dataclasses.fields(NeuronType) if f.type == "int"}
+
+
+class _InputTable(msgspec.Struct, forbid_unknown_fields=True):
+    target: str
+    weight: float = 20.0
+    delay: float = 0
+    pulses: float = 1
+    sensor: str | None = None
+    at_start: float | None = None
+
+
+class _SynapseTable(msgspec.Struct, forbid_unknown_fields=True):
+    from_: str | list[str] = msgspec.field(name="from")
+    to: str | list[str]
+    weight: float
+    delay: float
+    inhibitory: bool = False
+    plastic: bool = False
+
+
+# what a field's type asks for, in the words of an error message
+_KINDS = {
+    float: "a number",
+    float | None: "a number",
+    str: "a string",
+    str | None: "a string",
+    bool: "true or false",
+    str | list[str]: "a name or a list of names",
+    dict[str, Any]: "a table",
+    list[Any]: "an array of tables ([[synapses]])",
+}
+
+
+class _Checker:
+    """Turns one circuit document's tables into structs; each failure names the file and the entry."""
+
+    def __init__(self, source: str):
+        self.source = source
+
+    def fail(self, entry: str, problem: str) -> NoReturn:
+        raise CircuitError(f"{self.source}: {entry}: {problem}")
+
+    def table(self, entry: str, raw, cls):
+        """`raw` (a parsed TOML value) as a `cls` struct."""
+        try:
+            return msgspec.convert(raw, cls)
+        except msgspec.ValidationError as e:
+            raise CircuitError(f"{self.source}: {_said(str(e), entry, raw, cls)}") from None
+
+    def numbers(self, entry: str, table, integers=()) -> dict:
+        """The struct's fields, numbers checked: finite, and whole for the fields in `integers`."""
+        values = msgspec.structs.asdict(table)
+        for key, value in values.items():
+            if not isinstance(value, float):
+                continue
+            if key in integers:
+                if not value.is_integer():
+                    self.fail(entry, f"{key} must be a whole number of ticks, got {value!r}")
+                values[key] = int(value)
+            elif not math.isfinite(value):
+                self.fail(entry, f"{key} must be finite, got {value!r}")
+        return values
+
+
+def _said(error: str, entry: str, raw, cls) -> str:
+    """msgspec's error for the entry `raw`, as 'entry: problem' in this module's words."""
+    text, _, path = error.partition(" - at `$")
+    fields = {f.encode_name: f for f in msgspec.structs.fields(cls)}
+    at = re.match(r"\.(\w+)", path)
+    key = at.group(1) if at else ""  # the field at fault, "" for the table itself
+    if key in fields:
+        kind, value = _KINDS.get(fields[key].type, f"of type {fields[key].type}"), raw[key]
+        # a section of the top level is an entry of its own
+        return (
+            f"{key}: must be {kind}, got {value!r}" if cls is _File else f"{entry}: {key} must be {kind}, got {value!r}"
+        )
+    if text.startswith("Object contains unknown field"):
+        extra = ", ".join(sorted(set(raw) - set(fields)))
+        return f"{entry}: unknown key(s) {extra} (allowed: {', '.join(sorted(fields))})"
+    if missing := re.match(r"Object missing required field `(\w+)`", text):
+        return f"{entry}: missing {missing.group(1)!r}"
+    if text.startswith("Expected `object`"):
+        return f"{entry}: must be a table, got {raw!r}"
+    return f"{entry}: {text}"
 
 
 def build_circuit(doc: dict, source: str = "<built>") -> Circuit:
     """Validate a parsed circuit document and build the Circuit (all or nothing), section by
     section as the model is described: neuron types, neurons, input neurons, synapses, actuators."""
-    read = _Reader(source)
-    read.keys("top level", doc, _TOP_KEYS)
-    types = _neuron_types(read, doc.get("types", {}))
-    neuron_names, neuron_types = _neurons(read, doc.get("neurons"), types)
-    inputs = _inputs(read, doc.get("inputs", {}), neuron_names)
-    synapses = _synapses(read, doc.get("synapses", []), neuron_names, neuron_types, inputs)
-    actuators = _actuators(read, doc.get("actuators", {}), neuron_names)
+    check = _Checker(source)
+    top = check.table("top level", doc, _File)
+    types = _neuron_types(check, top.types)
+    neuron_names, neuron_types = _neurons(check, top.neurons, types)
+    inputs = _inputs(check, top.inputs, neuron_names)
+    synapses = _synapses(check, top.synapses, neuron_names, neuron_types, inputs)
+    actuators = _actuators(check, top.actuators, neuron_names)
     return Circuit(
-        name=str(doc.get("name", Path(source).stem)),
+        name=Path(source).stem if top.name is None else top.name,
         source=source,
         neuron_names=neuron_names,
         neuron_types=neuron_types,
@@ -207,166 +313,112 @@ def build_circuit(doc: dict, source: str = "<built>") -> Circuit:
     )
 
 
-class _Reader:
-    """Checks on one circuit document's values; each failure names the file and the entry."""
-
-    def __init__(self, source: str):
-        self.source = source
-
-    def fail(self, entry: str, problem: str):
-        raise CircuitError(f"{self.source}: {entry}: {problem}")
-
-    def number(self, entry, key, value, *, integer=False):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            self.fail(entry, f"{key} must be a number, got {value!r}")
-        if integer and (not float(value).is_integer()):
-            self.fail(entry, f"{key} must be a whole number of ticks, got {value!r}")
-        if not math.isfinite(value):
-            self.fail(entry, f"{key} must be finite, got {value!r}")
-        return int(value) if integer else float(value)
-
-    def keys(self, entry, table, allowed=None):
-        """A table, with only the allowed keys (None: any)."""
-        if not isinstance(table, dict):
-            self.fail(entry, f"must be a table, got {table!r}")
-        extra = sorted(set(table) - allowed) if allowed is not None else []
-        if extra:
-            self.fail(entry, f"unknown key(s) {', '.join(extra)} (allowed: {', '.join(sorted(allowed))})")
-
-
-def _neuron_types(read: _Reader, tables: dict) -> dict[str, NeuronType]:
+def _neuron_types(check: _Checker, tables: dict) -> dict[str, NeuronType]:
     """The built-in types, then the file's own, each based on a built-in or an earlier type."""
-    read.keys("types", tables)
     types = dict(BUILTIN_TYPES)
-    for tname, table in tables.items():
+    for tname, raw in tables.items():
         entry = f"types.{tname}"
-        read.keys(entry, table, set(_TYPE_FIELDS) | {"base"})
-        base_name = table.get("base", "regular")
-        if base_name not in types:
-            read.fail(entry, f"unknown base type {base_name!r} (known: {', '.join(types)})")
-        values = {
-            key: read.number(entry, key, value, integer=_TYPE_FIELDS[key] == "int")
-            for key, value in table.items()
-            if key != "base"
-        }
-        t = dataclasses.replace(types[base_name], name=tname, **values)
-        _check_type(t, lambda p, entry=entry: read.fail(entry, p))
+        table = check.table(entry, raw, _TypeTable)
+        if table.base not in types:
+            check.fail(entry, f"unknown base type {table.base!r} (known: {', '.join(types)})")
+        values = check.numbers(entry, table, _TYPE_INTEGERS)
+        fields = {key: value for key, value in values.items() if key != "base" and value is not None}
+        t = dataclasses.replace(types[table.base], name=tname, **fields)
+        _check_type(t, lambda p, entry=entry: check.fail(entry, p))
         types[tname] = t
     return types
 
 
-def _neurons(read: _Reader, neurons, types: dict) -> tuple[tuple[str, ...], tuple[NeuronType, ...]]:
+def _neurons(check: _Checker, neurons: dict, types: dict) -> tuple[tuple[str, ...], tuple[NeuronType, ...]]:
     """[neurons]: NAME = "type", in file order (the order is the neurons' index)."""
-    if not isinstance(neurons, dict) or not neurons:
-        read.fail("neurons", 'a circuit needs a [neurons] table with at least one neuron (NAME = "type")')
+    if not neurons:
+        check.fail("neurons", 'a circuit needs a [neurons] table with at least one neuron (NAME = "type")')
     for nname, tname in neurons.items():
         if not isinstance(tname, str) or tname not in types:
-            read.fail(f"neurons.{nname}", f"unknown neuron type {tname!r} (known: {', '.join(types)})")
+            check.fail(f"neurons.{nname}", f"unknown neuron type {tname!r} (known: {', '.join(types)})")
     return tuple(neurons), tuple(types[tname] for tname in neurons.values())
 
 
-def _inputs(read: _Reader, tables: dict, neuron_names: tuple[str, ...]) -> tuple[InputNeuron, ...]:
+def _inputs(check: _Checker, tables: dict, neuron_names: tuple[str, ...]) -> tuple[InputNeuron, ...]:
     """[inputs.NAME]: spike sources, each with one synapse to its target and at most one sensor."""
-    read.keys("inputs", tables)
     inputs = []
-    for iname, table in tables.items():
+    for iname, raw in tables.items():
         entry = f"inputs.{iname}"
-        read.keys(entry, table, _INPUT_KEYS)
+        table = check.table(entry, raw, _InputTable)
         if iname in neuron_names:
-            read.fail(entry, f"duplicate name {iname!r}: already a neuron")
-        target = table.get("target")
-        if target not in neuron_names:
-            read.fail(entry, f"unknown target neuron {target!r}")
-        inp = InputNeuron(
-            name=iname,
-            target=target,
-            weight=read.number(entry, "weight", table.get("weight", 20.0)),
-            delay=read.number(entry, "delay", table.get("delay", 0), integer=True),
-            pulses=read.number(entry, "pulses", table.get("pulses", 1), integer=True),
-            sensor=table.get("sensor"),
-            at_start=None if "at_start" not in table else read.number(entry, "at_start", table["at_start"]),
-        )
+            check.fail(entry, f"duplicate name {iname!r}: already a neuron")
+        if table.target not in neuron_names:
+            check.fail(entry, f"unknown target neuron {table.target!r}")
+        inp = InputNeuron(name=iname, **check.numbers(entry, table, ("delay", "pulses")))
         if inp.weight <= 0:
-            read.fail(entry, f"weight must be > 0, got {inp.weight}")
+            check.fail(entry, f"weight must be > 0, got {inp.weight}")
         if inp.delay < 0:
-            read.fail(entry, f"delay must be >= 0 ticks, got {inp.delay}")
+            check.fail(entry, f"delay must be >= 0 ticks, got {inp.delay}")
         if inp.pulses < 1:
-            read.fail(entry, f"pulses must be >= 1, got {inp.pulses}")
+            check.fail(entry, f"pulses must be >= 1, got {inp.pulses}")
         if inp.at_start is not None and inp.at_start < 0:
-            read.fail(entry, f"at_start must be >= 0, got {inp.at_start}")
-        if inp.sensor is not None and not isinstance(inp.sensor, str):
-            read.fail(entry, f"sensor must be a name, got {inp.sensor!r}")
+            check.fail(entry, f"at_start must be >= 0, got {inp.at_start}")
         inputs.append(inp)
     sensors = [i.sensor for i in inputs if i.sensor]
     for s in sensors:
         if sensors.count(s) > 1:
-            read.fail("inputs", f"sensor {s!r} feeds more than one input neuron")
+            check.fail("inputs", f"sensor {s!r} feeds more than one input neuron")
     return tuple(inputs)
 
 
 def _synapses(
-    read: _Reader,
-    raw,
+    check: _Checker,
+    tables: list,
     neuron_names: tuple[str, ...],
     neuron_types: tuple[NeuronType, ...],
     inputs: tuple[InputNeuron, ...],
 ) -> tuple[Synapse, ...]:
     """[[synapses]] between neurons (from/to: a name or a list of names, all pairs), then one
     synapse per input neuron to its target."""
-    if not isinstance(raw, list):
-        read.fail("synapses", "must be an array of tables ([[synapses]])")
     index = {n: k for k, n in enumerate(neuron_names + tuple(i.name for i in inputs))}
     synapses, seen = [], {}
-    for k, table in enumerate(raw):
+    for k, raw in enumerate(tables):
         entry = f"synapses[{k}]"
-        read.keys(entry, table, _SYNAPSE_KEYS)
-        for key in ("from", "to", "weight", "delay"):
-            if key not in table:
-                read.fail(entry, f"missing {key!r}")
-        pres = table["from"] if isinstance(table["from"], list) else [table["from"]]
-        posts = table["to"] if isinstance(table["to"], list) else [table["to"]]
-        weight = read.number(entry, "weight", table["weight"])
-        delay = read.number(entry, "delay", table["delay"], integer=True)
-        inhibitory = table.get("inhibitory", False)
-        plastic = table.get("plastic", False)
-        for key, val in (("inhibitory", inhibitory), ("plastic", plastic)):
-            if not isinstance(val, bool):
-                read.fail(entry, f"{key} must be true or false, got {val!r}")
+        table = check.table(entry, raw, _SynapseTable)
+        values = check.numbers(entry, table, ("delay",))
+        weight, delay = values["weight"], values["delay"]
         if delay < 1:
-            read.fail(entry, f"delay must be >= 1 tick, got {delay}")
+            check.fail(entry, f"delay must be >= 1 tick, got {delay}")
         if weight <= 0:
-            read.fail(entry, f"weight must be > 0 (use inhibitory = true for inhibition), got {weight}")
-        if inhibitory and plastic:
-            read.fail(entry, "inhibitory synapses are not plastic")
+            check.fail(entry, f"weight must be > 0 (use inhibitory = true for inhibition), got {weight}")
+        if table.inhibitory and table.plastic:
+            check.fail(entry, "inhibitory synapses are not plastic")
+        pres = table.from_ if isinstance(table.from_, list) else [table.from_]
+        posts = table.to if isinstance(table.to, list) else [table.to]
         for pre in pres:
             for post in posts:
                 label = f"{entry} ({pre} -> {post})"
-                if pre not in neuron_names:
-                    what = (
-                        "an input neuron (inputs have one synapse, to their target)"
-                        if pre in index
-                        else "unknown neuron"
-                    )
-                    read.fail(label, f"from: {what} {pre!r}")
-                if post not in neuron_names:
-                    read.fail(label, f"to: unknown neuron {post!r}")
+                _check_pair(check, label, pre, post, index, neuron_names)
                 if (pre, post) in seen:
-                    read.fail(label, f"duplicate synapse, already defined in {seen[(pre, post)]}")
+                    check.fail(label, f"duplicate synapse, already defined in {seen[(pre, post)]}")
                 seen[(pre, post)] = entry
                 t = neuron_types[index[post]]
-                if plastic and not (t.w_min <= weight <= t.w_max):
-                    read.fail(label, f"weight {weight} out of range [{t.w_min}, {t.w_max}] of type {t.name!r}")
-                synapses.append(Synapse(index[pre], index[post], weight, delay, inhibitory, plastic))
+                if table.plastic and not (t.w_min <= weight <= t.w_max):
+                    check.fail(label, f"weight {weight} out of range [{t.w_min}, {t.w_max}] of type {t.name!r}")
+                synapses.append(Synapse(index[pre], index[post], weight, delay, table.inhibitory, table.plastic))
     synapses += [Synapse(index[inp.name], index[inp.target], inp.weight, inp.delay) for inp in inputs]
     return tuple(synapses)
 
 
-def _actuators(read: _Reader, actuators, neuron_names: tuple[str, ...]) -> dict[str, str]:
+def _check_pair(check: _Checker, label: str, pre: str, post: str, index: dict, neuron_names: tuple[str, ...]):
+    """A synapse runs from a neuron (not an input neuron) to a neuron."""
+    if pre not in neuron_names:
+        what = "an input neuron (inputs have one synapse, to their target)" if pre in index else "unknown neuron"
+        check.fail(label, f"from: {what} {pre!r}")
+    if post not in neuron_names:
+        check.fail(label, f"to: unknown neuron {post!r}")
+
+
+def _actuators(check: _Checker, actuators: dict, neuron_names: tuple[str, ...]) -> dict[str, str]:
     """[actuators]: ACTION = "neuron" whose spike triggers that action."""
-    read.keys("actuators", actuators)
     for action, nname in actuators.items():
         if nname not in neuron_names:
-            read.fail(f"actuators.{action}", f"unknown neuron {nname!r}")
+            check.fail(f"actuators.{action}", f"unknown neuron {nname!r}")
     return dict(actuators)
 
 
