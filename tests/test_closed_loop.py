@@ -29,11 +29,8 @@ def inprocess_run(semantics):
     return np.array(pos), np.array(sensed), np.array(spikes), brain.engine.get_weights(), world.metrics
 
 
-@pytest.mark.parametrize("semantics", ["phased", "netlogo"])  # netlogo: its random order comes from the seed too
-def test_same_seed_same_run_in_one_process_and_across_the_bus(tmp_path, semantics):
-    pos, sensed, spikes, weights, metrics = inprocess_run(semantics)
-    assert metrics.collisions.sum() > 0 and spikes.sum() > 0  # something happened
-
+def bus_run(tmp_path, semantics):
+    """The same run as world and brain processes over Zenoh: the world's and the brain's state messages."""
     world_port, brain_port = free_port(), free_port()
     watcher = Watcher([endpoint(world_port), endpoint(brain_port)], [keys.world_state("det"), keys.brain_state("det")])
     try:
@@ -77,8 +74,14 @@ def test_same_seed_same_run_in_one_process_and_across_the_bus(tmp_path, semantic
     finally:
         watcher.close()
     assert watcher.bad == []
-    world_states = watcher.messages[keys.world_state("det")]
-    layout, *brain_states = watcher.messages[keys.brain_state("det")]
+    return watcher.messages[keys.world_state("det")], watcher.messages[keys.brain_state("det")]
+
+
+@pytest.mark.parametrize("semantics", ["phased", "netlogo"])  # netlogo: its random order comes from the seed too
+def test_same_seed_same_run_in_one_process_and_across_the_bus(tmp_path, semantics):
+    pos, sensed, spikes, weights, metrics = inprocess_run(semantics)
+    assert metrics.collisions.sum() > 0 and spikes.sum() > 0  # something happened
+    world_states, (layout, *brain_states) = bus_run(tmp_path, semantics)
     assert isinstance(layout, BrainLayout) and layout.nodes == load_circuit("insect").node_names
     assert brain_states[-1].final and not any(m.final for m in brain_states[:-1])
     # batches of consecutive ticks: every tick, in order, none lost
