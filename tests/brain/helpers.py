@@ -40,3 +40,10 @@ def run_with_events(engine: Engine, ticks: int, events: dict[int, dict[str, floa
         for k in np.flatnonzero(s[agent]):
             spikes[names[k]].append(t)
     return spikes
+
+
+def random_feeds(seed, ticks, agents, inputs):
+    """Sparse random feeds (ticks, agents, inputs): a value in [0, 4) 3 % of the time, else NaN."""
+    rng = np.random.default_rng(seed)
+    values = rng.random((ticks, agents, inputs)) * 4
+    return np.where(rng.random((ticks, agents, inputs)) < 0.03, values, np.nan)

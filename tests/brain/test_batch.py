@@ -6,13 +6,7 @@ import pytest
 from services.brain.circuit import load_circuit
 from services.brain.engine import PARALLEL_FROM
 
-from .helpers import phased
-
-
-def random_feeds(seed, ticks, agents, inputs):
-    rng = np.random.default_rng(seed)
-    values = rng.random((ticks, agents, inputs)) * 4
-    return np.where(rng.random((ticks, agents, inputs)) < 0.03, values, np.nan)
+from .helpers import phased, random_feeds
 
 
 @pytest.mark.parametrize("agents", [5, PARALLEL_FROM + 3])  # serial and parallel kernels

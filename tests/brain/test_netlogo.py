@@ -10,8 +10,7 @@ from services.brain.build import HIST_LEN
 from services.brain.circuit import build_circuit, load_circuit
 from services.brain.engine import PARALLEL_FROM, Engine
 
-from .helpers import run_with_events
-from .test_batch import random_feeds
+from .helpers import random_feeds, run_with_events
 
 
 def chain(order, delay, weight=20):
