@@ -14,17 +14,48 @@ from services.bus.config import make_config
 from services.bus.schemas import BusError, decode
 from services.launch import spawn
 
+from .sockets import listeners
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
+SOCKET_PATH_MAX = 107  # bytes in a Unix socket's path (sun_path is 108 with its terminating NUL)
+
+
+def endpoint(folder: Path | int, name: str = "") -> str:
+    """An endpoint for a service to listen on: a Unix socket `name`.sock in `folder` (the test's
+    tmp_path), which no other process can take between the test choosing it and the service binding
+    it, as a TCP port handed over by number can be. An int is such a port: `tcp/127.0.0.1:<port>`,
+    for the callers not yet moved to sockets."""
+    if isinstance(folder, int):
+        return f"tcp/127.0.0.1:{folder}"
+    path = Path(folder) / f"{name}.sock"
+    if len(str(path).encode()) > SOCKET_PATH_MAX:
+        raise ValueError(f"{path}: longer than a Unix socket's path may be ({SOCKET_PATH_MAX} bytes)")
+    return f"unixsock-stream/{path}"
+
+
 def free_port() -> int:
+    """A TCP port free now, which another process may take before the caller's service binds it:
+    prefer endpoint(tmp_path, name), or a service listening on port 0 and bound_port()."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
 
 
-def endpoint(port: int) -> str:
-    return f"tcp/127.0.0.1:{port}"
+def bound_port(process: subprocess.Popen, timeout: float = 30) -> int:
+    """The TCP port that `process` (or a process it started) listens on, once it does: for a service
+    told to listen on port 0, which then binds a free one itself."""
+    found: list[int] = []
+
+    def listening() -> bool:
+        assert process.poll() is None, f"{process.args} ended with {process.returncode} before it listened"
+        found[:] = [int(s.address.rpartition(":")[2]) for s in listeners(process.pid) if s.kind == "tcp"]
+        return bool(found)
+
+    wait_for(listening, timeout, f"{process.args} to listen on a TCP port")
+    assert len(set(found)) == 1, f"{process.args} listens on several TCP ports: {found}"
+    return found[0]
 
 
 def start(service: str, *args, log: Path | None = None) -> subprocess.Popen:
@@ -78,6 +109,13 @@ def wait_for(predicate, timeout: float, what: str) -> None:
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout} s waiting for {what}")
         time.sleep(0.02)
+
+
+def wait_for_ticks(folder: Path, timeout: float = 60) -> None:
+    """Until the run in `folder` is under way: its brain has answered (it logs its first sensors)."""
+    log = folder / "brain.log"
+    wait_for(lambda: log.exists() and "brain for 1 agent" in log.read_text(), timeout, "the run to start")
+    time.sleep(2)
 
 
 def running_with(marker: str) -> dict[int, str]:

@@ -22,7 +22,7 @@ from services.ev3_gateway.fake_brick import FakeBrick
 from services.loop import brain_for, closed_loop
 from services.world.world import World
 
-from ..processes import finish, free_port, start, wait_for
+from ..processes import bound_port, finish, start, wait_for
 
 
 @pytest.fixture
@@ -30,13 +30,11 @@ def secure_bus(tmp_path):
     """A CA and certificates in tmp_path/certs, and a router with their rules: (its endpoint, the folder)."""
     folder = tmp_path / "certs"
     assert certs.main([str(folder)]) == 0
-    endpoint = f"tls/127.0.0.1:{free_port()}"
-    router = start(
-        "router", "--listen", endpoint, "--zenoh-config", folder / "router.json5", log=tmp_path / "router.log"
+    router = start(  # TLS needs TCP: the router binds a free port itself (port 0), read back from the system
+        "router", "--listen", "tls/127.0.0.1:0", "--zenoh-config", folder / "router.json5", log=tmp_path / "router.log"
     )
     try:
-        wait_for(lambda: "listening on" in (tmp_path / "router.log").read_text(), 30, "the router")
-        yield endpoint, folder
+        yield f"tls/127.0.0.1:{bound_port(router)}", folder
     finally:
         router.kill()
         router.wait()
@@ -95,6 +93,7 @@ class Forger:
 
     def answer(self, sample) -> None:
         reading = decode(sample.payload.to_bytes(), Sensors)
+        assert isinstance(reading, Sensors)
         self.seen += 1
         agents = reading.values.numpy("values", "<f8", 2).shape[0]
         self.motor.put(

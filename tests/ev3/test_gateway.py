@@ -12,7 +12,7 @@ from services.ev3_gateway.fake_brick import FakeBrick
 from services.vocabulary import INSECT_ACTIONS
 
 from ..processes import Watcher, endpoint, finish, free_port, start, wait_for
-from ..recorder.test_recorder import read
+from ..recordings import read
 
 
 def test_robot_chain_senses_moves_survives_a_lost_link_and_stops_without_a_brain(tmp_path):

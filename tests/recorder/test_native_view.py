@@ -15,8 +15,7 @@ import time
 
 import psutil
 
-from ..processes import ROOT, running_with
-from ..test_run import wait_for_ticks
+from ..processes import ROOT, running_with, wait_for_ticks
 
 
 def free_display() -> int:

@@ -1,0 +1,102 @@
+"""Every test gets one or more of the markers registered in pyproject.toml, decided here from its
+source (its own, that of the fixtures it uses and that of the module's functions it calls), so that
+no test file has to say it: `pytest -m unit` is the quick in-process part, `-m "not realtime"` the
+part that a loaded machine cannot upset.
+
+  process:  starts processes (services, a run, pip)
+  realtime: its outcome depends on wall-clock timing: the free-running brain (--clock), the
+            gateway (its safety stops and motor timeout), the simulated robot, a quiet time
+  viewer:   needs a browser, a display or a Vulkan driver; skipped with the reason where the system
+            lacks them, failed instead under CI (scripts/test.sh installs them there)
+  unit:     none of these
+"""
+
+from __future__ import annotations
+
+import ctypes.util
+import inspect
+import os
+import re
+import shutil
+from functools import cache
+from pathlib import Path
+
+import pytest
+
+PROCESS = re.compile(r"(?<![\w.])(start|spawn)\(|\bsubprocess\.|\bPopen\(|\bLauncher\(|\bsys\.executable\b")
+REALTIME = re.compile(r'"--clock"|(?<![\w.])start\(\s*"gateway"|\bSimBackend\(|\bquiet_s=|assert .*\bmonotonic\(\) -')
+# what a viewer test runs, and the system package it needs for that
+VIEWERS = {
+    re.compile(r"\bsync_playwright\b"): "chromium",
+    re.compile(r"\bXvfb\b"): "Xvfb",
+    re.compile(r'"screenshot",'): "a Vulkan driver",
+}
+
+
+def has_vulkan() -> bool:
+    icds = [p for d in ("/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d") for p in Path(d).glob("*.json")]
+    return bool(icds) and ctypes.util.find_library("vulkan") is not None
+
+
+PRESENT = {
+    "chromium": lambda: shutil.which("chromium"),
+    "Xvfb": lambda: shutil.which("Xvfb"),
+    "a Vulkan driver": has_vulkan,
+}
+NEEDS = pytest.StashKey[list[str]]()  # what a viewer test needs, kept from collection to its setup
+INSTALL = {"chromium": "chromium", "Xvfb": "xvfb", "a Vulkan driver": "libvulkan1 mesa-vulkan-drivers"}
+
+
+@cache
+def module_functions(module) -> dict[str, str]:
+    """The source of each function (fixtures included) defined in a test module."""
+    return {
+        name: inspect.getsource(f)
+        for name, f in vars(module).items()
+        if inspect.isfunction(f) and getattr(f, "__module__", None) == module.__name__
+    }
+
+
+def reached_source(item: pytest.Function) -> str:
+    """The test's source with that of the module's functions it reaches (by name, transitively) and
+    of the fixtures it uses that the module defines."""
+    functions = module_functions(item.module)
+    own = inspect.getsource(item.function)
+    seen, todo = set(), [*item.fixturenames, *(name for name in functions if re.search(rf"\b{name}\b", own))]
+    while todo:
+        name = todo.pop()
+        if name in seen or name not in functions:
+            continue
+        seen.add(name)
+        todo += [other for other in functions if other not in seen and re.search(rf"\b{other}\b", functions[name])]
+    return "\n".join([own, *(functions[name] for name in seen)])
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if not isinstance(item, pytest.Function):
+            continue
+        source = reached_source(item)
+        needs = sorted({need for pattern, need in VIEWERS.items() if pattern.search(source)})
+        kinds = [
+            name
+            for name, found in (
+                ("process", PROCESS.search(source)),
+                ("realtime", REALTIME.search(source)),
+                ("viewer", needs),
+            )
+            if found
+        ]
+        for name in kinds or ["unit"]:
+            item.add_marker(name)
+        item.stash[NEEDS] = needs
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    missing = [need for need in item.stash.get(NEEDS, []) if not PRESENT[need]()]
+    if missing:
+        packages = " ".join(INSTALL[need] for need in missing)
+        why = f"needs {', '.join(missing)} (scripts/test.sh installs it: apt-get install {packages})"
+        if os.environ.get("CI"):
+            pytest.fail(f"{why}; under CI this is a failure, not a skip")
+        pytest.skip(why)
