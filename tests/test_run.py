@@ -13,7 +13,7 @@ from services.brain.checkpoint import load_weights
 from services.brain.circuit import load_circuit
 from services.bus.batching import state_batch
 
-from .processes import ROOT, running_with
+from .processes import ROOT, running_with, wait_for_ticks
 
 
 def spikinglab(*args, timeout=180):
@@ -153,15 +153,6 @@ def start_run(tmp_path, *args):
         stderr=subprocess.PIPE,
         text=True,
     )
-
-
-def wait_for_ticks(folder, timeout=60):
-    """Until the brain has answered (it logs its first sensors), so the run is under way."""
-    deadline = time.monotonic() + timeout
-    while "brain for 1 agent" not in ((folder / "brain.log").read_text() if (folder / "brain.log").exists() else ""):
-        assert time.monotonic() < deadline, "the run did not start"
-        time.sleep(0.2)
-    time.sleep(2)
 
 
 def test_ctrl_c_writes_a_partial_result_and_leaves_nothing_running(tmp_path):
