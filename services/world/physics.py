@@ -14,7 +14,9 @@ import math
 import numpy as np
 import pymunk
 
-from .world import EMPTY, World
+from services.vocabulary import EMPTY
+
+from .world import World
 
 INSECT_RADIUS = 0.3  # patches; the body is for display and contact, sensing uses its centre
 

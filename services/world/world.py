@@ -42,6 +42,11 @@ from services.vocabulary import (
 SENSORS, ACTIONS = INSECT_SENSORS, INSECT_ACTIONS
 PAIN, REWARD = SENSORS.index("pain"), SENSORS.index("reward")
 BIN = 1000  # ticks per bin of the collision counts (metrics.bins)
+COLOURS = GREEN + 1  # patch colours are 0..GREEN: the length of a table by colour
+# patches: a step between two ticks longer than this is no move but a put-back at the start (a
+# tick moves an insect move_step + push at most, 1.5 patches with the paper's steps): paths drawn
+# are cut there
+JUMP = 2.0
 ROTATE, MOVE = ACTIONS.index("rotate"), ACTIONS.index("move")
 _NO_CHANGES = np.zeros((0, 4), np.int64)
 _NO_CHANGES.flags.writeable = False
@@ -224,7 +229,7 @@ class Metrics:
     """Per-agent counters, updated every tick."""
 
     collisions: np.ndarray  # [A] collision events (entering a noxious patch)
-    collisions_by_colour: np.ndarray  # [A, 4]
+    collisions_by_colour: np.ndarray  # [A, COLOURS]
     food: np.ndarray  # [A] food patches eaten
     distance: np.ndarray  # [A] patches travelled (moves and pushes)
     last_collision: np.ndarray  # [A] tick of the last collision event (-1: none yet)
@@ -288,7 +293,7 @@ class World:
         self._touch = Kernel(_touch_parallel if large and not shared else touch_kernel)
         self._act = Kernel(_act_parallel if large else act_kernel)
         self._actions = np.zeros((agents, len(ACTIONS)), np.uint8)  # act()'s, in the type its kernel was compiled for
-        self.kind = np.zeros(4, dtype=np.uint8)  # per colour: 1 noxious, 2 rewarding
+        self.kind = np.zeros(COLOURS, dtype=np.uint8)  # per colour: 1 noxious, 2 rewarding
         for c in p.noxious:
             self.kind[c] = 1
         for c in p.rewarding:
@@ -311,7 +316,7 @@ class World:
         A = self.agents
         self.metrics = Metrics(
             collisions=np.zeros(A, np.int64),
-            collisions_by_colour=np.zeros((A, 4), np.int64),
+            collisions_by_colour=np.zeros((A, COLOURS), np.int64),
             food=np.zeros(A, np.int64),
             distance=np.zeros(A),
             last_collision=np.full(A, -1, np.int64),
@@ -396,7 +401,7 @@ class World:
         """Copies of everything the next ticks depend on or report: arenas, poses, counters and
         the collision bins (whole-run checkpoints, services/snapshots.py)."""
         arrays = {name: array.copy() for name, array in self._state_arrays().items()}
-        arrays["tick"] = np.int64(self.tick)
+        arrays["tick"] = np.array(self.tick, np.int64)
         arrays["bins"] = np.array(self.metrics.bins, np.int64).reshape(-1, self.agents)
         return arrays
 

@@ -5,8 +5,9 @@ import math
 import numpy as np
 import pytest
 
+from services.vocabulary import EMPTY
 from services.world.physics import build_space, ray
-from services.world.world import EMPTY, SENSORS, World
+from services.world.world import SENSORS, World
 
 SMELLS = [SENSORS.index(s) for s in ("smell_black", "smell_red", "smell_green")]
 

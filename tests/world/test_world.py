@@ -7,12 +7,9 @@ import warnings
 import numpy as np
 import pytest
 
+from services.vocabulary import BLACK, EMPTY, GREEN, RED
 from services.world.world import (
     ACTIONS,
-    BLACK,
-    EMPTY,
-    GREEN,
-    RED,
     SENSORS,
     MapError,
     World,

@@ -16,6 +16,7 @@ def test_a_run_ended_before_its_first_tick_still_sends_a_final_state():
     that the world is done (a KeyError here once killed the world and hung the run)."""
     world = World(agents=2)
     message = decode(encode(state_message(TickBatch(50), [], True, world, "0123456789abcdef")), WorldState)
+    assert isinstance(message, WorldState)
     assert message.final and message.tick == 0 and message.pos.shape == (0, 2, 2)
     recorder = Recorder(rr.RecordingStream("spikinglab-test"))
     recorder.on(message)
