@@ -1,16 +1,18 @@
-"""Soak: a long lock-step run with the recorder, while a fuzzer throws malformed messages at every
-key; each process's memory (RSS) is sampled and its slope printed.
+"""Soak: a long run while each process's memory (RSS) is sampled and its slope printed.
 
-world, brain and recorder are processes on a local bus (as `spikinglab run` places them); this
-process throws byte mutants of real messages of every kind at every key (--fuzz-per-s in all) and
-reads /proc/<pid>/status every --sample-s. The slope is fitted over the second half of the run
-(after start-up and the first compilations): flat memory is a slope near 0 MB per 100,000 ticks.
-The last line printed is JSON. Run: `spikinglab bench soak [--ticks 1000000]`.
+Lock-step (default): world, brain and recorder as processes on a local bus (as `spikinglab run`
+places them), while this process throws byte mutants of real messages of every kind at every key
+(--fuzz-per-s in all); --ticks long. Robot (--robot): the free-running brain (--clock 1000) with the
+gateway (ev3 backend) driving a fake brick, for --seconds. Each process's /proc/<pid>/status is
+read every --sample-s; the slope is fitted over the second half of the run (after start-up and the
+first compilations): flat memory is a slope near 0. The last line printed is JSON.
+Run: `spikinglab bench soak [--ticks 1000000]` or `spikinglab bench soak --robot [--seconds 600]`.
 """
 
 from __future__ import annotations
 
 import json
+import subprocess
 import tempfile
 import threading
 import time
@@ -51,43 +53,48 @@ def fuzz(endpoints: list[str], per_s: float, stop: threading.Event, counts: dict
 
 
 def main(argv=None) -> dict:
-    p = Parser(prog="spikinglab bench soak", description=__doc__.splitlines()[0])
-    p.add_argument("--ticks", type=at_least(10_000), default=1_000_000)
-    p.add_argument("--fuzz-per-s", type=positive, default=200.0, help="malformed messages per second, all keys")
+    p = Parser(prog="spikinglab bench soak", description=(__doc__ or "").splitlines()[0])
+    p.add_argument("--ticks", type=at_least(10_000), default=1_000_000, help="lock-step: the run's ticks")
+    p.add_argument(
+        "--fuzz-per-s", type=positive, default=200.0, help="lock-step: malformed messages per second, all keys"
+    )
+    p.add_argument("--robot", action="store_true", help="the free-running brain, gateway and fake brick instead")
+    p.add_argument("--seconds", type=at_least(10), default=600, help="robot: how long the gateway runs (default 600)")
+    p.add_argument("--clock", type=positive, default=1000.0, help="robot: the brain's clock in Hz (default 1000)")
     p.add_argument("--sample-s", type=positive, default=2.0, help="how often RSS is read")
     p.add_argument("--out", type=Path, help="keep the logs, metrics and recording here (default: a temporary folder)")
     args = p.parse_args(argv)
-    (world_ep, brain_ep), sockets = local_endpoints("world", "brain")
-    with sockets, tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp:
         out = args.out or Path(tmp)
         out.mkdir(parents=True, exist_ok=True)
-        group = ["--group", "soak"]
-        world = spawn(
-            "world",
-            ["--listen", world_ep, "--ticks", args.ticks, "--publish-state", "--out", out, *group],
-            out / "world.log",
-        )
-        brain = spawn(
-            "brain",
-            [
-                "--listen",
-                brain_ep,
-                "--connect",
-                world_ep,
-                "--once",
-                "--publish-state",
-                "--stats",
-                out / "brain.json",
-                *group,
-            ],
-            out / "brain.log",
-        )
-        recorder = spawn(
-            "record",
-            ["--connect", world_ep, "--connect", brain_ep, "--out", out / "soak.rrd", *group],
-            out / "recorder.log",
-        )
-        processes = {"world": world, "brain": brain, "recorder": recorder}
+        result = robot_soak(args, out) if args.robot else lockstep_soak(args, out)
+    print(json.dumps(result))
+    return result
+
+
+def lockstep_soak(args, out: Path) -> dict:
+    """World, brain and recorder for --ticks, the fuzzer throwing at every key."""
+    (world_ep, brain_ep), sockets = local_endpoints("world", "brain")
+    group = ["--group", "soak"]
+    with sockets:
+        processes = {
+            "world": spawn(
+                "world",
+                ["--listen", world_ep, "--ticks", args.ticks, "--publish-state", "--out", out, *group],
+                out / "world.log",
+            ),
+            "brain": spawn(
+                "brain",
+                ["--listen", brain_ep, "--connect", world_ep, "--once", "--publish-state"]
+                + ["--stats", out / "brain.json", *group],
+                out / "brain.log",
+            ),
+            "recorder": spawn(
+                "record",
+                ["--connect", world_ep, "--connect", brain_ep, "--out", out / "soak.rrd", *group],
+                out / "recorder.log",
+            ),
+        }
         stop, counts = threading.Event(), {"sent": 0}
         # the fuzzer starts once the run has: on the plain bus the first map, layout or sensors set the
         # run that recorder and brain serve, a forged one too (docs/security.md: the secured bus stops that)
@@ -95,31 +102,14 @@ def main(argv=None) -> dict:
             time.sleep(0.1)
         fuzzer = threading.Thread(target=fuzz, args=([world_ep, brain_ep], args.fuzz_per_s, stop, counts))
         fuzzer.start()
-        samples = []  # (seconds, {name: MB})
-        started = time.monotonic()
         try:
-            while world.poll() is None:
-                time.sleep(args.sample_s)
-                at = time.monotonic() - started
-                sample = {name: rss_mb(proc.pid) for name, proc in processes.items() if proc.poll() is None}
-                samples.append((at, sample))
-                print(
-                    f"\r{at:6.0f} s  " + "  ".join(f"{n} {mb:6.1f} MB" for n, mb in sample.items()), end="", flush=True
-                )
-            print()
-            if world.returncode != 0 or brain.wait(60) != 0 or recorder.wait(120) != 0:
-                raise SystemExit(
-                    f"a process failed: exit codes {[p.returncode for p in processes.values()]}; "
-                    f"logs: {(out / 'world.log').read_text()[-1500:]}"
-                )
+            samples, wall = sample_until(processes, processes["world"], args.sample_s)
+            ended(processes, {"world": 0, "brain": 60, "recorder": 120}, out / "world.log")
         finally:
             stop.set()
             fuzzer.join()
-            for proc in processes.values():
-                if proc.poll() is None:
-                    proc.kill()
-        metrics = json.loads((out / "metrics.json").read_text())
-        wall = time.monotonic() - started
+            stop_all(processes)
+    metrics = json.loads((out / "metrics.json").read_text())
     ticks_per_s = metrics["ticks_per_s"]
     result = {
         "ticks": metrics["ticks"],
@@ -127,27 +117,109 @@ def main(argv=None) -> dict:
         "fuzzed": counts["sent"],
         "rejected_by_world": sum(sum(r.values()) for r in metrics["rejected_messages"].values()),
     }
-    half = [(t, s) for t, s in samples if t > wall / 2]
-    for name in processes:
-        t = np.array([t for t, s in half if name in s])
-        mb = np.array([s[name] for _, s in half if name in s])
-        if len(t) < 3:
-            continue
-        per_s = np.polyfit(t, mb, 1)[0]
-        per_100k = per_s / ticks_per_s * 100_000
-        peak = max(s[name] for _, s in samples if name in s)
-        print(
-            f"{name:8s} RSS: {mb[0]:.1f} -> {mb[-1]:.1f} MB over the second half, slope {per_100k:+.3f} MB per "
-            f"100,000 ticks, peak {peak:.1f} MB"
-        )
-        result[f"{name}_rss_mb_end"] = round(float(mb[-1]), 1)
-        result[f"{name}_rss_slope_mb_per_100k_ticks"] = round(float(per_100k), 3)
+    for name, (slope_per_s, end, _) in slopes(samples, wall).items():
+        result[f"{name}_rss_mb_end"] = end
+        result[f"{name}_rss_slope_mb_per_100k_ticks"] = round(slope_per_s / ticks_per_s * 100_000, 3)
     print(
         f"{metrics['ticks']:,} ticks at {ticks_per_s:,.0f} ticks/s; {counts['sent']:,} malformed messages thrown, "
         f"{result['rejected_by_world']:,} of them at the world's inbox rejected; every process ended cleanly"
     )
-    print(json.dumps(result))
     return result
+
+
+def robot_soak(args, out: Path) -> dict:
+    """The free-running brain driving the fake brick through the gateway for --seconds."""
+    (gateway_ep, brain_ep), sockets = local_endpoints("gateway", "brain")
+    group = ["--group", "soak"]
+    with sockets:
+        processes = {"fake-brick": spawn("fake-brick", [], out / "fake-brick.log")}
+        processes["gateway"] = spawn(
+            "gateway",
+            ["--listen", gateway_ep, "--duration", args.seconds, "--stats", out / "gateway.json", *group],
+            out / "gateway.log",
+        )
+        processes["brain"] = spawn(
+            "brain",
+            [
+                "--listen",
+                brain_ep,
+                "--connect",
+                gateway_ep,
+                "--clock",
+                args.clock,
+                "--stats",
+                out / "brain.json",
+                *group,
+            ],
+            out / "brain.log",
+        )
+        try:
+            samples, wall = sample_until(processes, processes["gateway"], args.sample_s)
+            ended(processes, {"gateway": 0, "brain": 60}, out / "gateway.log")
+        finally:
+            stop_all(processes)
+    brain = json.loads((out / "brain.json").read_text())
+    result = {key: brain[key] for key in ("ticks", "hz", "late_ms_median", "late_ms_p99", "late_ms_max")}
+    for name, (slope_per_s, end, _) in slopes(samples, wall).items():
+        if name != "fake-brick":
+            result[f"{name}_rss_mb_end"] = end
+            result[f"{name}_rss_slope_mb_per_hour"] = round(slope_per_s * 3600, 2)
+    print(
+        f"{brain['ticks']:,} brain ticks at {brain['hz']:,.1f} Hz over {wall:.0f} s; lateness median "
+        f"{brain['late_ms_median']} ms, p99 {brain['late_ms_p99']} ms, max {brain['late_ms_max']} ms"
+    )
+    return result
+
+
+def sample_until(processes: dict, last, sample_s: float) -> tuple[list, float]:
+    """Every process's RSS every `sample_s`, printed as it goes, until `last` ends: ([(seconds,
+    {name: MB})], seconds in all)."""
+    samples = []
+    started = time.monotonic()
+    while last.poll() is None:
+        time.sleep(sample_s)
+        at = time.monotonic() - started
+        sample = {name: rss_mb(proc.pid) for name, proc in processes.items() if proc.poll() is None}
+        samples.append((at, sample))
+        print(f"{at:6.0f} s  " + "  ".join(f"{n} {mb:6.1f} MB" for n, mb in sample.items()), flush=True)
+    return samples, time.monotonic() - started
+
+
+def ended(processes: dict, waits: dict, log: Path) -> None:
+    """Each of `waits` ended with 0 within its seconds (in order), or SystemExit with the codes and `log`."""
+    if any(processes[name].wait(seconds or None) != 0 for name, seconds in waits.items()):
+        codes = {name: proc.poll() for name, proc in processes.items()}
+        raise SystemExit(f"a process failed: exit codes {codes}; {log}: {log.read_text()[-1500:]}")
+
+
+def stop_all(processes: dict) -> None:
+    for proc in processes.values():
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+
+
+def slopes(samples: list, wall: float) -> dict:
+    """Per process, fitted over the second half of the run: (MB per second, MB at the end, peak MB),
+    each printed."""
+    half = [(t, s) for t, s in samples if t > wall / 2]
+    found = {}
+    for name in dict.fromkeys(name for _, s in samples for name in s):
+        t = np.array([t for t, s in half if name in s])
+        mb = np.array([s[name] for _, s in half if name in s])
+        if len(t) < 3:
+            continue
+        per_s = float(np.polyfit(t, mb, 1)[0])
+        peak = max(s[name] for _, s in samples if name in s)
+        print(
+            f"{name:10s} RSS: {mb[0]:.1f} -> {mb[-1]:.1f} MB over the second half, slope {per_s * 3600:+.2f} MB "
+            f"per hour, peak {peak:.1f} MB"
+        )
+        found[name] = (per_s, round(float(mb[-1]), 1), round(peak, 1))
+    return found
 
 
 if __name__ == "__main__":
