@@ -112,7 +112,10 @@ def parser() -> argparse.ArgumentParser:
         help="poll at most this often (default 0: as fast as the link allows)",
     )
     p.add_argument(
-        "--duration", type=not_negative, default=0, help="stop after this many seconds (default 0: run until Ctrl-C)"
+        "--duration",
+        type=not_negative,
+        default=0,
+        help="stop this many seconds after the first reading is published (default 0: run until Ctrl-C)",
     )
     p.add_argument(
         "--stats",
@@ -219,7 +222,8 @@ class Gateway:
         self.rules = MotorRules(args.move_ms, args.spin_ms, args.motor_timeout)
         self.run_id = new_run_id()  # the brain's motor messages answer readings of this run
         self.started = time.monotonic()
-        self.ends_at = math.inf  # --duration: set when the first reading is published
+        self.driven = False  # a brain's motor message was followed
+        self.ends_at = math.inf  # --duration: counted from the first reading published
         self.published = np.zeros(READINGS_KEPT)  # when reading k was published, at k % READINGS_KEPT
         self.stats = {
             "polls": 0,
@@ -314,8 +318,8 @@ class Gateway:
             tick += 1
 
     def first_reading_out(self) -> None:
-        """--duration counts from here, when the robot is linked and the gateway under way (the
-        simulated floor's kernels compile at its first reading: seconds on a cold cache)."""
+        """--duration counts from here, when the robot is linked and the gateway under way (not from
+        the process's start: the simulated floor, the session and the link take their time)."""
         if self.args.duration:
             self.ends_at = time.monotonic() + self.args.duration
         log.info("first reading published%s", f"; ending in {self.args.duration:g} s" if self.args.duration else "")
@@ -334,6 +338,9 @@ class Gateway:
                     self.motor.refuse(e, f"(tick {message.tick})")
                     continue
             now = time.monotonic()
+            if actions is not None and not self.driven and self.brain.alive:
+                self.driven = True
+                log.info("a brain drives the robot")
             call = self.rules.decide(now, self.brain.alive, actions)
             if call is not None and self.call(call.call, *call.args):
                 self.rules.made(call, now)

@@ -1,6 +1,7 @@
 """Brain (free-running), gateway (ev3 backend -> the fake brick) and recorder as real processes."""
 
 import json
+import random
 import signal
 import time
 
@@ -8,11 +9,12 @@ import numpy as np
 
 from services.bus import keys
 from services.bus.schemas import Array, Motor, encode
-from services.ev3_gateway.fake_brick import FakeBrick
+from services.ev3_gateway.fake_brick import BEACON_PORT, FakeBrick
 from services.vocabulary import INSECT_ACTIONS
 
 from ..processes import Watcher, endpoint, finish, free_port, start, wait_for
 from ..recordings import read
+from ..sockets import listeners
 
 
 def test_robot_chain_senses_moves_survives_a_lost_link_and_stops_without_a_brain(tmp_path):
@@ -233,26 +235,49 @@ def test_commands_answering_old_or_unpublished_readings_are_dropped(tmp_path):
 
 def test_the_brain_drives_a_simulated_ev3(tmp_path):
     gateway_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
+    log = tmp_path / "gateway.log"
     gateway = start(
-        "gateway",
-        "--backend",
-        "sim",
-        "--listen",
-        gateway_ep,
-        "--duration",
-        4,
-        "--stats",
-        tmp_path / "gateway.json",
-        log=tmp_path / "gateway.log",
+        "gateway", "--backend", "sim", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json", log=log
     )
     brain = start("brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", 1000, log=tmp_path / "brain.log")
     try:
-        assert finish(gateway, 60, tmp_path / "gateway.log") == 0
+        # the brain compiles its kernels at its first reading (a minute on a cold cache and a busy machine)
+        wait_for(lambda: "a brain drives the robot" in log.read_text(), 180, "the brain to drive")
+        time.sleep(2.0)
+        gateway.send_signal(signal.SIGTERM)
+        assert finish(gateway, 30, log) == 0
     finally:
         brain.kill()
         gateway.kill()
     stats = json.loads((tmp_path / "gateway.json").read_text())
     assert stats["polls"] > 100 and stats["commands"] > 3 and stats["link_losses"] == 0
+
+
+def test_duration_counts_from_the_first_reading_not_from_the_start(tmp_path):
+    """A gateway run for 1 s waits 2 s for its brick (listening for the brick's WiFi beacon), then
+    links, publishes its first reading, and only then runs its 1 s."""
+    log = tmp_path / "gateway.log"
+    serial = f"{random.getrandbits(48):012X}"  # this brick's, not another test's on this machine
+    host = ":".join(serial[i : i + 2] for i in range(0, 12, 2))
+    gateway = start(
+        "gateway",
+        *("--host", host, "--listen", endpoint(free_port()), "--duration", 1, "--stats", tmp_path / "gateway.json"),
+        log=log,
+    )
+    try:
+        beacon = f":{BEACON_PORT}"
+        wait_for(lambda: any(s.address.endswith(beacon) for s in listeners(gateway.pid)), 60, "the gateway to listen")
+        time.sleep(2.0)
+        with FakeBrick(serial=serial) as brick:
+            wait_for(lambda: "robot linked" in log.read_text(), 30, "the link")
+            linked_at = time.monotonic()
+            assert finish(gateway, 30, log) == 0
+            ran_s = time.monotonic() - linked_at
+    finally:
+        gateway.kill()
+    stats = json.loads((tmp_path / "gateway.json").read_text())
+    assert stats["polls"] > 100 and brick.reads >= 3 * stats["polls"], stats  # 3 sensors a poll
+    assert ran_s > 0.8, ran_s
 
 
 def test_wrong_wiring_is_refused_before_anything_starts(tmp_path):
