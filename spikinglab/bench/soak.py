@@ -117,9 +117,9 @@ def lockstep_soak(args, out: Path) -> dict:
         "fuzzed": counts["sent"],
         "rejected_by_world": sum(sum(r.values()) for r in metrics["rejected_messages"].values()),
     }
-    for name, (slope_per_s, end, _) in slopes(samples, wall).items():
+    for name, (slope, end) in slopes(samples, wall, 100_000 / ticks_per_s, "100,000 ticks").items():
         result[f"{name}_rss_mb_end"] = end
-        result[f"{name}_rss_slope_mb_per_100k_ticks"] = round(slope_per_s / ticks_per_s * 100_000, 3)
+        result[f"{name}_rss_slope_mb_per_100k_ticks"] = round(slope, 3)
     print(
         f"{metrics['ticks']:,} ticks at {ticks_per_s:,.0f} ticks/s; {counts['sent']:,} malformed messages thrown, "
         f"{result['rejected_by_world']:,} of them at the world's inbox rejected; every process ended cleanly"
@@ -160,10 +160,10 @@ def robot_soak(args, out: Path) -> dict:
             stop_all(processes)
     brain = json.loads((out / "brain.json").read_text())
     result = {key: brain[key] for key in ("ticks", "hz", "late_ms_median", "late_ms_p99", "late_ms_max")}
-    for name, (slope_per_s, end, _) in slopes(samples, wall).items():
+    for name, (slope, end) in slopes(samples, wall, 3600, "hour").items():
         if name != "fake-brick":
             result[f"{name}_rss_mb_end"] = end
-            result[f"{name}_rss_slope_mb_per_hour"] = round(slope_per_s * 3600, 2)
+            result[f"{name}_rss_slope_mb_per_hour"] = round(slope, 2)
     print(
         f"{brain['ticks']:,} brain ticks at {brain['hz']:,.1f} Hz over {wall:.0f} s; lateness median "
         f"{brain['late_ms_median']} ms, p99 {brain['late_ms_p99']} ms, max {brain['late_ms_max']} ms"
@@ -202,9 +202,9 @@ def stop_all(processes: dict) -> None:
                 proc.kill()
 
 
-def slopes(samples: list, wall: float) -> dict:
-    """Per process, fitted over the second half of the run: (MB per second, MB at the end, peak MB),
-    each printed."""
+def slopes(samples: list, wall: float, seconds_per_unit: float, unit: str) -> dict:
+    """Per process, fitted over the second half of the run: (MB per `unit`, MB at the end), each
+    printed with the peak."""
     half = [(t, s) for t, s in samples if t > wall / 2]
     found = {}
     for name in dict.fromkeys(name for _, s in samples for name in s):
@@ -212,13 +212,13 @@ def slopes(samples: list, wall: float) -> dict:
         mb = np.array([s[name] for _, s in half if name in s])
         if len(t) < 3:
             continue
-        per_s = float(np.polyfit(t, mb, 1)[0])
+        slope = float(np.polyfit(t, mb, 1)[0]) * seconds_per_unit
         peak = max(s[name] for _, s in samples if name in s)
         print(
-            f"{name:10s} RSS: {mb[0]:.1f} -> {mb[-1]:.1f} MB over the second half, slope {per_s * 3600:+.2f} MB "
-            f"per hour, peak {peak:.1f} MB"
+            f"{name:10s} RSS: {mb[0]:.1f} -> {mb[-1]:.1f} MB over the second half, slope {slope:+.3f} MB "
+            f"per {unit}, peak {peak:.1f} MB"
         )
-        found[name] = (per_s, round(float(mb[-1]), 1), round(peak, 1))
+        found[name] = (slope, round(float(mb[-1]), 1))
     return found
 
 
