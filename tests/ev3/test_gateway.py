@@ -12,13 +12,13 @@ from services.bus.schemas import Array, Motor, encode
 from services.ev3_gateway.fake_brick import BEACON_PORT, FakeBrick
 from services.vocabulary import INSECT_ACTIONS
 
-from ..processes import Watcher, endpoint, finish, free_port, start, wait_for
+from ..processes import Watcher, endpoint, finish, start, wait_for
 from ..recordings import read
 from ..sockets import listeners
 
 
 def test_robot_chain_senses_moves_survives_a_lost_link_and_stops_without_a_brain(tmp_path):
-    gateway_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
+    gateway_ep, brain_ep = endpoint(tmp_path, "gateway"), endpoint(tmp_path, "brain")
     with FakeBrick() as brick:
         recorder = start(
             "record",
@@ -97,7 +97,7 @@ def test_robot_chain_senses_moves_survives_a_lost_link_and_stops_without_a_brain
 
 def gateway_and_brain(tmp_path):
     """The gateway (ev3 backend: the fake brick) and a free-running brain driving it, as processes."""
-    gateway_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
+    gateway_ep, brain_ep = endpoint(tmp_path, "gateway"), endpoint(tmp_path, "brain")
     gateway = start(
         "gateway", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json", log=tmp_path / "gateway.log"
     )
@@ -181,7 +181,7 @@ def test_a_link_gone_silent_is_noticed_the_robot_stops_by_itself_and_nothing_arr
 
 
 def test_commands_answering_old_or_unpublished_readings_are_dropped(tmp_path):
-    gateway_ep = endpoint(free_port())
+    gateway_ep = endpoint(tmp_path, "gateway")
     with FakeBrick() as brick:
         # At most 1,000 polls/s: unbounded, the fake brick answers ~20,000/s and this test's Python
         # subscriber fell up to 0.6 s behind, so its "latest" reading was itself too old to answer.
@@ -234,7 +234,7 @@ def test_commands_answering_old_or_unpublished_readings_are_dropped(tmp_path):
 
 
 def test_the_brain_drives_a_simulated_ev3(tmp_path):
-    gateway_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
+    gateway_ep, brain_ep = endpoint(tmp_path, "gateway"), endpoint(tmp_path, "brain")
     log = tmp_path / "gateway.log"
     gateway = start(
         "gateway", "--backend", "sim", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json", log=log
@@ -261,7 +261,16 @@ def test_duration_counts_from_the_first_reading_not_from_the_start(tmp_path):
     host = ":".join(serial[i : i + 2] for i in range(0, 12, 2))
     gateway = start(
         "gateway",
-        *("--host", host, "--listen", endpoint(free_port()), "--duration", 1, "--stats", tmp_path / "gateway.json"),
+        *(
+            "--host",
+            host,
+            "--listen",
+            endpoint(tmp_path, "gateway"),
+            "--duration",
+            1,
+            "--stats",
+            tmp_path / "gateway.json",
+        ),
         log=log,
     )
     try:
