@@ -9,7 +9,7 @@ between ticks.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 
 import numpy as np
 from numba import njit
@@ -221,7 +221,7 @@ def population(
 def evaluate(
     params: Mapping,
     ticks: int,
-    seeds=range(4),
+    seeds: Iterable[int] = range(4),
     *,
     circuit: str | Circuit = "insect",
     preset: str = "paper",

@@ -4,6 +4,7 @@ import dataclasses
 import re
 import subprocess
 import sys
+from typing import Any
 
 import numpy as np
 import pytest
@@ -51,7 +52,7 @@ def run_alone(
     return world, brain
 
 
-SETTINGS = [  # each row: one setting a study might vary; the population holds them all
+SETTINGS: list[dict[str, Any]] = [  # each row: one setting a study might vary; the population holds them all
     dict(a_plus=0.02),
     dict(a_plus=0.04),
     dict(w_max=5.5),

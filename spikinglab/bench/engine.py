@@ -55,7 +55,7 @@ def best_run_rate(engine, feeds, repeats):
 
 
 def main(argv=None) -> dict:
-    parser = Parser(prog="spikinglab bench engine", description=__doc__.splitlines()[0])
+    parser = Parser(prog="spikinglab bench engine", description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--ticks", type=at_least(1), default=200_000, help="ticks per pass for one agent")
     parser.add_argument("--agents", type=at_least(1), default=1000, help="agents in the batch case")
     parser.add_argument("--batch-ticks", type=at_least(1), default=500, help="ticks per pass in the batch case")
@@ -97,7 +97,8 @@ def main(argv=None) -> dict:
     ratio = result[f"netlogo_batch{args.agents}_agent_ticks_per_s"] / result[f"batch{args.agents}_agent_ticks_per_s"]
     print(f"netlogo / phased at A = {args.agents}: {ratio:.2f} (best passes, one engine after the other)")
     # this shared machine's speed drifts by 10-20 % within seconds: the two engines in turns, the median ratio
-    ratios = [best_rate(*batches["netlogo"], 1) / best_rate(*batches["phased"], 1) for _ in range(args.rounds)]
+    (netlogo, netlogo_feeds), (phased, phased_feeds) = batches["netlogo"], batches["phased"]
+    ratios = [best_rate(netlogo, netlogo_feeds, 1) / best_rate(phased, phased_feeds, 1) for _ in range(args.rounds)]
     result[f"netlogo_over_phased_batch{args.agents}_median"] = round(float(np.median(ratios)), 3)
     print(
         f"netlogo / phased at A = {args.agents}, {args.rounds} rounds in turns: median {np.median(ratios):.2f} "
