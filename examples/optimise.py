@@ -32,7 +32,7 @@ def cost(result, ticks):
 
 
 def main():
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     p.add_argument("--generations", type=int, default=10)
     p.add_argument("--ticks", type=int, default=60_000)
     p.add_argument("--seeds", type=int, default=4)
@@ -40,7 +40,7 @@ def main():
     args = p.parse_args()
     start = (np.array([0.02, 15.0]) - LOW) / (HIGH - LOW)  # the model's values
     es = cma.CMAEvolutionStrategy(start, 0.3, {"bounds": [0, 1], "popsize": args.population, "seed": 1, "verbose": -9})
-    best = (np.inf, None)
+    best = (np.inf, (0.0, 0.0, []))  # cost, then A+ = A-, w_max and the learning times of the best
     for generation in range(1, args.generations + 1):
         points = es.ask()
         a_plus, w_max = to_params(np.array(points)).T

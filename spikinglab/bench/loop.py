@@ -55,11 +55,16 @@ def engine_alone(ticks: int, semantics: str, agents: int) -> float:
     return best_rate(engine, random_feeds(np.random.default_rng(0), circuit, ticks, agents), 3, agents)
 
 
+def pins(wanted: bool) -> list[list[str]]:
+    """--cpu options for the two processes of a round trip, on cores 0 and 1 where there are two."""
+    return [["--cpu", "0"], ["--cpu", "1"]] if wanted and (os.cpu_count() or 1) >= 2 else [[], []]
+
+
 def zenoh_roundtrips(count: int) -> float:
     """Round trips/s of a bare Zenoh ping-pong, the two processes placed as world and brain."""
     (ping_ep, pong_ep), sockets = local_endpoints("ping", "pong")
     with sockets, tempfile.TemporaryDirectory() as tmp:
-        pin = [["--cpu", "0"], ["--cpu", "1"]] if os.cpu_count() >= 2 else [[], []]
+        pin = pins(True)
         out = Path(tmp) / "ping.log"
         pong = spawn("services.bus.pingpong", ["pong", "--listen", pong_ep] + pin[1], subprocess.DEVNULL)
         try:
@@ -77,7 +82,7 @@ def over_the_bus(ticks: int, agents: int, semantics: str) -> float:
     """Ticks/s measured by the world process itself, after the first tick (bench.steady_rate)."""
     (world_ep, brain_ep), sockets = local_endpoints("world", "brain")
     with sockets, tempfile.TemporaryDirectory() as tmp:
-        pin = [["--cpu", "0"], ["--cpu", "1"]] if agents < PARALLEL_FROM and os.cpu_count() >= 2 else [[], []]
+        pin = pins(agents < PARALLEL_FROM)  # the parallel kernels use every core
         world = spawn(
             "world",
             ["--listen", world_ep, "--ticks", ticks, "--agents", agents, "--out", tmp] + pin[0],
@@ -105,7 +110,7 @@ def median_of(runs: list[float]) -> tuple[float, str]:
 
 
 def main(argv=None) -> dict:
-    p = Parser(prog="spikinglab bench loop", description=__doc__.splitlines()[0])
+    p = Parser(prog="spikinglab bench loop", description=(__doc__ or "").splitlines()[0])
     p.add_argument(
         "--ticks",
         type=at_least(2),

@@ -49,6 +49,8 @@ def one_run(ticks: int, record: bool, folder: Path) -> dict:
             result["lag_s"] = round(time.monotonic() - world_done, 2)
             line = (folder / "recorder.log").read_text()
             found = re.search(r"(\d+) messages in ([\d.]+) s, (\d+) messages/s", line)
+            if found is None:
+                raise SystemExit(f"the recorder did not say how many messages it took: {line[-500:]}")
             result["messages"], result["messages_per_s"] = int(found.group(1)), int(found.group(3))
             result["file_mb"] = round((folder / "recording.rrd").stat().st_size / 1e6, 2)
     return result
@@ -59,11 +61,11 @@ def alone(ticks: int) -> float:
     import rerun as rr
 
     from services.brain.circuit import load_circuit
-    from services.brain.service import BrainNode, layout
+    from services.brain.node import BrainNode, layout
     from services.bus.batching import TickBatch
     from services.bus.schemas import Array, Sensors, WorldMap, decode, encode, new_run_id
     from services.recorder.recorder import Recorder, blueprint
-    from services.world.service import keep_state, state_message
+    from services.world.state import keep_state, state_message
     from services.world.world import SENSORS, World, world_actions
 
     circuit, world, run = load_circuit("insect"), World(seed=1), new_run_id()
@@ -78,6 +80,7 @@ def alone(ticks: int) -> float:
     values = world.sense()
     for t in range(ticks):
         answer = node.answer(Sensors(tick=t, names=SENSORS, values=Array.of(values), run=run))
+        assert answer is not None, f"the brain did not answer tick {t}"  # each tick of the run it serves
         node.keep_state()
         world.act(world_actions(answer.names, answer.actions.numpy("actions", "|u1", 2)))
         keep_state(batch, changes, world, t, values)
@@ -98,7 +101,7 @@ def alone(ticks: int) -> float:
 
 
 def main(argv=None) -> dict:
-    p = Parser(prog="spikinglab bench recorder", description=__doc__.splitlines()[0])
+    p = Parser(prog="spikinglab bench recorder", description=(__doc__ or "").splitlines()[0])
     p.add_argument("--ticks", type=at_least(2), default=30_000)
     p.add_argument(
         "--repeats",

@@ -51,7 +51,7 @@ def sharded(agents: int, shards: int, ticks: int) -> float:
 
 
 def main(argv=None) -> dict:
-    p = Parser(prog="spikinglab bench scale", description=__doc__.splitlines()[0])
+    p = Parser(prog="spikinglab bench scale", description=(__doc__ or "").splitlines()[0])
     p.add_argument("--agents", type=at_least(1), default=16_000)
     p.add_argument("--shards", type=at_least(1), nargs="+", default=[1, 2, 4, 8])
     p.add_argument("--ticks", type=at_least(1), default=200)

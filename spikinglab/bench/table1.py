@@ -153,7 +153,7 @@ def definitions_markdown(rows: list[dict]) -> str:
 
 
 def main(argv=None) -> dict:
-    p = Parser(prog="spikinglab bench table1", description=__doc__.splitlines()[0])
+    p = Parser(prog="spikinglab bench table1", description=(__doc__ or "").splitlines()[0])
     p.add_argument("--ablation", action="store_true", help="the ablation table instead of the grid")
     p.add_argument("--seeds", type=at_least(1), default=16)
     p.add_argument("--ticks", type=at_least(1000), default=150_000)  # one bin of 1,000
@@ -168,7 +168,7 @@ def main(argv=None) -> dict:
     a_values = args.a_plus or ((0.02, 0.04) if args.ablation else A_VALUES)
     todo = jobs(args.ablation, a_values)
     args.out.mkdir(parents=True, exist_ok=True)
-    rows = [None] * len(todo)
+    done: dict[int, dict] = {}  # the summary of each job, by its place in todo
     started = time.perf_counter()
     with (
         ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn")) as pool,
@@ -179,8 +179,9 @@ def main(argv=None) -> dict:
         }
         for future in as_completed(futures):
             k = futures[future]
-            rows[k] = summarise(todo[k][0], todo[k][1], future.result(), args.seeds, args.ticks)
+            done[k] = summarise(todo[k][0], todo[k][1], future.result(), args.seeds, args.ticks)
             bar.update(1)
+    rows = [done[k] for k in range(len(todo))]
     stem = "ablation" if args.ablation else "table1"
     text = markdown(rows, DEFAULT_DEFINITION) + "\n\n" + definitions_markdown(rows)
     (args.out / f"{stem}.md").write_text(text + "\n")
