@@ -5,19 +5,23 @@ single: ticks/s of one agent through Engine.step(feed), the per-tick call a clos
         runs a whole simulation in C++).
 batch:  agent-ticks/s of A = 1000 agents stepped together.
 Both for each semantics (phased, netlogo with its random order), on the same feeds.
+--calls: where one agent's phased step() goes, in ns per call (docs/tick.md, "Layout and speed").
 The last line printed is JSON. Run: `spikinglab bench engine` or `python -m spikinglab.bench.engine`.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import time
 
 import numpy as np
+from numba import njit, typeof
 
 from services.brain.circuit import load_circuit
-from services.brain.engine import SEMANTICS, Engine
+from services.brain.engine import FEED_TYPE, SEMANTICS, Engine
+from services.kernels import compiled
 from services.options import Parser, at_least
 
 FEED_PROBABILITY = 0.3  # chance per tick that a sensor feeds its input neuron a value in [0, 4)
@@ -54,6 +58,48 @@ def best_run_rate(engine, feeds, repeats):
     return max(rates[1:])
 
 
+@njit
+def _noop_structures(feed, network, state):
+    pass
+
+
+@njit
+def _noop_arrays(a0, a1, a2, a3, a4, a5, a6, a7, a8, a9, a10, a11, a12, a13, a14, a15, a16, a17, a18):
+    pass
+
+
+def call_costs(circuit, calls: int, repeats: int) -> dict:
+    """ns per call, best of `repeats` passes of `calls`: one agent's phased step() (the feed's
+    check, then the compiled tick), the compiled tick alone, a compiled no-op given the tick's
+    arguments (the feed and the two structures) and one given the same arrays one by one, as the
+    kernels took them before they took structures (the feed, 10 network and 8 state fields)."""
+    engine = Engine(circuit, semantics="phased")
+    feed = np.full(engine.no_feed.shape, np.nan)
+    network, state = engine.network, engine.state
+    arrays = (feed, *(getattr(network, f) for f in network.__dataclass_fields__))
+    arrays += tuple(getattr(state, f) for f in state.__dataclass_fields__)
+    structures = (feed, *engine.structs)
+    noop_structures = compiled(_noop_structures, (FEED_TYPE, *(typeof(s) for s in engine.structs)))
+    noop_arrays = compiled(_noop_arrays, tuple(typeof(a) for a in arrays))
+    cases = {
+        "step": (engine.step, (feed,)),
+        "tick": (engine._tick, structures),
+        "no-op, 2 structures": (noop_structures, structures),
+        f"no-op, {len(arrays) - 1} arrays": (noop_arrays, arrays),
+    }
+    costs = {}
+    for name, (call, args) in cases.items():
+        best = math.inf
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            for _ in range(calls):
+                call(*args)
+            best = min(best, time.perf_counter() - t0)
+        costs[name] = round(best / calls * 1e9)
+        print(f"{name}: {costs[name]} ns per call")
+    return costs
+
+
 def main(argv=None) -> dict:
     parser = Parser(prog="spikinglab bench engine", description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--ticks", type=at_least(1), default=200_000, help="ticks per pass for one agent")
@@ -63,9 +109,12 @@ def main(argv=None) -> dict:
     parser.add_argument(
         "--rounds", type=at_least(1), default=20, help="rounds of the two batch engines in turns (ratio)"
     )
+    parser.add_argument("--calls", action="store_true", help="only where one agent's step() goes, per call")
     args = parser.parse_args(argv)
 
     circuit = load_circuit("insect").with_learning_rate(0.04)
+    if args.calls:
+        return call_costs(circuit, args.ticks, args.repeats)
     result, batches = {}, {}
     for semantics in SEMANTICS:
         rng = np.random.default_rng(0)
