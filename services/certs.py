@@ -6,7 +6,8 @@ each role, <role>.json5 a Zenoh config for that role's process (--zenoh-config),
 router's, with mutual TLS and the access-control rules below. Every process connects to the router
 as a client over tls/ (never to another directly), and the router lets a process put only its own
 keys: the world and the gateway sensors and control, the brain motor, each its own state and its
-own liveliness token; a viewer (or a recorder) may subscribe to everything and put nothing.
+own liveliness token; a viewer (or a recorder) may subscribe to everything and put nothing. No
+role may query the router's admin space (@/...), which is off as well.
 """
 
 from __future__ import annotations
@@ -42,6 +43,25 @@ EVERY_GROUP = f"{keys.PREFIX}/*"
 READ = {  # what every role may do: subscribe to any key of any group and be sent what is put there
     "ingress": ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"],
     "egress": ["put", "delete", "liveliness_token", "reply", "declare_subscriber"],
+}
+ADMIN_SPACE = "@/**"  # a router's own information (its sessions, their addresses, every key declared)
+EVERY_MESSAGE = [
+    "put",
+    "delete",
+    "declare_subscriber",
+    "query",
+    "declare_queryable",
+    "reply",
+    "liveliness_token",
+    "declare_liveliness_subscriber",
+    "liveliness_query",
+]
+NO_ADMIN_SPACE = {  # for every role: a deny rule holds even where another rule or the default allows
+    "id": "no admin space",
+    "permission": "deny",
+    "flows": ["ingress", "egress"],
+    "messages": EVERY_MESSAGE,
+    "key_exprs": [ADMIN_SPACE],
 }
 
 
@@ -137,8 +157,9 @@ def make_certificate(folder: Path, role: str, hosts: list[str], ca_key, ca_cert,
 
 
 def access_control() -> dict:
-    """The router's rules: deny by default; everyone reads; each role puts its own keys only."""
-    rules = [
+    """The router's rules: deny by default; everyone reads; each role puts its own keys only; no
+    role reaches the admin space."""
+    rules = [NO_ADMIN_SPACE] + [
         {
             "id": f"read {flow}",
             "permission": "allow",
@@ -152,7 +173,7 @@ def access_control() -> dict:
     for role, puts in PUTS.items():
         subjects.append({"id": role, "cert_common_names": [role]})
         own = [f"{EVERY_GROUP}/{key}" for key in puts]
-        role_rules = ["read ingress", "read egress"]
+        role_rules = [NO_ADMIN_SPACE["id"], "read ingress", "read egress"]
         rules.append(
             {
                 "id": f"{role} alive",
@@ -192,6 +213,7 @@ def router_config(folder: Path) -> dict:
                 }
             }
         },
+        "adminspace": {"enabled": False},  # and the rules deny it to every role, should it be turned on
         "access_control": access_control(),
     }
 

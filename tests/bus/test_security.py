@@ -2,6 +2,7 @@
 processes on loopback. A peer without a certificate cannot connect; a peer with a valid certificate
 of another role reads the run but cannot steer it, end it or move the robot."""
 
+import contextlib
 import json
 import stat
 import time
@@ -25,19 +26,26 @@ from services.world.world import World
 from ..processes import bound_port, finish, start, wait_for
 
 
+@contextlib.contextmanager
+def router_on(config, log):
+    """A router with the Zenoh config file `config`, for as long as the block lasts: its endpoint."""
+    router = start(  # TLS needs TCP: the router binds a free port itself (port 0), read back from the system
+        "router", "--listen", "tls/127.0.0.1:0", "--zenoh-config", config, log=log
+    )
+    try:
+        yield f"tls/127.0.0.1:{bound_port(router)}"
+    finally:
+        router.kill()
+        router.wait()
+
+
 @pytest.fixture
 def secure_bus(tmp_path):
     """A CA and certificates in tmp_path/certs, and a router with their rules: (its endpoint, the folder)."""
     folder = tmp_path / "certs"
     assert certs.main([str(folder)]) == 0
-    router = start(  # TLS needs TCP: the router binds a free port itself (port 0), read back from the system
-        "router", "--listen", "tls/127.0.0.1:0", "--zenoh-config", folder / "router.json5", log=tmp_path / "router.log"
-    )
-    try:
-        yield f"tls/127.0.0.1:{bound_port(router)}", folder
-    finally:
-        router.kill()
-        router.wait()
+    with router_on(folder / "router.json5", tmp_path / "router.log") as endpoint:
+        yield endpoint, folder
 
 
 def session_as(role: str, folder, endpoint: str) -> zenoh.Session:
@@ -76,6 +84,51 @@ def test_a_peer_without_a_valid_certificate_cannot_connect(secure_bus, tmp_path)
         session_as("brain", tmp_path / "other", endpoint)
     with pytest.raises(zenoh.ZError):  # nor in the clear
         zenoh.open(make_config(connect=[endpoint.replace("tls/", "tcp/")], mode="client"))
+
+
+def others_admin_space(role: str, folder, endpoint: str) -> list[str]:
+    """What `role`'s get on the admin space receives from any session but its own: the keys of the
+    replies, and the text of any error reply. Its own session always answers it (about its own
+    link to the router, under @/<its id>/session/), which shows the get was made."""
+    with session_as(role, folder, endpoint) as session:
+        own = f"@/{session.zid()}/session/"
+        replies = list(session.get(certs.ADMIN_SPACE, timeout=2))
+        keys_seen = [str(r.ok.key_expr) if r.ok else f"error: {r.err.payload.to_bytes()!r}" for r in replies]
+    assert any(key.startswith(own) for key in keys_seen), keys_seen
+    return [key for key in keys_seen if not key.startswith(own)]
+
+
+def router_config_with(folder, name: str, admin_space: bool, default: str, deny_rule: bool):
+    """router.json5 with the admin space on or off, the default permission, with or without the
+    rule that denies the admin space: a copy named `name`."""
+    config = json5.loads((folder / "router.json5").read_text())
+    config["adminspace"] = {"enabled": admin_space}
+    control = config["access_control"]
+    control["default_permission"] = default
+    if not deny_rule:
+        control["rules"] = [r for r in control["rules"] if r["id"] != certs.NO_ADMIN_SPACE["id"]]
+        for policy in control["policies"]:
+            policy["rules"].remove(certs.NO_ADMIN_SPACE["id"])
+    path = folder / name
+    path.write_text(json.dumps(config))
+    return path
+
+
+def test_no_role_reads_the_routers_admin_space(secure_bus, tmp_path):
+    endpoint, folder = secure_bus
+    for role in ("viewer", "recorder"):  # the router as `spikinglab certs` writes it
+        assert others_admin_space(role, folder, endpoint) == []
+    # the admin space switched on and every message allowed by default: the rule alone still denies it
+    opened = router_config_with(folder, "opened.json5", admin_space=True, default="allow", deny_rule=True)
+    with router_on(opened, tmp_path / "opened.log") as opened_endpoint:
+        for role in ("viewer", "recorder"):
+            assert others_admin_space(role, folder, opened_endpoint) == []
+    # the control: the same without the rule, and the router tells every role about its sessions
+    control = router_config_with(folder, "control.json5", admin_space=True, default="allow", deny_rule=False)
+    with router_on(control, tmp_path / "control.log") as control_endpoint:
+        for role in ("viewer", "recorder"):
+            seen = others_admin_space(role, folder, control_endpoint)
+            assert any(key.endswith("/router") for key in seen), seen  # @/<router's id>/router: its sessions
 
 
 class Forger:
