@@ -41,6 +41,19 @@ def test_run_writes_summary_plot_and_weights(tmp_path):
     assert f"written to {folder}" in done.stdout and "learning time" in done.stdout
 
 
+def test_the_summary_names_the_command_main_was_given(tmp_path):
+    """In-process, as an API caller runs it: the options given to main(argv), not this process's sys.argv."""
+    from services.run import main
+
+    argv = ["--ticks", "1000", "--seed", "2", "--no-record", "--quiet", "--runs", str(tmp_path), "--id", "a b"]
+    assert main(argv) == 0
+    summary = json.loads((tmp_path / "a b" / "summary.json").read_text())
+    given = f"--ticks 1000 --seed 2 --no-record --quiet --runs {tmp_path} --id 'a b'"
+    assert summary["command"] == f"spikinglab run {given}"
+    assert summary["parameters"]["seed"] == 2 and summary["run"] == "a b"
+    assert summary["headline"]["collisions_first_quarter"] == summary["headline"]["collisions_last_quarter"]  # one bin
+
+
 def test_per_agent_parameters_from_a_file_reach_world_and_brain(tmp_path):
     """`--params`: each insect runs with its row (one that does not learn keeps its weights); the
     file is kept in the run folder and its columns are in the summary."""
@@ -183,7 +196,7 @@ def test_a_dead_service_ends_the_run_and_is_named(tmp_path):
 
 
 def test_a_run_stopped_in_its_first_thousand_ticks_still_plots(tmp_path):
-    from services.run import plot
+    from services.run_report import plot
 
     summary = {
         "collisions_per_1000_ticks": [[]],
@@ -231,7 +244,7 @@ def test_an_interrupted_run_goes_on_with_resume_and_ends_as_an_uninterrupted_one
 
 
 def test_the_replay_line_names_a_viewer_that_exists_from_any_folder(tmp_path, monkeypatch):
-    from services.run import viewer_shown
+    from services.run_report import viewer_shown
 
     monkeypatch.chdir(tmp_path)  # a user who runs spikinglab outside the checkout (it printed .venv/bin/rerun)
     shown = viewer_shown()

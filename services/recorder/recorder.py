@@ -27,6 +27,7 @@ import rerun.blueprint as rrb
 
 from services.bus.schemas import RUN_ID, BrainLayout, BrainState, BusError, WorldMap, WorldState
 from services.vocabulary import BLACK, EMPTY, EV_LEARNED, GREEN, RED
+from services.world.world import BIN, COLOURS, JUMP, WorldParams
 
 PATCH_COLOURS = [
     (EMPTY, "floor", (24, 24, 28)),
@@ -37,6 +38,7 @@ PATCH_COLOURS = [
 SEEN_COLOUR = {BLACK: (215, 215, 215), RED: (255, 80, 80), GREEN: (90, 230, 110)}
 SMELLS = {"smell_black": BLACK, "smell_red": RED, "smell_green": GREEN}
 TRAIL_EVERY, TRAIL_STEP = 50, 5  # ticks between trail updates; keep every 5th position
+DEFAULT = WorldParams()  # the arena and the view of a run whose map has not come (yet)
 
 
 def blueprint(detail: int = 0) -> rrb.Blueprint:
@@ -123,7 +125,7 @@ class Recorder:
 
     @property
     def height(self) -> int:
-        return self.grid.shape[2] if self.grid is not None else 60
+        return self.grid.shape[2] if self.grid is not None else DEFAULT.height
 
     # --- messages ---------------------------------------------------------------------------------
     def fits(self, message) -> None:
@@ -143,7 +145,7 @@ class Recorder:
             if self.agents and agents != self.agents:
                 refuse(f"{agents} agents, the world had {self.agents}")
             if len(changes) and self.grid is not None:
-                limits = np.array([2**62, self.grid.shape[0], self.grid.shape[1], self.grid.shape[2], GREEN + 1])
+                limits = np.array([2**62, self.grid.shape[0], self.grid.shape[1], self.grid.shape[2], COLOURS])
                 if ((changes < 0) | (changes >= limits)).any():
                     refuse("a map change outside the map")
         elif isinstance(message, BrainState):
@@ -207,9 +209,11 @@ class Recorder:
     @property
     def arena_shown(self) -> int:
         """The arena drawn: the first detail agent's (all agents share arena 0 when shared)."""
-        return min(self.detail[0], self.grid.shape[0] - 1)
+        return min(self.detail[0], self.grid.shape[0] - 1) if self.grid is not None else 0
 
     def _log_map(self, tick: int) -> None:
+        if self.grid is None:
+            return
         self.rec.set_time("tick", sequence=tick)
         self.rec.log("/world/map", rr.SegmentationImage(self.grid[self.arena_shown][:, ::-1].T.copy()))
 
@@ -236,7 +240,7 @@ class Recorder:
                     self.grid[arena, ix, iy] = colour
                 if (mine[:, 1] == self.arena_shown).any():
                     self._log_map(int(t))
-        for k in np.flatnonzero((ticks + 1) % 1000 == 0):  # the learning curve, per 1,000 ticks like the world's
+        for k in np.flatnonzero((ticks + 1) % BIN == 0):  # the learning curve, per BIN ticks like the world's
             self.b["bins"].append(
                 (int(ticks[k]), float((collisions[k] - self._collisions_at_bin).mean()), float(food[k].mean()))
             )
@@ -250,12 +254,14 @@ class Recorder:
 
     def _keep_vision(self, ticks, names, sensed, pos, heading) -> None:
         """Each detail agent's vision ray (from where it stood after the tick before, as far as the
-        nearest smell, in its colour; 4 patches and grey when it smells nothing) and whether it felt
-        pain or reward, for the ticks of one world batch."""
+        nearest smell, in its colour; the view distance and grey when it smells nothing) and whether
+        it felt pain or reward, for the ticks of one world batch."""
+        first_pos, first_heading = pos[0], heading[0]
         last = self._last_pose  # the ray of a batch's first tick starts at the last batch's last pose
-        joined = last is not None and last[0] == ticks[0] - 1 and last[1].shape == pos.shape[1:]
-        before_pos = np.concatenate([last[1][None] if joined else pos[:1], pos[:-1]])
-        before_heading = np.concatenate([last[2][None] if joined else heading[:1], heading[:-1]])
+        if last is not None and last[0] == ticks[0] - 1 and last[1].shape == pos.shape[1:]:
+            first_pos, first_heading = last[1], last[2]
+        before_pos = np.concatenate([first_pos[None], pos[:-1]])
+        before_heading = np.concatenate([first_heading[None], heading[:-1]])
         self._last_pose = (int(ticks[-1]), pos[-1], heading[-1])
         smells = [j for j, name in enumerate(names) if name in SMELLS]
         palette = np.array([SEEN_COLOUR[SMELLS[names[j]]] for j in smells] + [(110, 110, 110)], np.uint8)
@@ -266,7 +272,9 @@ class Recorder:
             d = distances[every, nearest] if smells else np.full(len(ticks), np.inf)
             seen = np.isfinite(d)
             rad = np.radians(before_heading[:, a])
-            tip = before_pos[:, a] + np.where(seen, d, 4.0)[:, None] * np.stack([np.sin(rad), np.cos(rad)], axis=1)
+            tip = before_pos[:, a] + np.where(seen, d, DEFAULT.view_distance)[:, None] * np.stack(
+                [np.sin(rad), np.cos(rad)], axis=1
+            )
             felt = [
                 ~np.isnan(sensed[:, a, names.index(n)]) if n in names else np.zeros(len(ticks), bool)
                 for n in ("pain", "reward")
@@ -410,11 +418,13 @@ class Recorder:
         self._trail[a] = (history_ticks[-self.trail :], history[-self.trail :])
         strips, counts, when = [], [], []
         shown = self.view(history)  # once for the whole history: the same points as piece by piece
+        # jumps before each position, tick to tick: a line between two positions kept (every
+        # TRAIL_STEP-th) is drawn only if no jump came between them
+        jumps = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(history, axis=0), axis=1) > JUMP)])
         for t in ticks[(ticks % TRAIL_EVERY) == 0]:
             end = np.searchsorted(history_ticks, t, side="right")  # the ticks come in order
             part = slice(max(0, end - self.trail), end, TRAIL_STEP)
-            jumps = np.linalg.norm(np.diff(history[part], axis=0), axis=1) > 3  # in world units, as before
-            pieces = np.split(shown[part], np.flatnonzero(jumps) + 1)
+            pieces = np.split(shown[part], np.flatnonzero(np.diff(jumps[part])) + 1)
             pieces = [p for p in pieces if len(p) > 1]
             strips += pieces
             counts.append(len(pieces))

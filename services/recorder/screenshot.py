@@ -76,7 +76,9 @@ def screenshot(
         client, deadline = None, time.monotonic() + 30
         while client is None:
             if viewer.poll() is not None:
-                raise RuntimeError(f"the headless viewer stopped: {viewer.stderr.read()[-1500:]}")
+                raise RuntimeError(
+                    f"the headless viewer stopped: {viewer.stderr.read()[-1500:] if viewer.stderr else ''}"
+                )
             try:
                 client = rrx.ViewerClient(f"rerun+http://127.0.0.1:{port}/proxy")
                 client.get_state()
@@ -114,7 +116,7 @@ def window_size(text: str) -> str:
 
 
 def main(argv=None) -> int:
-    p = Parser(prog="spikinglab screenshot", description=__doc__.splitlines()[0])
+    p = Parser(prog="spikinglab screenshot", description=(__doc__ or "").splitlines()[0])
     p.add_argument("recording", type=Path)
     p.add_argument("--out", type=Path, help="PNG file (default: beside the recording, replay.png)")
     p.add_argument("--tick", type=at_least(0), help="where the time cursor goes (default: the last tick)")

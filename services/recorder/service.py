@@ -28,17 +28,15 @@ import rerun as rr
 
 from services.bus import keys
 from services.bus.config import add_bus_args
-from services.bus.schemas import RUN_ID, BrainLayout, BrainState, BusError, WorldMap, WorldState
-from services.bus.transport import QUIET_S, Bus
+from services.bus.schemas import BrainLayout, BrainState, WorldMap, WorldState
+from services.bus.transport import Bus
 from services.options import Parser, agent_list, at_least, port
 from services.runtime import service_main
 
+from .listener import Listener
 from .recorder import Recorder, blueprint
 
 log = logging.getLogger("spikinglab.recorder")
-END_GRACE = 5.0  # seconds to wait after the run's end for the brain's last messages
-FLUSH_S = 0.5  # written to the file at least this often: a killed recorder loses about this much of the run
-NEXT_RUN_HELD = 256  # messages of another run held while the run recorded may still go on (its map comes first)
 
 
 def parser() -> argparse.ArgumentParser:
@@ -60,6 +58,11 @@ def parser() -> argparse.ArgumentParser:
         "--web",
         action="store_true",
         help="also host the web viewer over HTTP, showing the served run (implies --serve)",
+    )
+    live.add_argument(
+        "--grpc-host",
+        default="0.0.0.0",
+        help="the address --serve listens on (default 0.0.0.0: every interface; 127.0.0.1: this machine only)",
     )
     live.add_argument("--grpc-port", type=port, default=9876, help="--serve's port (default 9876)")
     live.add_argument("--web-port", type=port, default=9090, help="--web's port (default 9090)")
@@ -124,17 +127,11 @@ def viewer_answers(text: str, timeout: float = 3.0) -> bool:
 
 
 def run(args: argparse.Namespace, session) -> int:
-    if args.viewer and not viewer_answers(args.viewer):
-        log.error("no viewer answers at %s (start one with `rerun`, or leave out --viewer)", args.viewer)
+    if not can_serve(args):
         return 1
     serve = args.serve or args.web
-    for wanted, number, option in ((serve, args.grpc_port, "--grpc-port"), (args.web, args.web_port, "--web-port")):
-        if wanted and free_port(number) != number:
-            log.error("port %d is in use: nothing can be served there (choose another with %s)", number, option)
-            return 1
     out = args.out or Path("runs") / f"{datetime.datetime.now():%Y%m%d-%H%M%S}" / "recording.rrd"
     out.parent.mkdir(parents=True, exist_ok=True)
-    detail = args.detail
     rec = open_recording(args, out, f"{args.group}-{out.parent.name}", serving=serve)
     if serve:
         log.info("serving the run live: rerun rerun+http://127.0.0.1:%d/proxy", args.grpc_port)
@@ -144,128 +141,51 @@ def run(args: argparse.Namespace, session) -> int:
         )
         log.info("web viewer: %s", web_viewer_url(args.web_port, args.grpc_port))
     bus = Bus(session, args.group, "recorder")
-    recorder = Recorder(rec, detail=detail, flush_every=args.flush_every)
-    bus.watch_others(lambda: f" (recorded up to tick {recorder.last_tick})")
-    first_stream = rec  # serves the live view, if asked, for every run's recording
-    next_run: list = []  # messages of another run, held until the run recorded has gone quiet
+    recorder = Recorder(rec, detail=args.detail, flush_every=args.flush_every)
     # only the state streams: the lock-step messages (sensors, motor) never come to the recorder
     inbox = bus.inbox(
         keys.state(args.group), (WorldMap, WorldState, BrainState, BrainLayout), backlog_bytes=args.backlog_mb << 20
     )
     watched = {name: bus.presence(name) for name in ("world", "brain")}
+
+    def open_next(path: Path, run_id: str) -> rr.RecordingStream:
+        return open_recording(args, path, f"{args.group}-{run_id}", served_at=serve and args.grpc_port)
+
+    listener = Listener(inbox, watched, rec, recorder, out, args.group, args.forever, open_next)
+    bus.watch_others(lambda: f" (recorded up to tick {listener.recorder.last_tick})")
     recorder.event(f"recorder started on group {args.group}, writing {out}")
     log.info("recording group %s to %s", args.group, out)
-    current = out  # the file of the run recorded now
-    rejected, last_flush, ending = 0, time.monotonic(), None
-    received, first_at = 0, time.monotonic()
-    heard_at = time.monotonic()  # when the run recorded last sent a message that was recorded
     try:
-        while True:
-            message = inbox.get(timeout=0.25)
-            for name, presence in watched.items():  # services coming and going
-                while not presence.events.empty():
-                    change, _ = presence.events.get()
-                    # stamped with the tick the recorder has got to, which can trail the run
-                    recorder.event(
-                        f"{name} {'is on the bus' if change == 'up' else 'left the bus'} "
-                        f"(seen while recording tick {max(recorder.last_tick, 0)})",
-                        "INFO" if change == "up" else "WARN",
-                    )
-            if message is not None:
-                if received == 0:
-                    first_at = time.monotonic()
-                received += 1
-                try:
-                    recorder.on(message)
-                    heard_at = time.monotonic()
-                    if getattr(message, "final", False) and not args.forever and ending is None:
-                        ending = time.monotonic() + END_GRACE
-                except BusError as e:  # it does not fit the recording: refused whole, counted
-                    if (
-                        recorder.run is not None
-                        and message.run != recorder.run
-                        and RUN_ID.fullmatch(message.run)
-                        and len(next_run) < NEXT_RUN_HELD
-                    ):
-                        next_run.append(message)  # perhaps the next run: it waits for this one to go quiet
-                    else:
-                        inbox.refuse(e, f"({type(message).__name__} of tick {message.tick})")
-            # the run recorded has gone quiet: the next one, if the run recorded was cut short or --forever
-            if next_run and time.monotonic() - heard_at > QUIET_S and (args.forever or not recorder.world_done):
-                recorder.close()
-                if rec is not first_stream:
-                    rec.flush()
-                    rec.disconnect()
-                run_id = next_run[0].run
-                path = out.with_name(f"{out.stem}-{run_id}{out.suffix}")
-                log.info(
-                    "run %s: recorded to %s (%s); run %s starts: recording it to %s",
-                    recorder.run,
-                    current,
-                    recorder.ticks_held(),
-                    run_id,
-                    path,
-                )
-                rec = open_recording(args, path, f"{args.group}-{run_id}", served_at=serve and args.grpc_port)
-                recorder, current, ending = Recorder(rec, detail=detail, flush_every=args.flush_every), path, None
-                recorder.event(f"recorder on group {args.group}: run {run_id} follows another run, writing {path}")
-                for held in next_run:
-                    try:
-                        recorder.on(held)
-                    except BusError as e:
-                        inbox.refuse(e, f"({type(held).__name__} of tick {held.tick})")
-                next_run, heard_at = [], time.monotonic()
-            if inbox.rejected_total + inbox.dropped != rejected:
-                reasons = ", ".join(f"{n} x {r} on {k}" for (k, r), n in inbox.counts.items())
-                rejected = inbox.rejected_total + inbox.dropped
-                recorder.event(f"rejected or dropped messages so far: {rejected} ({reasons})", "WARN")
-            # the run is over when every stream that came has sent its final batch (the world's and
-            # the brain's come on different links, in either order)
-            if ending and (
-                (recorder.world_done or recorder.agents == 0)
-                and (recorder.brain_done or recorder.spike_counts is None)
-                or time.monotonic() > ending
-            ):
-                break
-            seen = [presence for presence in watched.values() if presence.seen]
-            if seen and not any(p.alive for p in seen) and not args.forever and ending is None:
-                ending = time.monotonic() + END_GRACE  # they left without the run's end: what came is written
-                recorder.event(
-                    f"the {' and the '.join(n for n, p in watched.items() if p.seen)} left without the "
-                    f"run's end: the recording ends at tick {max(recorder.last_tick, 0)}",
-                    "WARN",
-                )
-                log.warning(
-                    "the services recorded left without the run's end: ending the recording in %.0f s", END_GRACE
-                )
-            if time.monotonic() - last_flush > FLUSH_S:
-                recorder.flush()
-                last_flush = time.monotonic()
+        while not listener.step(inbox.get(timeout=0.25)):
+            pass
     finally:
-        for held in next_run:
-            inbox.refuse(
-                BusError(
-                    f"another run: {held.run!r}, after the run recorded ended (--forever records the runs that follow)"
-                ),
-                f"({type(held).__name__} of tick {held.tick})",
-            )
-        recorder.close()
-        for stream in [rec] if rec is first_stream else [rec, first_stream]:
-            stream.flush()
-            stream.disconnect()
+        listener.close()
         bus.close()
-        took = max(time.monotonic() - first_at, 1e-9)
+        took = max(time.monotonic() - listener.first_at, 1e-9)
         log.info(
             "recording written to %s (%s): %d messages in %.1f s, %.0f messages/s; ticks missing: %s; rejected: %s",
-            current,
-            recorder.ticks_held(),
-            received,
+            listener.current,
+            listener.recorder.ticks_held(),
+            listener.received,
             took,
-            received / took,
-            recorder.missing or "none",
+            listener.received / took,
+            listener.recorder.missing or "none",
             bus.rejections() or "none",
         )
     return 0
+
+
+def can_serve(args: argparse.Namespace) -> bool:
+    """Whether the viewer to stream to answers and the ports to serve on are free (says why not)."""
+    if args.viewer and not viewer_answers(args.viewer):
+        log.error("no viewer answers at %s (start one with `rerun`, or leave out --viewer)", args.viewer)
+        return False
+    serve = args.serve or args.web
+    for wanted, number, option in ((serve, args.grpc_port, "--grpc-port"), (args.web, args.web_port, "--web-port")):
+        if wanted and free_port(number) != number:
+            log.error("port %d is in use: nothing can be served there (choose another with %s)", number, option)
+            return False
+    return True
 
 
 def open_recording(
@@ -274,11 +194,11 @@ def open_recording(
     """A recording written to `path`, streamed to --viewer, and served live (`serving`: this
     recording's stream serves at --grpc-port; `served_at`: sent to the one that serves there)."""
     rec = rr.RecordingStream("spikinglab", recording_id=recording_id)
-    sinks = [rr.FileSink(str(path))]
+    sinks: list = [rr.FileSink(str(path))]
     if args.viewer:
         sinks.append(rr.GrpcSink(args.viewer))
     if serving:  # beside the file: the recording is written whoever watches
-        sinks.append(rr.GrpcServerSink(port=args.grpc_port))
+        sinks.append(rr.GrpcServerSink(bind_ip=args.grpc_host, port=args.grpc_port))
     elif served_at:
         sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{served_at}/proxy"))
     rec.set_sinks(*sinks, default_blueprint=blueprint(args.detail[0] if args.detail else 0))

@@ -24,14 +24,7 @@ def heavy_imports(module: str) -> list[str]:
     [
         "services.brain.engine_options",
         "services.sweep",
-        pytest.param(
-            "services.run",
-            marks=pytest.mark.xfail(
-                strict=True,
-                reason="services.run imports services.world.service (and run_folder does, for CHECKPOINT), "
-                "which imports the bus",
-            ),
-        ),
+        "services.run",
     ],
 )
 def test_imports_neither_zenoh_nor_rerun(module):

@@ -334,3 +334,43 @@ def test_brain_states_unlike_the_first_are_refused_whole_even_before_the_layout(
     rec.flush()
     potentials = read(tmp_path / "t.rrd")["/brain/agent0/potentials"]
     assert potentials["tick"] == list(range(20))
+
+
+def test_the_trail_is_cut_where_the_insect_was_put_back_and_nowhere_else(tmp_path):
+    """The trail keeps every TRAIL_STEP-th position: ordinary moves between two of them (several
+    patches) are lines, the put-back at the start (one tick's jump) is no line."""
+    import rerun as rr
+
+    from services.bus.schemas import Array, WorldMap, WorldState, new_run_id
+    from services.recorder.recorder import Recorder
+
+    params, run, ticks = params_for("paper"), new_run_id(), 200
+    angle = np.arange(ticks) * 1.5 / 10  # 1.5 patches a tick (move and push) around a circle of radius 10
+    pos = np.column_stack([100 + 10 * np.cos(angle), 25 + 10 * np.sin(angle)])
+    pos[120:] = [100, 50]  # tick 120: put back at a start 15 patches away, and stays there
+    rec = rr.RecordingStream("spikinglab-test", recording_id="trail")
+    rec.save(str(tmp_path / "trail.rrd"))
+    recorder = Recorder(rec)
+    grid = generate_map(params, 0)[None]
+    recorder.on(WorldMap(tick=0, run=run, grid=Array.of(grid), x_min=params.x_min, y_min=params.y_min))
+    recorder.on(
+        WorldState(
+            tick=0,
+            run=run,
+            sensor_names=SENSORS,
+            sensors=Array.of(np.full((ticks, 1, len(SENSORS)), np.nan)),
+            pos=Array.of(pos[:, None]),
+            heading=Array.of(np.zeros((ticks, 1))),
+            events=Array.of(np.zeros((ticks, 1, 4), np.int64)),
+            collisions=Array.of(np.zeros((ticks, 1), np.int64)),
+            food=Array.of(np.zeros((ticks, 1), np.int64)),
+            changes=Array.of(np.zeros((0, 5), np.int64)),
+            final=True,
+        )
+    )
+    recorder.close()
+    rec.flush()
+    rec.disconnect()
+    trail = read(tmp_path / "trail.rrd")["/world/trail/agent0"]
+    pieces = dict(zip(trail["tick"], (len(strips) for strips in trail["LineStrips2D:strips"])))
+    assert pieces == {0: 0, 50: 1, 100: 1, 150: 2}  # tick 0: one position, no line yet
