@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import socket
 import subprocess
 import time
@@ -103,6 +104,13 @@ def ticks_in(states: list) -> list[int]:
     return [m.tick + k for m in states for k in range((m.pos if hasattr(m, "pos") else m.spiked).shape[0])]
 
 
+def logged(text: str, pattern: str) -> re.Match:
+    """Where `pattern` is in a log's text; an assertion showing the log's end when it is not."""
+    found = re.search(pattern, text)
+    assert found, f"no {pattern!r} in the log:\n{text[-2000:]}"
+    return found
+
+
 def wait_for(predicate, timeout: float, what: str) -> None:
     deadline = time.monotonic() + timeout
     while not predicate():
@@ -114,7 +122,7 @@ def wait_for(predicate, timeout: float, what: str) -> None:
 def wait_for_ticks(folder: Path, timeout: float = 60) -> None:
     """Until the run in `folder` is under way: its brain has answered (it logs its first sensors)."""
     log = folder / "brain.log"
-    wait_for(lambda: log.exists() and "brain for 1 agent" in log.read_text(), timeout, "the run to start")
+    wait_for(lambda: log.exists() and " brain for " in log.read_text(), timeout, "the run to start")
     time.sleep(2)
 
 

@@ -1,6 +1,7 @@
 """Bad input, one row per case, as a user meets it: the exit code (2: usage, 1: at run time), one
 line naming what was wrong, no traceback, nothing left running, no run folder with a result."""
 
+import os
 import socket
 import subprocess
 import sys
@@ -12,8 +13,9 @@ import pytest
 from services.brain.checkpoint import save_weights
 from services.brain.circuit import load_circuit
 from services.brain.engine import Engine
+from spikinglab import cli
 
-from .processes import free_port, running_with, start
+from .processes import endpoint, running_with, start
 
 
 @pytest.fixture(scope="module")
@@ -49,17 +51,79 @@ def files(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def busy_port():
+    """A port that this test listens on."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         s.listen()
         yield s.getsockname()[1]
 
 
-CLOSED = free_port()  # nothing listens there
-CASES = [  # id, arguments ({f}: the input files, {busy}: a port in use), exit code, what the one line says
+@pytest.fixture(scope="module")
+def closed_port():
+    """A port where nothing listens (a connection is refused): this test holds it bound without
+    listening, so that no other process can take it meanwhile."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        yield s.getsockname()[1]
+
+
+# usage errors found by the parser (argparse) or the command line's front, before anything starts:
+# id, arguments ({f}: the input files), exit code, what the one line says; run in-process
+ARGUMENTS = [
     ("run ticks below one bin", "run --ticks 500", 2, "argument --ticks: must be at least one bin of collisions"),
     ("run agents 0", "run --agents 0", 2, "argument --agents: must be at least 1, got 0"),
     ("run negative A", "run --a-plus -0.1", 2, "argument --a-plus: must be a number above 0, got -0.1"),
+    ("run detail not agents", "run --detail x", 2, "argument --detail: expected agent numbers separated by commas"),
+    ("run abbreviated option", "run --tick 5", 2, "unrecognized arguments: --tick 5"),
+    ("sweep 500 ticks", "sweep --ticks 500", 2, "argument --ticks: must be at least 1,000, got 500"),
+    ("sweep no seeds", "sweep --seeds 0", 2, "argument --seeds: must be at least 1, got 0"),
+    ("conditioning no trials", "conditioning --trials 0", 2, "argument --trials: must be at least 1, got 0"),
+    ("screenshot window size", "screenshot {f}/not.rrd --size big", 2, "argument --size: expected WIDTHxHEIGHT"),
+    ("run negative seed", "run --seed -1", 2, "argument --seed: must be at least 0, got -1"),
+    ("brain negative clock", "brain --clock -5", 2, "argument --clock: must be 0 or more, got -5"),
+    ("brain clock not a number", "brain --clock nan", 2, "argument --clock: expected a finite number, got nan"),
+    (
+        "gateway spin of 0 ms (the brick's 'until stopped')",
+        "gateway --spin-ms 0",
+        2,
+        "argument --spin-ms: must be at least 1, got 0",
+    ),
+    (
+        "gateway command age below 0",
+        "gateway --max-command-age -1",
+        2,
+        "argument --max-command-age: must be a number above 0, got -1",
+    ),
+    ("record flushing every 0 ticks", "record --flush-every 0", 2, "argument --flush-every: must be at least 1, got 0"),
+    ("bench loop no repeats", "bench loop --repeats 0", 2, "argument --repeats: must be at least 1, got 0"),
+    ("record viewer not a URL", "record --viewer nothing", 2, "argument --viewer: 'nothing' is not a viewer URL"),
+    (
+        "malformed endpoint",
+        "brain --connect localhost:7447",
+        2,
+        "argument --connect: 'localhost:7447' is not an endpoint",
+    ),
+    ("endpoint without port", "world --listen tcp/127.0.0.1", 2, "a tcp endpoint needs host:port"),
+    (
+        "brain shard beyond its count",
+        "brain --shard 4/3",
+        2,
+        "argument --shard: must be I/N with 1 <= I <= N (e.g. 2/3), got '4/3'",
+    ),
+    (
+        "zenoh config missing",
+        "world --zenoh-config certs/world.json5",
+        2,
+        "argument --zenoh-config: cannot read certs/world.json5: No such file or directory (`spikinglab certs DIR`",
+    ),
+    ("zenoh config not JSON5", "brain --zenoh-config {f}/broken.json5", 2, "broken.json5 is not a JSON5 config"),
+    ("zenoh config not an object", "brain --zenoh-config {f}/list.json5", 2, "should hold one JSON5 object"),
+    ("unknown command", "fly", 2, "unknown command 'fly'"),
+    ("launch file missing", "launch {f}/none.toml", 2, "no launch file"),
+]
+# what only a process shows (a run's validation, a port in use, Zenoh's word): id, arguments ({f}: the
+# input files, {busy}: a port in use, {closed}: a port where nothing listens), exit code, the one line
+CASES = [
     (
         "run circuit for another body",
         "run --circuit conditioning",
@@ -67,7 +131,6 @@ CASES = [  # id, arguments ({f}: the input files, {busy}: a port in use), exit c
         "circuit 'conditioning' binds sensors ['c', 'u'] that the world does not publish",
     ),
     ("run broken circuit file", "run --circuit {f}/bad.toml", 2, "synapses[0] (A -> B): to: unknown neuron 'B'"),
-    ("run detail not agents", "run --detail x", 2, "argument --detail: expected agent numbers separated by commas"),
     (
         "run truncated checkpoint",
         "run --load {f}/truncated.npz",
@@ -102,50 +165,14 @@ CASES = [  # id, arguments ({f}: the input files, {busy}: a port in use), exit c
     ),
     ("brain params the circuit refuses", "brain --params {f}/low.csv", 2, "low.csv: /"),  # names the circuit too
     ("world params missing", "world --params {f}/none.csv", 2, "none.csv: cannot read it (No such file or directory)"),
-    ("run abbreviated option", "run --tick 5", 2, "unrecognized arguments: --tick 5"),
-    ("sweep 500 ticks", "sweep --ticks 500", 2, "argument --ticks: must be at least 1,000, got 500"),
-    ("sweep no seeds", "sweep --seeds 0", 2, "argument --seeds: must be at least 1, got 0"),
-    ("conditioning no trials", "conditioning --trials 0", 2, "argument --trials: must be at least 1, got 0"),
     ("screenshot of a text file", "screenshot {f}/not.rrd", 2, "not.rrd: not a Rerun recording (.rrd)"),
     ("screenshot of nothing", "screenshot {f}/none.rrd", 2, "none.rrd: no such recording"),
     ("screenshot of a text file at a tick", "screenshot {f}/not.rrd --tick 5", 2, "not.rrd: not a Rerun recording"),
-    ("screenshot window size", "screenshot {f}/not.rrd --size big", 2, "argument --size: expected WIDTHxHEIGHT"),
-    ("run negative seed", "run --seed -1", 2, "argument --seed: must be at least 0, got -1"),
-    ("brain negative clock", "brain --clock -5", 2, "argument --clock: must be 0 or more, got -5"),
-    ("brain clock not a number", "brain --clock nan", 2, "argument --clock: expected a finite number, got nan"),
-    (
-        "gateway spin of 0 ms (the brick's 'until stopped')",
-        "gateway --spin-ms 0",
-        2,
-        "argument --spin-ms: must be at least 1, got 0",
-    ),
-    (
-        "gateway command age below 0",
-        "gateway --max-command-age -1",
-        2,
-        "argument --max-command-age: must be a number above 0, got -1",
-    ),
-    ("record flushing every 0 ticks", "record --flush-every 0", 2, "argument --flush-every: must be at least 1, got 0"),
-    ("bench loop no repeats", "bench loop --repeats 0", 2, "argument --repeats: must be at least 1, got 0"),
-    ("record viewer not a URL", "record --viewer nothing", 2, "argument --viewer: 'nothing' is not a viewer URL"),
     (
         "record viewer where none runs",
-        f"record --viewer rerun+http://127.0.0.1:{CLOSED}/proxy --out {{f}}/r.rrd",
+        "record --viewer rerun+http://127.0.0.1:{closed}/proxy --out {f}/r.rrd",
         1,
-        f"no viewer answers at rerun+http://127.0.0.1:{CLOSED}/proxy",
-    ),
-    (
-        "malformed endpoint",
-        "brain --connect localhost:7447",
-        2,
-        "argument --connect: 'localhost:7447' is not an endpoint",
-    ),
-    ("endpoint without port", "world --listen tcp/127.0.0.1", 2, "a tcp endpoint needs host:port"),
-    (
-        "brain shard beyond its count",
-        "brain --shard 4/3",
-        2,
-        "argument --shard: must be I/N with 1 <= I <= N (e.g. 2/3), got '4/3'",
+        "no viewer answers at rerun+http://127.0.0.1:{closed}/proxy",
     ),
     (
         "sharded brain for the recorder",
@@ -155,18 +182,8 @@ CASES = [  # id, arguments ({f}: the input files, {busy}: a port in use), exit c
     ),
     ("more shards than agents", "world --shards 3 --agents 2", 2, "--shards 3: more brain shards than agents (2)"),
     ("port in use", "brain --listen tcp/127.0.0.1:{busy}", 1, "Address already in use"),
-    (
-        "zenoh config missing",
-        "world --zenoh-config certs/world.json5",
-        2,
-        "argument --zenoh-config: cannot read certs/world.json5: No such file or directory (`spikinglab certs DIR`",
-    ),
-    ("zenoh config not JSON5", "brain --zenoh-config {f}/broken.json5", 2, "broken.json5 is not a JSON5 config"),
-    ("zenoh config not an object", "brain --zenoh-config {f}/list.json5", 2, "should hold one JSON5 object"),
     ("zenoh config Zenoh refuses", "brain --zenoh-config {f}/badmode.json5", 1, "badmode.json5: "),
     ("certs where a file is", "certs {f}/occupied", 2, "occupied is a file, not a folder for the certificates"),
-    ("unknown command", "fly", 2, "unknown command 'fly'"),
-    ("launch file missing", "launch {f}/none.toml", 2, "no launch file"),
     ("launch file not TOML", "launch {f}/broken.toml", 2, "broken.toml is not valid TOML"),
     ("launch file misspelt option", "launch {f}/typo.toml", 2, "typo.toml, [world]: unrecognized arguments: --tick"),
     (
@@ -197,33 +214,67 @@ CASES = [  # id, arguments ({f}: the input files, {busy}: a port in use), exit c
 ]
 
 
-@pytest.mark.parametrize("case, command, code, says", CASES, ids=[c[0] for c in CASES])
-def test_bad_input(case, command, code, says, files, busy_port, tmp_path):
-    argv = command.format(f=files, busy=busy_port).split()
+def arguments(command: str, tmp_path, **places) -> list[str]:
+    """The row's command line, its outputs in tmp_path."""
+    argv = command.format(**places).split()
     if argv[0] in ("run", "sweep"):
         argv += ["--runs", str(tmp_path / "runs")]
     elif argv[0] == "conditioning":
         argv += ["--out", str(tmp_path / "figures")]
+    return argv
+
+
+@pytest.fixture
+def same_environment():
+    """The commands' start sets variables for their process (OpenMP's); this process gets its own back."""
+    saved = dict(os.environ)
+    yield
+    os.environ.clear()
+    os.environ.update(saved)
+
+
+@pytest.mark.parametrize("case, command, code, says", ARGUMENTS, ids=[c[0] for c in ARGUMENTS])
+def test_bad_arguments(case, command, code, says, files, tmp_path, monkeypatch, capsys, same_environment):
+    """In this process: spikinglab's main with the row's arguments ends as the process would."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as ended:
+        cli.main(arguments(command, tmp_path, f=files))
+    out, err = capsys.readouterr()
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert ended.value.code == code, err
+    assert lines and says.format(f=files) in lines[-1], err
+    assert "Traceback" not in err + out
+    assert not list(tmp_path.rglob("summary.json")) and not list(tmp_path.rglob("*.png"))
+    assert not running_with(str(tmp_path))
+
+
+@pytest.mark.parametrize("case, command, code, says", CASES, ids=[c[0] for c in CASES])
+def test_bad_input(case, command, code, says, files, busy_port, closed_port, tmp_path):
+    places = {"f": files, "busy": busy_port, "closed": closed_port}
     done = subprocess.run(
-        [sys.executable, "-m", "spikinglab", *argv], cwd=tmp_path, capture_output=True, text=True, timeout=120
+        [sys.executable, "-m", "spikinglab", *arguments(command, tmp_path, **places)],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     lines = [line for line in done.stderr.splitlines() if line.strip()]
     assert done.returncode == code, done.stderr
-    assert lines and says.format(f=files) in lines[-1], done.stderr
+    assert lines and says.format(**places) in lines[-1], done.stderr
     assert "Traceback" not in done.stderr + done.stdout
     assert not list(tmp_path.rglob("summary.json")) and not list(tmp_path.rglob("*.png"))
     assert not running_with(str(tmp_path))
 
 
-def test_connecting_where_nothing_answers_is_reported_within_10_s(tmp_path):
+def test_connecting_where_nothing_answers_is_reported_within_10_s(closed_port, tmp_path):
     log = tmp_path / "brain.log"
-    brain = start("brain", "--connect", f"tcp/127.0.0.1:{CLOSED}", "--group", tmp_path.name, log=log)
+    brain = start("brain", "--connect", f"tcp/127.0.0.1:{closed_port}", "--group", tmp_path.name, log=log)
     try:
         started, said = time.monotonic(), ""
         while "nothing answers" not in said and time.monotonic() - started < 15:
             time.sleep(0.2)
             said = log.read_text()
-        assert f"nothing answers at tcp/127.0.0.1:{CLOSED} after 10 s" in said
+        assert f"nothing answers at tcp/127.0.0.1:{closed_port} after 10 s" in said
         assert brain.poll() is None  # it goes on trying: the other side may start later
     finally:
         brain.terminate()
@@ -234,11 +285,11 @@ def test_a_brain_that_refuses_every_reading_is_named_by_the_world(files, tmp_pat
     """Started by hand, a brain whose parameter file has 3 rows for the world's 2 agents refuses
     every sensors message and says why; the world waits for it (a brain may be fixed and
     restarted) and says, within 10 s, that it is on the bus but does not answer."""
-    port = free_port()
+    world_ep = endpoint(tmp_path, "world")
     world = start(
         "world",
         "--listen",
-        f"tcp/127.0.0.1:{port}",
+        world_ep,
         "--agents",
         2,
         "--group",
@@ -248,7 +299,7 @@ def test_a_brain_that_refuses_every_reading_is_named_by_the_world(files, tmp_pat
     brain = start(
         "brain",
         "--connect",
-        f"tcp/127.0.0.1:{port}",
+        world_ep,
         "--group",
         tmp_path.name,
         "--params",

@@ -18,23 +18,29 @@ from services.brain.circuit import load_circuit
 from services.ev3_gateway.fake_brick import FakeBrick
 from services.loop import brain_for, closed_loop
 from services.recorder.screenshot import last_tick, viewer_command
-from services.world.service import metrics_of
+from services.world.checkpoint import CHECKPOINT
+from services.world.results import metrics_of
 from services.world.world import World
 
-from .processes import endpoint, finish, free_port, running_with, start, wait_for
+from .processes import endpoint, finish, logged, running_with, start, wait_for, wait_for_ticks
 
 
 def left_at(log_text: str, service: str) -> tuple[str, int]:
     """When (log time) and at which tick a log says `service` left the bus."""
-    found = re.search(rf"(\d\d:\d\d:\d\d,\d+) \w+ WARNING the {service} left the bus at tick (\d+)", log_text)
-    assert found, f"no word of the {service} leaving in:\n{log_text[-2000:]}"
+    found = logged(log_text, rf"(\d{{4}}-\d\d-\d\d [\d:]+,\d+) \w+ WARNING the {service} left the bus at tick (\d+)")
     return found.group(1), int(found.group(2))
 
 
 def epoch(stamp: str) -> float:
-    """A log line's time of day (today) as seconds since the epoch."""
-    day = datetime.date.today()
-    return datetime.datetime.combine(day, datetime.datetime.strptime(stamp, "%H:%M:%S,%f").time()).timestamp()
+    """A log line's time (its date and time of day, as the services log them) as seconds since the epoch."""
+    return datetime.datetime.strptime(stamp, "%Y-%m-%d %H:%M:%S,%f").timestamp()
+
+
+def verify(recording) -> subprocess.CompletedProcess:
+    """`rerun rrd verify` of a recording: it opens as a store."""
+    rerun = viewer_command()
+    assert rerun, "the rerun command (rerun-sdk) is not installed"
+    return subprocess.run([*rerun, "rrd", "verify", str(recording)], capture_output=True)
 
 
 def pid_of(marker: str, module: str) -> int:
@@ -64,11 +70,13 @@ def training_run(tmp_path, *options) -> subprocess.Popen:
     )
 
 
-def kill_mid_run(tmp_path, module: str) -> float:
-    """Wait until the run's world is ticking, then kill -9 the process of `module`; when."""
-    world_log = tmp_path / "runs" / "chaos" / "world.log"
-    wait_for(lambda: world_log.exists() and " run " in world_log.read_text(), 120, "the run to start")
-    time.sleep(2.0)
+def kill_mid_run(tmp_path, module: str, checkpointed: bool = False) -> float:
+    """Wait until the run is under way (and has kept its first checkpoint), then kill -9 the
+    process of `module`; when."""
+    folder = tmp_path / "runs" / "chaos"
+    wait_for_ticks(folder, 120)  # the brain has answered: every service is in the run
+    if checkpointed:  # however slowly it runs on a busy machine
+        wait_for(lambda: (folder / "checkpoint" / CHECKPOINT).exists(), 240, "the run's first checkpoint")
     killed_at = time.time()
     pid = pid_of(str(tmp_path), module)
     subprocess.run(["kill", "-9", str(pid)], check=True)
@@ -86,7 +94,7 @@ def test_kill_9_of_the_recorder_the_run_goes_on_and_its_file_opens(tmp_path):
     recording = summary["recording"]
     assert recording["complete"] is False and recording["repaired"] is True and "exit -9" in recording["why"]
     assert "recording: PARTIAL, the recorder stopped (exit -9)" in out
-    verified = subprocess.run([*viewer_command(), "rrd", "verify", str(folder / "recording.rrd")], capture_output=True)
+    verified = verify(folder / "recording.rrd")
     assert verified.returncode == 0, verified.stderr  # it opens as a store (its footer was given back)
     world_saw, at_tick = left_at((folder / "world.log").read_text(), "recorder")
     left_at((folder / "brain.log").read_text(), "recorder")
@@ -101,7 +109,7 @@ def test_kill_9_of_the_recorder_the_run_goes_on_and_its_file_opens(tmp_path):
 def test_kill_9_of_the_world_or_brain_ends_the_run_saying_where_it_stopped(tmp_path, victim, other):
     """... and how to go on, which then ends the run whole."""
     run = training_run(tmp_path, "--checkpoint-every", 1000)
-    killed_at = kill_mid_run(tmp_path, f"spikinglab.{victim}.service")
+    killed_at = kill_mid_run(tmp_path, f"services.{victim}.service", checkpointed=True)
     out, err = run.communicate(timeout=240)
     assert run.returncode == 1, out + err
     folder = tmp_path / "runs" / "chaos"
@@ -132,7 +140,7 @@ def test_kill_9_of_the_world_or_brain_ends_the_run_saying_where_it_stopped(tmp_p
 
 
 def test_kill_9_of_the_gateway_the_brain_says_so_and_goes_on(tmp_path):
-    gateway_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
+    gateway_ep, brain_ep = endpoint(tmp_path, "gateway"), endpoint(tmp_path, "brain")
     with FakeBrick() as brick:
         gateway = start("gateway", "--listen", gateway_ep, log=tmp_path / "gateway.log")
         brain = start(
@@ -165,13 +173,13 @@ def test_kill_9_of_the_gateway_the_brain_says_so_and_goes_on(tmp_path):
 
 def test_kill_9_of_the_router_the_run_resumes_where_it_stopped(tmp_path):
     """World and brain as clients of a router (the secured bus's layout): the router dies, both
-    say so at once, the world waits; a new router on the same port and the run goes on to the end
+    say so at once, the world waits; a new router on the same endpoint and the run goes on to the end
     with exactly the undisturbed run's result."""
     ticks, seed = 8000, 2
     world = World(seed=seed)
     closed_loop(world, brain_for(world, load_circuit("insect")), ticks)
     (tmp_path / "client.json5").write_text('{mode: "client"}\n')
-    router_ep = endpoint(free_port())
+    router_ep = endpoint(tmp_path, "router")
     router = start("router", "--listen", router_ep, log=tmp_path / "router1.log")
     client = ("--connect", router_ep, "--zenoh-config", tmp_path / "client.json5")
     p_world = start("world", *client, "--ticks", ticks, "--seed", seed, "--out", tmp_path, log=tmp_path / "world.log")
@@ -213,7 +221,7 @@ def test_kill_9_then_the_same_commands_resume_the_run_tick_for_tick(tmp_path, vi
     brain = brain_for(world, load_circuit("insect"))
     path = np.zeros((ticks, 2))
     closed_loop(world, brain, ticks, lambda t: path.__setitem__(t, world.pos[0]))
-    world_ep = endpoint(free_port())
+    world_ep = endpoint(tmp_path, "world")
     world_args = (
         "--listen",
         world_ep,
@@ -275,7 +283,7 @@ def test_a_frozen_recorder_never_holds_the_run_back(tmp_path):
     """SIGSTOP of the recorder mid-run: world and brain run on to their end (their state streams
     drop rather than wait; before, the world stalled); on SIGCONT the recorder says the run's end
     never came and writes a file that opens, up to where it got."""
-    world_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
+    world_ep, brain_ep = endpoint(tmp_path, "world"), endpoint(tmp_path, "brain")
     world = start(
         "world",
         "--listen",
@@ -305,8 +313,7 @@ def test_a_frozen_recorder_never_holds_the_run_back(tmp_path):
         log=tmp_path / "recorder.log",
     )
     try:
-        wait_for(lambda: " run " in (tmp_path / "world.log").read_text(), 120, "the run to start")
-        time.sleep(1.0)
+        wait_for_ticks(tmp_path, 120)  # the recorder has had the run's first second
         recorder.send_signal(signal.SIGSTOP)
         assert finish(world, 120, tmp_path / "world.log") == 0
         assert finish(brain, 30, tmp_path / "brain.log") == 0
@@ -328,5 +335,5 @@ def test_a_frozen_recorder_never_holds_the_run_back(tmp_path):
         f"frozen recorder: the run went on to its end at {pace:,.0f} ticks/s; recorded ticks 0..{written.group(1)} "
         f"of 20,000; ticks missing within: {written.group(2)}; rejected or dropped: {written.group(3)}"
     )
-    verified = subprocess.run([*viewer_command(), "rrd", "verify", str(tmp_path / "run.rrd")], capture_output=True)
+    verified = verify(tmp_path / "run.rrd")
     assert verified.returncode == 0, verified.stderr

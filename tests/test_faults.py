@@ -2,7 +2,6 @@
 and brain and world that meet only through a router."""
 
 import json
-import re
 import threading
 import time
 
@@ -17,19 +16,19 @@ from services.loop import brain_for, closed_loop
 from services.recorder.screenshot import last_tick
 from services.world.world import World
 
-from .bus.test_schemas import GOOD
-from .processes import Watcher, endpoint, finish, free_port, start, ticks_in, wait_for
+from .messages import GOOD
+from .processes import Watcher, endpoint, finish, logged, start, ticks_in, wait_for
 
 
 def test_brain_killed_mid_run_world_waits_then_continues(tmp_path):
-    world_port, brain_port = free_port(), free_port()
-    watcher = Watcher([endpoint(world_port)], [keys.world_state("k")])
+    world_ep, brain_ep = endpoint(tmp_path, "world"), endpoint(tmp_path, "brain")
+    watcher = Watcher([world_ep], [keys.world_state("k")])
     world = start(
         "world",
         "--group",
         "k",
         "--listen",
-        endpoint(world_port),
+        world_ep,
         "--ticks",
         6000,
         "--publish-state",
@@ -37,7 +36,7 @@ def test_brain_killed_mid_run_world_waits_then_continues(tmp_path):
         tmp_path,
         log=tmp_path / "world.log",
     )
-    brain_args = ("--group", "k", "--listen", endpoint(brain_port), "--connect", endpoint(world_port), "--once")
+    brain_args = ("--group", "k", "--listen", brain_ep, "--connect", world_ep, "--once")
     brain = start("brain", *brain_args, log=tmp_path / "brain1.log")
     try:
         states = watcher.messages[keys.world_state("k")]
@@ -56,7 +55,7 @@ def test_brain_killed_mid_run_world_waits_then_continues(tmp_path):
         world.kill()
         watcher.close()
     log = (tmp_path / "world.log").read_text()
-    lost = int(re.search(r"brain lost at tick (\d+)", log).group(1))
+    lost = int(logged(log, r"brain lost at tick (\d+)").group(1))
     assert 1000 <= lost < 6000 and f"brain back: continuing at tick {lost}" in log
     assert ticks_in(states) == list(range(6000))  # every tick once, none skipped
     assert json.loads((tmp_path / "metrics.json").read_text())["ticks"] == 6000
@@ -116,11 +115,11 @@ def test_malformed_messages_on_every_topic_are_rejected_and_the_run_goes_on(tmp_
     brain = brain_for(world, load_circuit("insect"))
     closed_loop(world, brain, ticks)  # the run as it must come out, undisturbed
 
-    world_port, brain_port = free_port(), free_port()
+    world_ep, brain_ep = endpoint(tmp_path, "world"), endpoint(tmp_path, "brain")
     p_world = start(
         "world",
         "--listen",
-        endpoint(world_port),
+        world_ep,
         "--ticks",
         ticks,
         "--seed",
@@ -133,9 +132,9 @@ def test_malformed_messages_on_every_topic_are_rejected_and_the_run_goes_on(tmp_
     p_brain = start(
         "brain",
         "--listen",
-        endpoint(brain_port),
+        brain_ep,
         "--connect",
-        endpoint(world_port),
+        world_ep,
         "--once",
         "--save",
         tmp_path / "weights.npz",
@@ -147,14 +146,14 @@ def test_malformed_messages_on_every_topic_are_rejected_and_the_run_goes_on(tmp_
     p_recorder = start(
         "record",
         "--connect",
-        endpoint(world_port),
+        world_ep,
         "--connect",
-        endpoint(brain_port),
+        brain_ep,
         "--out",
         tmp_path / "run.rrd",
         log=tmp_path / "recorder.log",
     )
-    injector = Watcher([endpoint(world_port), endpoint(brain_port)], [])
+    injector = Watcher([world_ep, brain_ep], [])
     stop = threading.Event()
     topics = [
         keys.sensors("insect"),
@@ -211,13 +210,11 @@ def test_malformed_messages_on_every_topic_are_rejected_and_the_run_goes_on(tmp_
 
 
 def test_brain_and_world_meet_only_through_a_router(tmp_path):
-    router_port = free_port()
-    router = start("router", "--listen", endpoint(router_port), log=tmp_path / "router.log")
+    router_ep = endpoint(tmp_path, "router")
+    router = start("router", "--listen", router_ep, log=tmp_path / "router.log")
     try:
-        world = start(
-            "world", "--connect", endpoint(router_port), "--ticks", 1500, "--out", tmp_path, log=tmp_path / "world.log"
-        )
-        brain = start("brain", "--connect", endpoint(router_port), "--once", log=tmp_path / "brain.log")
+        world = start("world", "--connect", router_ep, "--ticks", 1500, "--out", tmp_path, log=tmp_path / "world.log")
+        brain = start("brain", "--connect", router_ep, "--once", log=tmp_path / "brain.log")
         assert finish(world, 60, tmp_path / "world.log") == 0
         assert finish(brain, 30, tmp_path / "brain.log") == 0
     finally:
@@ -229,7 +226,7 @@ def test_clients_started_before_their_router_wait_for_it(tmp_path):
     """A launch starts its processes at once: a client (the secured bus's services are clients)
     must not fail because its router is still starting."""
     (tmp_path / "client.json5").write_text('{mode: "client"}\n')
-    router_ep = endpoint(free_port())
+    router_ep = endpoint(tmp_path, "router")
     client = ("--connect", router_ep, "--zenoh-config", tmp_path / "client.json5")
     world = start("world", *client, "--ticks", 1500, "--out", tmp_path, log=tmp_path / "world.log")
     brain = start("brain", *client, "--once", log=tmp_path / "brain.log")

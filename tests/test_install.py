@@ -8,9 +8,12 @@ import sys
 import tomllib
 import venv
 
+import pytest
+
 from .processes import ROOT
 
 
+@pytest.mark.timeout(1800)  # a fresh machine downloads the dependencies (pip's own limit is 900 s)
 def test_the_wheel_installs_and_runs_from_any_directory(tmp_path):
     source, dist = tmp_path / "source", tmp_path / "dist"  # a copy: the build writes build/ beside the sources
     shutil.copytree(
@@ -57,6 +60,13 @@ def test_the_wheel_installs_and_runs_from_any_directory(tmp_path):
     assert (elsewhere / "figs" / "fig2.png").exists()
     spikinglab("bench", "engine", "--help")
     spikinglab("gateway", "--help")
+    fuzz = subprocess.run(  # its generators need hypothesis, which a plain install leaves out
+        [bin_dir / "spikinglab", "bench", "fuzz", "--examples", "1"], cwd=elsewhere, capture_output=True, text=True
+    )
+    assert (fuzz.returncode, fuzz.stderr) == (
+        2,
+        "spikinglab bench fuzz: needs hypothesis, which a plain install leaves out: pip install 'spikinglab[fuzz]'\n",
+    )
     shipped = spikinglab("launch", "--list").stdout  # the launch files come from the package too
     assert all(name in shipped for name in ("simulation", "robot", "remote-world", "remote-brain"))
     assert str(tmp_path / "venv") in shipped

@@ -1,7 +1,6 @@
 """A sharded brain: N brain processes each serve a slice of the population, as one brain would."""
 
 import json
-import re
 import subprocess
 import sys
 import time
@@ -14,7 +13,7 @@ from services.bus import keys
 from services.loop import brain_for, closed_loop
 from services.world.world import World, params_for
 
-from .processes import Watcher, endpoint, finish, free_port, start, ticks_in, wait_for
+from .processes import Watcher, endpoint, finish, logged, start, ticks_in, wait_for
 
 TICKS, SEED, AGENTS = 3000, 3, 7  # 7 agents in 3 shards: slices of 2, 2 and 3
 
@@ -29,13 +28,13 @@ def test_three_shards_run_bit_for_bit_as_one_brain(tmp_path):
     }
     study = tmp_path / "study.csv"
     np.savetxt(study, np.column_stack(list(columns.values())), delimiter=",", header=",".join(columns), comments="")
-    world_port = free_port()
+    world_ep = endpoint(tmp_path, "world")
     world = start(
         "world",
         "--group",
         "sh",
         "--listen",
-        endpoint(world_port),
+        world_ep,
         "--ticks",
         TICKS,
         "--seed",
@@ -56,7 +55,7 @@ def test_three_shards_run_bit_for_bit_as_one_brain(tmp_path):
             "--group",
             "sh",
             "--connect",
-            endpoint(world_port),
+            world_ep,
             "--shard",
             f"{i}/3",
             "--once",
@@ -97,14 +96,14 @@ def test_three_shards_run_bit_for_bit_as_one_brain(tmp_path):
 
 
 def test_a_dead_shard_is_named_and_waited_for(tmp_path):
-    world_port = free_port()
-    watcher = Watcher([endpoint(world_port)], [keys.world_state("sd")])
+    world_ep = endpoint(tmp_path, "world")
+    watcher = Watcher([world_ep], [keys.world_state("sd")])
     world = start(
         "world",
         "--group",
         "sd",
         "--listen",
-        endpoint(world_port),
+        world_ep,
         "--ticks",
         6000,
         "--agents",
@@ -116,7 +115,7 @@ def test_a_dead_shard_is_named_and_waited_for(tmp_path):
         tmp_path,
         log=tmp_path / "world.log",
     )
-    shard = ("--group", "sd", "--connect", endpoint(world_port), "--once")
+    shard = ("--group", "sd", "--connect", world_ep, "--once")
     first = start("brain", *shard, "--shard", "1/2", log=tmp_path / "brain1.log")
     second = start("brain", *shard, "--shard", "2/2", log=tmp_path / "brain2.log")
     try:
@@ -142,7 +141,7 @@ def test_a_dead_shard_is_named_and_waited_for(tmp_path):
             process.kill()
         watcher.close()
     log = (tmp_path / "world.log").read_text()
-    lost = int(re.search(r"brain shard 2/2 lost at tick (\d+)", log).group(1))
+    lost = int(logged(log, r"brain shard 2/2 lost at tick (\d+)").group(1))
     assert 1000 <= lost < 6000 and f"brain shard 2/2 back: continuing at tick {lost}" in log
     assert "brain shard 1/2 lost" not in log
     assert ticks_in(states) == list(range(6000))

@@ -17,7 +17,7 @@ import zenoh
 
 from services.options import Parser, at_least
 
-from .session import add_bus_args, open_session
+from .config import add_bus_args, open_session
 
 PING, PONG = "spikinglab/bench/ping", "spikinglab/bench/pong"
 PAYLOAD = bytes(64)  # about a one-agent Sensors message's size class
