@@ -377,6 +377,12 @@ class Recorder:
             self._flush_agent(a, ticks, pos[:, a], heading[:, a], b[f"vision{a}"])
 
     def _flush_agent(self, a, ticks, pos, heading, vision) -> None:
+        self._flush_heading(a, ticks, pos, heading)
+        if vision:
+            self._flush_vision(a, vision)
+        self._flush_trail(a, ticks, pos)
+
+    def _flush_heading(self, a, ticks, pos, heading) -> None:
         rad = np.radians(heading)
         ahead = np.stack([np.sin(rad), np.cos(rad)], axis=1)
         start = self.view(pos)
@@ -388,29 +394,33 @@ class Recorder:
                 origins=start, vectors=tip - start, colors=np.tile([255, 230, 0], (len(ticks), 1))
             ).partition([1] * len(ticks)),
         )
-        if vision:  # strips as one [T, 2, 2] array: Rerun converts it at once, a list strip by strip
-            ray_ticks, rays, ray_colours, hurt, fed = (np.concatenate(column) for column in zip(*vision))
-            rays = self.view(rays)
-            self._columns(
-                f"/world/vision/agent{a}",
-                ray_ticks,
-                rr.LineStrips2D.columns(
-                    strips=rays, colors=ray_colours, radii=np.full(len(rays), 0.08, np.float32)
-                ).partition([1] * len(rays)),
-            )
-            for flags, path, colour in ((hurt, "/world/pain", (255, 60, 60)), (fed, "/world/reward", (90, 230, 110))):
-                # a mark in the ticks it happens, an empty batch in the others (no stale mark)
-                marks = rays[flags, 0]
-                if len(marks) or path == "/world/pain":
-                    self._columns(
-                        path,
-                        ray_ticks,
-                        rr.Points2D.columns(
-                            positions=marks,
-                            colors=np.tile(np.array(colour, np.uint8), (len(marks), 1)),
-                            radii=np.full(len(marks), 0.9, np.float32),
-                        ).partition(flags.astype(np.int64)),
-                    )
+
+    def _flush_vision(self, a, vision) -> None:
+        # strips as one [T, 2, 2] array: Rerun converts it at once, a list strip by strip
+        ray_ticks, rays, ray_colours, hurt, fed = (np.concatenate(column) for column in zip(*vision))
+        rays = self.view(rays)
+        self._columns(
+            f"/world/vision/agent{a}",
+            ray_ticks,
+            rr.LineStrips2D.columns(
+                strips=rays, colors=ray_colours, radii=np.full(len(rays), 0.08, np.float32)
+            ).partition([1] * len(rays)),
+        )
+        for flags, path, colour in ((hurt, "/world/pain", (255, 60, 60)), (fed, "/world/reward", (90, 230, 110))):
+            # a mark in the ticks it happens, an empty batch in the others (no stale mark)
+            marks = rays[flags, 0]
+            if len(marks) or path == "/world/pain":
+                self._columns(
+                    path,
+                    ray_ticks,
+                    rr.Points2D.columns(
+                        positions=marks,
+                        colors=np.tile(np.array(colour, np.uint8), (len(marks), 1)),
+                        radii=np.full(len(marks), 0.9, np.float32),
+                    ).partition(flags.astype(np.int64)),
+                )
+
+    def _flush_trail(self, a, ticks, pos) -> None:
         # the trail: every TRAIL_EVERY ticks, the last `trail` positions, split where it jumped (reset)
         old_ticks, old_pos = self._trail.get(a, (np.zeros(0, np.int64), np.zeros((0, 2))))
         history_ticks = np.concatenate([old_ticks, ticks])
