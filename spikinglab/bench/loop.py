@@ -109,7 +109,7 @@ def median_of(runs: list[float]) -> tuple[float, str]:
     return float(np.median(runs)), ", ".join(f"{r:,.0f}" for r in runs)
 
 
-def main(argv=None) -> dict:
+def parser() -> Parser:
     p = Parser(prog="spikinglab bench loop", description=(__doc__ or "").splitlines()[0])
     p.add_argument(
         "--ticks",
@@ -125,7 +125,11 @@ def main(argv=None) -> dict:
         "--repeats", type=at_least(1), default=3, help="runs of each bus case (default 3; the median is reported)"
     )
     p.add_argument("--semantics", choices=SEMANTICS, default=DEFAULT_SEMANTICS, help="the brain's engine semantics")
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv=None) -> dict:
+    args = parser().parse_args(argv)
     A, big = args.agents, args.large_agents
     print(f"engine semantics: {args.semantics}; {os.cpu_count()} cores")
     # this shared machine varies by 10-20 % from run to run: each bus case three times, the median
