@@ -20,7 +20,8 @@ class TickBatch:
     copy per array (the recorded lock-step loop adds every tick)."""
 
     def __init__(self, size: int):
-        self.size, self.first, self.count = size, None, 0
+        self.size, self.count = size, 0
+        self.first: int | None = None
         self.rows: dict[str, np.ndarray] = {}
 
     def add(self, tick: int, **arrays) -> None:
@@ -38,7 +39,8 @@ class TickBatch:
     def full(self) -> bool:
         return self.count >= self.size
 
-    def take(self) -> tuple[int, dict[str, np.ndarray]]:
+    def take(self) -> tuple[int | None, dict[str, np.ndarray]]:
+        """The first tick (None when none was added) and the rows added; the batch starts afresh."""
         first, count = self.first, self.count
         self.first, self.count = None, 0
         return first, {name: rows[:count].copy() for name, rows in self.rows.items()}

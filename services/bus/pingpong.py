@@ -24,7 +24,7 @@ PAYLOAD = bytes(64)  # about a one-agent Sensors message's size class
 
 
 def main(argv=None) -> int:
-    p = Parser(prog="python -m services.bus.pingpong", description=__doc__.splitlines()[0])
+    p = Parser(prog="python -m services.bus.pingpong", description=(__doc__ or "").partition("\n")[0])
     p.add_argument("role", choices=("ping", "pong"))
     p.add_argument("--count", type=at_least(1), default=20_000)
     add_bus_args(p)

@@ -14,7 +14,7 @@ import math
 import re
 import secrets
 import struct
-from typing import Annotated
+from typing import Annotated, cast
 
 import msgspec
 import numpy as np
@@ -52,7 +52,9 @@ class Array(msgspec.Struct, frozen=True):
         world 200 us of its 4 ms tick."""
         if a.dtype.byteorder == ">" or not a.flags.c_contiguous:
             return cls.of(a)
-        return cls(a.dtype.str, tuple(a.shape), memoryview(a).cast("B"))
+        # msgspec encodes any buffer where a bytes field is expected; `data` is typed bytes for what
+        # decode gives, so the view is cast to it.
+        return cls(a.dtype.str, tuple(a.shape), cast(bytes, a.data.cast("B")))
 
     def check(self, field: str, dtype: str, ndim: int) -> None:
         """BusError unless dtype, number of dimensions, and byte length agree. Plain Python, no
@@ -103,7 +105,7 @@ class Message(msgspec.Struct, tag_field="kind", frozen=True, kw_only=True):
         """Kind-specific checks beyond the types; raise BusError."""
 
 
-class Sensors(Message, tag="sensors", kw_only=True):
+class Sensors(Message, tag="sensors", frozen=True, kw_only=True):
     """Sensor values of tick `tick` for A agents: values[a, k] for sensor names[k]; NaN: nothing."""
 
     names: tuple[str, ...]
@@ -124,7 +126,7 @@ class Sensors(Message, tag="sensors", kw_only=True):
             raise BusError("values: a sensor value outside [0, 2**31) (NaN: nothing sensed)")
 
 
-class Motor(Message, tag="motor", kw_only=True):
+class Motor(Message, tag="motor", frozen=True, kw_only=True):
     """Which actions fired in tick `tick` of run `run`: actions[a, k] != 0 for action names[k]."""
 
     names: tuple[str, ...]
@@ -139,7 +141,7 @@ class Motor(Message, tag="motor", kw_only=True):
             raise BusError(f"actions has {self.actions.shape[1]} columns for {len(self.names)} action names")
 
 
-class Control(Message, tag="control", kw_only=True):
+class Control(Message, tag="control", frozen=True, kw_only=True):
     """Run control. command: "end" (run `run` is over at `tick`: save and stop)."""
 
     command: str
@@ -150,7 +152,7 @@ class Control(Message, tag="control", kw_only=True):
             raise BusError(f"unknown control command {self.command!r}")
 
 
-class BrainState(Message, tag="brain_state", kw_only=True):
+class BrainState(Message, tag="brain_state", frozen=True, kw_only=True):
     """The brain over T consecutive ticks from `tick`: spikes [T, A, nodes] (u1), potentials
     [T, A, neurons] (f4), and the weights [A, synapses] (f8) after the batch's last tick. `final`:
     the last batch of the run."""
@@ -169,7 +171,7 @@ class BrainState(Message, tag="brain_state", kw_only=True):
             raise BusError(f"weights have {self.weights.shape[0]} agents, spiked has {spiked.shape[1]}")
 
 
-class BrainLayout(Message, tag="brain_layout", kw_only=True):
+class BrainLayout(Message, tag="brain_layout", frozen=True, kw_only=True):
     """What the brain's arrays mean, sent once before its first state: node names (neurons first,
     then input neurons), the number of neurons, synapse labels "PRE->POST", the plastic ones."""
 
@@ -187,7 +189,7 @@ class BrainLayout(Message, tag="brain_layout", kw_only=True):
             raise BusError("a plastic synapse index is out of range")
 
 
-class WorldState(Message, tag="world_state", kw_only=True):
+class WorldState(Message, tag="world_state", frozen=True, kw_only=True):
     """The world over T consecutive ticks from `tick`: what each tick sensed, sensors [T, A, S]
     (NaN: nothing; the names as in Sensors), then after its actions pos [T, A, 2], heading [T, A],
     events [T, A, 4] (EVENT_COLUMNS), collisions [T, A], food [T, A]; and
@@ -230,7 +232,7 @@ class WorldState(Message, tag="world_state", kw_only=True):
             raise BusError("pos and heading must be finite")
 
 
-class WorldMap(Message, tag="world_map", kw_only=True):
+class WorldMap(Message, tag="world_map", frozen=True, kw_only=True):
     """The arenas: grid [arenas, width, height] of colours (EMPTY, BLACK, RED, GREEN), patch (0, 0)
     at (x_min, y_min)."""
 

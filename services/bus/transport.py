@@ -55,18 +55,20 @@ class Backlog:
             self.size += n
             self._ready.notify()
 
-    def try_recv(self):
+    def try_recv(self) -> zenoh.Sample | None:
         with self._ready:
-            if not self._items:
-                return None
-            sample = self._items.popleft()
-            self.size -= len(sample.payload)
-            return sample
+            return self._pop() if self._items else None
 
-    def recv(self):
+    def recv(self) -> zenoh.Sample:
         with self._ready:
             self._ready.wait_for(lambda: self._items)
-        return self.try_recv()
+            return self._pop()
+
+    def _pop(self) -> zenoh.Sample:
+        """The oldest sample; the caller holds the lock and has seen one waiting."""
+        sample = self._items.popleft()
+        self.size -= len(sample.payload)
+        return sample
 
 
 class Inbox:
@@ -90,8 +92,12 @@ class Inbox:
         self.rejected: Counter = Counter()
         self._session = session
         self._backlog = Backlog(backlog_bytes) if backlog_bytes else None
-        self._sub = session.declare_subscriber(key, self._backlog or zenoh.handlers.FifoChannel(capacity))
-        self._channel = self._backlog or self._sub
+        self._channel: Backlog | zenoh.Subscriber[zenoh.Handler[zenoh.Sample]]
+        if self._backlog:
+            self._sub = session.declare_subscriber(key, self._backlog)
+            self._channel = self._backlog
+        else:
+            self._sub = self._channel = session.declare_subscriber(key, zenoh.handlers.FifoChannel(capacity))
         self._deadline: float | None = None  # when the blocked owner wants to be woken
         self._closed = threading.Event()
         self._ticker = threading.Thread(target=self._tick, name=f"wake {key}", daemon=True)
