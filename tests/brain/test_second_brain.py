@@ -6,11 +6,11 @@ import signal
 import time
 
 from services.bus import keys
-from tests.processes import endpoint, finish, free_port, start, wait_for
+from tests.processes import Watcher, endpoint, finish, start, wait_for
 
 
 def test_a_second_brain_for_the_same_agents_says_so_and_exits(tmp_path):
-    world_ep = endpoint(free_port())
+    world_ep = endpoint(tmp_path, "world")
     group = ("--group", "twice")
     world = start(
         "world", *group, "--listen", world_ep, "--ticks", 10_000_000, "--out", tmp_path, log=tmp_path / "world.log"
@@ -24,6 +24,11 @@ def test_a_second_brain_for_the_same_agents_says_so_and_exits(tmp_path):
         assert finish(second, 60, tmp_path / "brain2.log") == 1
         print(f"second brain: started, said so and exited in {time.monotonic() - started:.1f} s")
         assert world.poll() is None and first.poll() is None  # the run goes on with the first brain
+        answers = Watcher([world_ep], [keys.motor("twice")])
+        try:  # however slowly a cold machine compiles the brain: the run is under way
+            wait_for(lambda: len(answers.messages[keys.motor("twice")]) > 1, 120, "the first brain's answers")
+        finally:
+            answers.close()
         world.send_signal(signal.SIGTERM)  # the world ends the run there: the first brain ends with it
         assert finish(world, 60, tmp_path / "world.log") == 130  # interrupted: its metrics marked partial
         assert finish(first, 30, tmp_path / "brain1.log") == 0
