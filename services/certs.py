@@ -243,7 +243,7 @@ def write_configs(folder: Path) -> None:
 
 
 def parser() -> Parser:
-    p = Parser(prog="spikinglab certs", description=__doc__.splitlines()[0])
+    p = Parser(prog="spikinglab certs", description=(__doc__ or "").partition("\n")[0])
     p.add_argument("folder", type=Path, metavar="DIR", help="where to write them (made if missing)")
     p.add_argument(
         "--host",

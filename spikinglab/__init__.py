@@ -14,6 +14,16 @@ The names load lazily, so starting a service does not import the others.
 """
 
 from importlib import import_module
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # what static tools see; at run time __getattr__ imports a name's module when it is used
+    from services.brain.brain import Brain
+    from services.brain.circuit import Circuit, load_circuit
+    from services.brain.engine import Engine
+    from services.learning import DEFINITIONS, learning_time, noxious_ticks
+    from services.loop import brain_for, closed_loop, evaluate
+    from services.params import AGENT_PARAMS
+    from services.world.world import World, WorldParams, map_world, params_for, world_actions
 
 API = {  # name -> module
     "World": "services.world.world",
@@ -33,7 +43,24 @@ API = {  # name -> module
     "learning_time": "services.learning",
     "DEFINITIONS": "services.learning",
 }
-__all__ = sorted(API)
+__all__ = [  # API's names, written out for static tools (tests/test_api.py checks they agree)
+    "AGENT_PARAMS",
+    "Brain",
+    "Circuit",
+    "DEFINITIONS",
+    "Engine",
+    "World",
+    "WorldParams",
+    "brain_for",
+    "closed_loop",
+    "evaluate",
+    "learning_time",
+    "load_circuit",
+    "map_world",
+    "noxious_ticks",
+    "params_for",
+    "world_actions",
+]
 
 
 def __getattr__(name: str):

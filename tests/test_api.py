@@ -9,6 +9,7 @@ from .processes import ROOT
 
 
 def test_every_api_name_loads():
+    assert sorted(spikinglab.__all__) == sorted(spikinglab.API)
     for name in spikinglab.__all__:
         assert getattr(spikinglab, name) is not None, name
 

@@ -18,6 +18,7 @@ import struct
 import threading
 import time
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -112,7 +113,8 @@ class EV3Backend(Backend):
 
     def connect(self) -> None:
         try:
-            self._ev3 = self._dc.EV3(protocol=self.protocol, host=self.host)
+            # ev3-dc annotates host as str but takes None (find the brick by its beacon): cast for its annotation
+            self._ev3 = self._dc.EV3(protocol=self.protocol, host=cast(str, self.host))
         except Exception as e:  # ev3-dc raises NoEV3, OSError, usb errors, AssertionError, ...
             self._ev3 = None
             raise RobotLinkError(f"cannot connect to the EV3 over {self.protocol}: {e}") from None

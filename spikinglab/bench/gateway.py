@@ -88,7 +88,7 @@ def chain(trials: int, hz: float, max_polls: float = 0) -> tuple[list[float], di
 
 
 def main(argv=None) -> dict:
-    p = Parser(prog="spikinglab bench gateway", description=__doc__.splitlines()[0])
+    p = Parser(prog="spikinglab bench gateway", description=(__doc__ or "").partition("\n")[0])
     p.add_argument("--seconds", type=positive, default=5.0, help="for the polls/s figure")
     p.add_argument("--trials", type=at_least(1), default=40)
     p.add_argument("--clock", type=positive, default=1000.0, help="the brain's clock (Hz)")

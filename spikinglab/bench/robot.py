@@ -103,7 +103,7 @@ def plot(results: dict, seconds: float, out: Path) -> None:
 
 
 def main(argv=None) -> dict:
-    p = Parser(prog="spikinglab bench robot", description=__doc__.split("\n\n")[0])
+    p = Parser(prog="spikinglab bench robot", description=(__doc__ or "").partition("\n\n")[0])
     p.add_argument("--seconds", type=positive, default=120, help="real time per run (default 120)")
     p.add_argument("--seeds", type=at_least(1), default=3, help="runs per condition (default 3)")
     p.add_argument("--bin", type=positive, default=30, help="seconds per column of the table (default 30)")
