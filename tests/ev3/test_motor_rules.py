@@ -18,8 +18,15 @@ def rules_with_brain(now=0.0) -> MotorRules:
     return rules
 
 
-def made(rules, now, actions):
-    call = rules.decide(now, True, actions)
+def call_at(rules, now, brain_alive, actions=None) -> MotorCall:
+    """rules.decide's answer, where the test expects a call."""
+    call = rules.decide(now, brain_alive, actions)
+    assert call is not None, f"no motor call at {now} s"
+    return call
+
+
+def made(rules, now, actions) -> MotorCall:
+    call = call_at(rules, now, True, actions)
     rules.made(call, now)
     return call
 
@@ -48,7 +55,7 @@ def test_a_silent_brain_stops_the_walk_within_the_timeout():
     rules = rules_with_brain()
     made(rules, 1.0, MOVE)  # forward until 1.5 s, but the brain is not heard after 1.0 s (stalled, link broken)
     assert rules.decide(1.24, True, None) is None
-    stop = rules.decide(1.26, True, None)
+    stop = call_at(rules, 1.26, True)
     assert stop.call == "stop" and "no word from the brain for 250 ms" in stop.why
     rules.made(stop, 1.26)
     assert rules.decide(5.0, True, None) is None  # stopped once, not again and again
@@ -61,7 +68,7 @@ def test_a_heard_brain_walks_until_the_command_ended_and_the_timeout_passed():
         assert rules.decide(now, True, NOTHING) is None
         assert rules.decide(now + 0.01, True, None) is None  # still walking, then within the 250 ms grace
     assert rules.decide(1.76, True, NOTHING) is None
-    stop = rules.decide(1.77, True, None)
+    stop = call_at(rules, 1.77, True)
     assert stop.call == "stop" and "no motor command within 250 ms after the last ended" in stop.why
 
 
@@ -72,21 +79,21 @@ def test_a_new_command_extends_the_walk():
     assert rules.decide(1.4, True, NOTHING) is None
     assert rules.decide(1.6, True, NOTHING) is None
     assert rules.decide(1.9, True, NOTHING) is None
-    assert rules.decide(1.96, True, None).call == "stop"
+    assert call_at(rules, 1.96, True).call == "stop"
 
 
 def test_a_stop_that_did_not_reach_the_robot_is_asked_again():
     rules = rules_with_brain()
     made(rules, 1.0, ROTATE)  # spin until 1.1
     assert rules.decide(1.3, True, NOTHING) is None
-    assert rules.decide(1.4, True, None).call == "stop"  # the link was down: not made
-    assert rules.decide(1.5, True, None).call == "stop"
+    assert call_at(rules, 1.4, True).call == "stop"  # the link was down: not made
+    assert call_at(rules, 1.5, True).call == "stop"
 
 
 def test_losing_the_brain_stops_at_once_and_ignores_commands_until_it_is_back():
     rules = rules_with_brain()
     made(rules, 1.0, MOVE)
-    stop = rules.decide(1.1, False, None)  # mid-walk
+    stop = call_at(rules, 1.1, False)  # mid-walk
     assert stop.call == "stop" and "liveliness" in stop.why
     rules.made(stop, 1.1)
     assert rules.decide(1.2, False, MOVE) is None
