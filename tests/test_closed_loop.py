@@ -10,7 +10,7 @@ from services.bus.schemas import BrainLayout
 from services.loop import brain_for, closed_loop
 from services.world.world import World, params_for
 
-from .processes import Watcher, endpoint, finish, free_port, start
+from .processes import Watcher, endpoint, finish, start
 
 TICKS, SEED, AGENTS = 3000, 5, 2
 
@@ -31,15 +31,15 @@ def inprocess_run(semantics):
 
 def bus_run(tmp_path, semantics):
     """The same run as world and brain processes over Zenoh: the world's and the brain's state messages."""
-    world_port, brain_port = free_port(), free_port()
-    watcher = Watcher([endpoint(world_port), endpoint(brain_port)], [keys.world_state("det"), keys.brain_state("det")])
+    world_ep, brain_ep = endpoint(tmp_path, "world"), endpoint(tmp_path, "brain")
+    watcher = Watcher([world_ep, brain_ep], [keys.world_state("det"), keys.brain_state("det")])
     try:
         world = start(
             "world",
             "--group",
             "det",
             "--listen",
-            endpoint(world_port),
+            world_ep,
             "--ticks",
             TICKS,
             "--seed",
@@ -56,9 +56,9 @@ def bus_run(tmp_path, semantics):
             "--group",
             "det",
             "--listen",
-            endpoint(brain_port),
+            brain_ep,
             "--connect",
-            endpoint(world_port),
+            world_ep,
             "--a-plus",
             0.04,
             "--publish-state",
