@@ -4,8 +4,13 @@ that refuse a bad value before anything starts (argparse names the option in the
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
+import types
+import typing
+
+C = typing.TypeVar("C")
 
 
 class UsageError(Exception):
@@ -112,3 +117,61 @@ def shard_slice(agents: int, shard: tuple[int, int]) -> tuple[int, int]:
     another and differ in size by one agent at most (brain --shard I/N, world --shards N)."""
     i, n = shard
     return agents * (i - 1) // n, agents * i // n
+
+
+def config_from(namespace: argparse.Namespace, cls: type[C], whole: bool = True) -> C:
+    """The frozen dataclass `cls` made from parsed options, field by field; a field that is itself a
+    dataclass (a group of options that several commands add: the bus's, the world's) is made from
+    the same options. The parser is where options are declared; the dataclass names their types.
+    TypeError, naming it, for a field without its option, a value not of its field's type, and (with
+    `whole`: a service's config) an option without its field."""
+    given = vars(namespace)
+    config = _made(given, cls)
+    unread = set(given) - option_names(cls)
+    if whole and unread:
+        raise TypeError(f"{cls.__name__} has no field for the option(s) {', '.join(sorted(unread))}")
+    return config
+
+
+def option_names(cls: type) -> set[str]:
+    """The options a config dataclass holds, its nested groups' too."""
+    names: set[str] = set()
+    for name, kind in _fields(cls):
+        names |= option_names(kind) if _is_group(kind) else {name}
+    return names
+
+
+def _made(given: dict, cls: type[C]) -> C:
+    values = {}
+    for name, kind in _fields(cls):
+        if _is_group(kind):
+            values[name] = _made(given, kind)
+        elif name not in given:
+            raise TypeError(f"{cls.__name__}.{name} has no option")
+        elif not _fits(given[name], kind):
+            raise TypeError(f"{cls.__name__}.{name} is {kind}, the option gives {given[name]!r}")
+        else:
+            values[name] = given[name]
+    return cls(**values)
+
+
+def _fields(cls: type) -> list[tuple[str, typing.Any]]:
+    """A dataclass's fields: (name, type), the types resolved (they are text in a module that
+    imports annotations from __future__)."""
+    hints = typing.get_type_hints(cls)
+    return [(f.name, hints[f.name]) for f in dataclasses.fields(cls)]
+
+
+def _is_group(kind) -> bool:
+    return isinstance(kind, type) and dataclasses.is_dataclass(kind)
+
+
+def _fits(value, kind) -> bool:
+    """Whether `value` is of type `kind` (its outer class: list[str] checks for a list)."""
+    origin = typing.get_origin(kind)
+    if origin in (typing.Union, types.UnionType):
+        return any(_fits(value, k) for k in typing.get_args(kind))
+    if kind is None or kind is type(None):
+        return value is None
+    outer = origin or kind
+    return isinstance(value, (int, float) if outer is float else outer)  # an int is a float (PEP 484)

@@ -1,5 +1,5 @@
 """How a service process starts and ends: logging, its options, signals, a thread that dies,
-OpenMP's waiting threads, then its bus session and its run(args, session)."""
+OpenMP's waiting threads, then its bus session and its run(config, session)."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ import sys
 import threading
 
 from services.bus.config import BusConfigError, open_session
+from services.options import config_from
 
 log = logging.getLogger("spikinglab")
 
@@ -75,18 +76,21 @@ def service_main(
     interrupted: int = 130,
     prepare=None,
     mode: str | None = None,
+    config: type | None = None,
 ) -> int:
-    """A process on the bus: process_main, then prepare(args) (work before the bus: checks that
-    refuse to start), its bus session (`mode`: Zenoh's, "router" for a router; default: the
-    options' choice), then run(args, session)."""
+    """A process on the bus: process_main, then its typed config (the dataclass `config`, made by
+    config_from right after parsing; without: the options themselves), prepare(config) (work
+    before the bus: checks that refuse to start), its bus session (`mode`: Zenoh's, "router" for a
+    router; default: the options' choice), then run(config, session)."""
 
     def on_the_bus(args: argparse.Namespace) -> int:
+        settings = args if config is None else config_from(args, config)
         if prepare is not None:
-            prepare(args)
+            prepare(settings)
         try:
             session = open_session(args, mode)
         except BusConfigError as e:
             raise SystemExit(str(e)) from None
-        return run(args, session)
+        return run(settings, session)
 
     return process_main(name, parser, on_the_bus, argv, interrupted)

@@ -4,6 +4,7 @@ the --params file checked against a circuit. No bus here: `sweep` and `run` impo
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from pathlib import Path
 
 from services.params import file_rows, read_params, side_of
@@ -26,6 +27,14 @@ def add_engine_args(p: argparse.ArgumentParser) -> None:
         default="random",
         help="netlogo: neurons each tick in a seeded random order (as NetLogo's ask) or in file order",
     )
+
+
+@dataclass(frozen=True)
+class EngineOptions:
+    """add_engine_args' options, in the brain's config (services.options.config_from)."""
+
+    semantics: str
+    order: str
 
 
 def brain_params(path: Path, circuit) -> dict:

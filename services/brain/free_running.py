@@ -11,6 +11,7 @@ import logging
 import math
 import os
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -22,6 +23,9 @@ from services.options import not_negative, positive
 from .brain import check_sensors
 from .checkpoint import save_weights
 from .node import BrainNode, layout
+
+if TYPE_CHECKING:  # the service module, which starts this one
+    from .service import BrainConfig
 
 log = logging.getLogger("spikinglab.brain")
 HEARTBEAT_S = 0.05  # a motor message (an empty one if nothing fired) at least this often
@@ -131,24 +135,25 @@ def realtime_clock() -> None:
 class FreeRunning:
     """Robot mode on `bus`: one BrainNode, ticked by a Clock with the latest reading."""
 
-    def __init__(self, args: argparse.Namespace, bus: Bus, node: BrainNode):
-        self.args, self.bus, self.node = args, bus, node
-        self.sensors = bus.inbox(keys.sensors(args.group), Sensors)
-        self.control = bus.inbox(keys.control(args.group), Control)
-        self.motor = bus.outbox(keys.motor(args.group))
-        self.state = bus.outbox(keys.brain_state(args.group), lossy=True) if args.publish_state else None
+    def __init__(self, config: BrainConfig, bus: Bus, node: BrainNode):
+        self.config, self.bus, self.node = config, bus, node
+        group = bus.group
+        self.sensors = bus.inbox(keys.sensors(group), Sensors)
+        self.control = bus.inbox(keys.control(group), Control)
+        self.motor = bus.outbox(keys.motor(group))
+        self.state = bus.outbox(keys.brain_state(group), lossy=True) if config.publish_state else None
         self.latest: Sensors | None = None  # the reading the brain senses
         self.latest_at = self.spoke_at = 0.0  # when it came, when the last Motor message went (monotonic)
         self.tick = 0
         bus.watch_others(lambda: f" at tick {self.tick} of run {node.run}" if node.run else "")
 
     def run(self) -> int:
-        args = self.args
+        config = self.config
         log.info(
             "brain ready on group %s (%s), free-running at %g Hz; waiting for sensors",
-            args.group,
+            self.bus.group,
             self.bus.sender,
-            args.clock,
+            config.clock,
         )
         first = self.first_reading()
         self.node.start(first)
@@ -157,9 +162,9 @@ class FreeRunning:
         if self.state is not None:
             wait_for_subscriber(self.state, "a recorder")
             self.state.put(layout(self.node.circuit, 0, self.node.run))
-        if not args.no_realtime:
+        if not config.no_realtime:
             realtime_clock()
-        clock = Clock(args.clock)
+        clock = Clock(config.clock)
         try:
             while not self.step(nothing):
                 self.tick += 1
@@ -187,7 +192,7 @@ class FreeRunning:
         """The newest reading that fits the robot's run, or None while the last one is stale."""
         latest, message = self.latest, self.sensors.latest()  # only the newest reading counts
         assert latest is not None
-        fresh = now - self.latest_at < self.args.stale_after
+        fresh = now - self.latest_at < self.config.stale_after
         if isinstance(message, Sensors):
             if message.names != latest.names or message.values.shape != latest.values.shape:
                 self.sensors.refuse(
@@ -239,7 +244,7 @@ class FreeRunning:
 
     def finish(self, clock: Clock) -> None:
         """The last state batch, the stats (logged, and to --stats) and the weights (--save)."""
-        args, node = self.args, self.node
+        config, node = self.config, self.node
         if self.state is not None:
             self.state.put(node.state_message(final=True))
         elapsed = time.monotonic() - clock.started
@@ -256,7 +261,7 @@ class FreeRunning:
             stats["late_ms_median"],
             stats["late_ms_p99"],
         )
-        if args.stats:
-            args.stats.write_text(json.dumps(stats))
-        if args.save and node.brain is not None:
-            save_weights(args.save, node.brain.engine, node.circuit, tick=self.tick)
+        if config.stats:
+            config.stats.write_text(json.dumps(stats))
+        if config.save and node.brain is not None:
+            save_weights(config.save, node.brain.engine, node.circuit, tick=self.tick)

@@ -4,10 +4,10 @@ the next run (or exits, --once). A run that stops without its end keeps its lear
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from services.bus import keys
 from services.bus.schemas import BusError, Control, Sensors
@@ -16,20 +16,24 @@ from services.bus.transport import Bus, wait_for_subscriber
 from .checkpoint import save_weights
 from .node import BrainNode, layout
 
+if TYPE_CHECKING:  # the service module, which starts this one
+    from .service import BrainConfig
+
 log = logging.getLogger("spikinglab.brain")
 
 
 class LockStep:
     """A brain serving worlds on `bus`, a fresh BrainNode (`new_node()`) for each run."""
 
-    def __init__(self, args: argparse.Namespace, bus: Bus, new_node: Callable[[], BrainNode]):
-        self.args, self.bus, self.new_node = args, bus, new_node
+    def __init__(self, config: BrainConfig, bus: Bus, new_node: Callable[[], BrainNode]):
+        self.config, self.bus, self.new_node = config, bus, new_node
         self.node = new_node()
         self.kept: tuple | None = None  # (run, tick) whose learning was saved when the run stopped without its end
-        self.sensors = bus.inbox(keys.sensors(args.group, args.shard), Sensors)
-        self.control = bus.inbox(keys.control(args.group), Control)
-        self.motor = bus.outbox(keys.motor(args.group))
-        self.state = bus.outbox(keys.brain_state(args.group), lossy=True) if args.publish_state else None
+        group = bus.group
+        self.sensors = bus.inbox(keys.sensors(group, config.shard), Sensors)
+        self.control = bus.inbox(keys.control(group), Control)
+        self.motor = bus.outbox(keys.motor(group))
+        self.state = bus.outbox(keys.brain_state(group), lossy=True) if config.publish_state else None
         self.world = bus.presence("world")
         bus.watch_others(self.where)
 
@@ -42,10 +46,10 @@ class LockStep:
         return self.node.brain is not None and self.kept != (self.node.run, self.node.last_tick)
 
     def run(self) -> int:
-        shard = self.args.shard
+        shard = self.config.shard
         log.info(
             "brain ready on group %s (%s)%s",
-            self.args.group,
+            self.bus.group,
             self.bus.sender,
             f", shard {shard[0]} of {shard[1]}" if shard[1] > 1 else "",
         )
@@ -93,29 +97,31 @@ class LockStep:
                 self.control.refuse(e)
                 continue
             self.end_run(order)
-            if self.args.once:
+            if self.config.once:
                 return True
             self.node = self.new_node()
         return False
 
     def end_run(self, order: Control) -> None:
         """The run ended: the last state batch with the final weights, the stats, the weights saved."""
-        args, node = self.args, self.node
+        config, node = self.config, self.node
         if self.state is not None and node.brain is not None:
             self.state.put(node.state_message(final=True))
         log.info("run ended at tick %d; rejected messages: %s", order.tick, self.bus.rejections() or "none")
-        if args.stats:
-            args.stats.write_text(json.dumps({"ticks": node.last_tick + 1, "rejected_messages": self.bus.rejections()}))
-        if args.save and node.brain is not None:
-            save_weights(args.save, node.brain.engine, node.circuit, tick=order.tick)
-            log.info("weights saved to %s", args.save)
+        if config.stats:
+            config.stats.write_text(
+                json.dumps({"ticks": node.last_tick + 1, "rejected_messages": self.bus.rejections()})
+            )
+        if config.save and node.brain is not None:
+            save_weights(config.save, node.brain.engine, node.circuit, tick=order.tick)
+            log.info("weights saved to %s", config.save)
 
     def keep_learning(self, why: str) -> None:
         """A run stopped without its end (`why`): its weights so far are saved beside --save, never
         lost to the next run."""
-        args, node = self.args, self.node
+        save, node = self.config.save, self.node
         self.kept = node.run, node.last_tick
-        if not args.save:
+        if not save:
             log.warning(
                 "run %s stopped at tick %d without its end (%s); its weights are not saved (no --save)",
                 node.run,
@@ -123,7 +129,7 @@ class LockStep:
                 why,
             )
             return
-        path = args.save.with_name(f"{args.save.stem}-{node.run}-tick{node.last_tick + 1}.npz")
+        path = save.with_name(f"{save.stem}-{node.run}-tick{node.last_tick + 1}.npz")
         save_weights(path, node.running.engine, node.circuit, tick=node.last_tick + 1)
         log.warning(
             "run %s stopped at tick %d without its end (%s): its weights so far saved to %s",

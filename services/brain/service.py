@@ -13,17 +13,18 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 from services.bus import keys
-from services.bus.config import add_bus_args
+from services.bus.config import BusConfig, add_bus_args
 from services.bus.transport import Bus, Presence
 from services.options import Parser, at_least, number, shard
 from services.runtime import service_main
 
 from .checkpoint import load_weights
 from .circuit import CircuitError, load_circuit
-from .engine_options import add_engine_args, brain_params
+from .engine_options import EngineOptions, add_engine_args, brain_params
 from .free_running import FreeRunning, add_free_running_args
 from .lockstep import LockStep
 from .node import FREE_STATE_BATCH, BrainNode
@@ -90,53 +91,76 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
-def run(args: argparse.Namespace, session) -> int:
+@dataclass(frozen=True)
+class BrainConfig:
+    """The brain's options (parser()), typed: what run() and its parts take."""
+
+    circuit: str
+    a_plus: float | None
+    no_training: bool
+    params: Path | None
+    engine: EngineOptions
+    seed: int | None
+    load: Path | None
+    save: Path | None
+    once: bool
+    shard: tuple[int, int]
+    checkpoint: Path | None
+    stats: Path | None
+    publish_state: bool
+    clock: float  # free-running (robot) mode: add_free_running_args'
+    stale_after: float
+    no_realtime: bool
+    bus: BusConfig
+
+
+def run(config: BrainConfig, session) -> int:
     try:
-        circuit = load_circuit(args.circuit)
-        if args.a_plus is not None:
-            circuit = circuit.with_learning_rate(args.a_plus)
-        weights = load_weights(args.load, circuit) if args.load else None
-        params = brain_params(args.params, circuit) if args.params else None
+        circuit = load_circuit(config.circuit)
+        if config.a_plus is not None:
+            circuit = circuit.with_learning_rate(config.a_plus)
+        weights = load_weights(config.load, circuit) if config.load else None
+        params = brain_params(config.params, circuit) if config.params else None
     except (CircuitError, ValueError, OSError) as e:
         log.error("%s", e)
         return 2
-    if args.shard[1] > 1 and (args.publish_state or args.clock):
+    if config.shard[1] > 1 and (config.publish_state or config.clock):
         log.error(
             "--shard %d/%d: a sharded brain serves a world in lock-step and does not publish its state (the "
             "recorder takes one brain's; record the world, or run one brain): drop %s",
-            *args.shard,
-            "--publish-state" if args.publish_state else "--clock",
+            *config.shard,
+            "--publish-state" if config.publish_state else "--clock",
         )
         return 2
 
     def new_node() -> BrainNode:  # one per run the brain serves
         return BrainNode(
             circuit,
-            training=not args.no_training,
+            training=not config.no_training,
             weights=weights,
-            checkpoints=args.checkpoint,
-            shard=args.shard,
+            checkpoints=config.checkpoint,
+            shard=config.shard,
             params=params,
-            free_running=bool(args.clock),
-            seed=args.seed,
-            semantics=args.semantics,
-            order=args.order,
+            free_running=bool(config.clock),
+            seed=config.seed,
+            semantics=config.engine.semantics,
+            order=config.engine.order,
         )
 
-    service = keys.brain_service(args.shard)
-    if another_serving(session, args.group, service):
+    group, service = config.bus.group, keys.brain_service(config.shard)
+    if another_serving(session, group, service):
         log.error(
             "another brain already serves the agents of group %s%s on this bus (%s is alive): this one "
             "exits; stop that one first, or start this one with another --group",
-            args.group,
-            f", shard {args.shard[0]} of {args.shard[1]}" if args.shard[1] > 1 else "",
-            keys.alive(args.group, service),
+            group,
+            f", shard {config.shard[0]} of {config.shard[1]}" if config.shard[1] > 1 else "",
+            keys.alive(group, service),
         )
         session.close()
         return 1
-    bus = Bus(session, args.group, service)
+    bus = Bus(session, group, service)
     try:
-        return FreeRunning(args, bus, new_node()).run() if args.clock else LockStep(args, bus, new_node).run()
+        return FreeRunning(config, bus, new_node()).run() if config.clock else LockStep(config, bus, new_node).run()
     finally:
         bus.close()
 
@@ -155,7 +179,7 @@ def another_serving(session, group: str, service: str, within: float = ALONE_AFT
 
 
 def main(argv=None) -> int:
-    return service_main("brain", parser(), run, argv)
+    return service_main("brain", parser(), run, argv, config=BrainConfig)
 
 
 if __name__ == "__main__":

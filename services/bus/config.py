@@ -13,6 +13,7 @@ import logging
 import os
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import json5
@@ -84,6 +85,17 @@ def add_bus_args(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help="run this process on CPU N only (a lock-step pair on separate cores is ~30 %% faster)",
     )
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """add_bus_args' options, in every service's config (services.options.config_from)."""
+
+    connect: list[str]
+    listen: list[str]
+    zenoh_config: dict | None  # zenoh_config_file's
+    group: str
+    cpu: int | None
 
 
 def zenoh_config_file(text: str) -> dict:
