@@ -7,8 +7,9 @@ import pytest
 
 from services.brain.brain import Brain
 from services.brain.circuit import load_circuit
+from services.brain.engine import Engine
 from services.brain.node import BrainNode
-from services.bus.schemas import Array, BusError, Control, Sensors
+from services.bus.schemas import Array, BusError, Control, Motor, Sensors
 from services.vocabulary import INSECT_ACTIONS, INSECT_SENSORS
 
 AGENTS = 3
@@ -21,6 +22,18 @@ def sensors(tick, agents=AGENTS, names=INSECT_SENSORS, seed=5, run="r1") -> Sens
     return Sensors(tick=tick, names=names, values=Array.of(values), seed=seed, run=run)
 
 
+def answered(node: BrainNode, message: Sensors) -> Motor:
+    """The node's answer, where the test expects one."""
+    answer = node.answer(message)
+    assert answer is not None, f"no answer to tick {message.tick}"
+    return answer
+
+
+def engine(node: BrainNode) -> Engine:
+    assert node.brain is not None, "no brain yet"
+    return node.brain.engine
+
+
 def actions(answer) -> np.ndarray:
     return answer.actions.numpy("actions", "|u1", 2).copy()
 
@@ -30,23 +43,23 @@ def test_answers_as_the_in_process_brain_with_the_worlds_seed():
     direct = Brain(CIRCUIT, INSECT_SENSORS, tuple(CIRCUIT.actuators), agents=AGENTS, seed=5)
     fired = 0
     for t in range(300):
-        answer = node.answer(sensors(t))
+        answer = answered(node, sensors(t))
         assert answer.tick == t and answer.names == INSECT_ACTIONS and node.stepped
         expected = direct.step(sensors(t).values.numpy("values", "<f8", 2))
         np.testing.assert_array_equal(actions(answer), expected)
         fired += int(expected.sum())
     assert fired > 0  # the pacemaker walks: the comparison saw spikes
-    np.testing.assert_array_equal(node.brain.engine.get_weights(), direct.engine.get_weights())
+    np.testing.assert_array_equal(engine(node).get_weights(), direct.engine.get_weights())
 
 
 def test_a_repeated_tick_is_answered_again_without_a_second_step():
     node = BrainNode(CIRCUIT)
     for t in range(20):
         first = node.answer(sensors(t))
-    v = node.brain.engine.v.copy()
+    v = engine(node).v.copy()
     again = node.answer(sensors(19))
     assert again is first and not node.stepped
-    np.testing.assert_array_equal(node.brain.engine.v, v)
+    np.testing.assert_array_equal(engine(node).v, v)
 
 
 def test_older_ticks_are_ignored_and_what_does_not_fit_is_refused():
@@ -62,14 +75,14 @@ def test_older_ticks_are_ignored_and_what_does_not_fit_is_refused():
         with pytest.raises(BusError, match=reason):
             node.answer(other)
     assert node.last_tick == 9
-    assert node.answer(sensors(10)).tick == 10
+    assert answered(node, sensors(10)).tick == 10
 
 
 def test_a_first_message_the_circuit_cannot_use_is_refused():
     node = BrainNode(CIRCUIT)
     with pytest.raises(BusError, match="does not fit the circuit"):
         node.answer(sensors(0, names=("smell_black", "pain")))
-    assert node.brain is None and node.answer(sensors(0)).tick == 0
+    assert node.brain is None and answered(node, sensors(0)).tick == 0
 
 
 def test_only_an_end_of_the_run_served_ends_it():
@@ -84,16 +97,16 @@ def test_only_an_end_of_the_run_served_ends_it():
 
 def test_tick_zero_of_another_run_is_a_new_run_once_the_run_served_is_quiet():
     node = BrainNode(CIRCUIT, quiet_s=0.3)
-    fresh = [actions(node.answer(sensors(t))) for t in range(200)]
-    learned = node.brain.engine.get_weights().copy()
+    fresh = [actions(answered(node, sensors(t))) for t in range(200)]
+    learned = engine(node).get_weights().copy()
     assert node.answer(sensors(0)) is None  # tick 0 of the same run again: older, not a new run
     with pytest.raises(BusError, match="another run"):  # the run served is alive: no take-over
         node.answer(sensors(0, run="r2"))
-    np.testing.assert_array_equal(node.brain.engine.get_weights(), learned)
+    np.testing.assert_array_equal(engine(node).get_weights(), learned)
     time.sleep(0.4)
-    again = [actions(node.answer(sensors(t, run="r2"))) for t in range(200)]
+    again = [actions(answered(node, sensors(t, run="r2"))) for t in range(200)]
     assert not np.array_equal(learned, initial_weights())  # the first run changed the weights
-    np.testing.assert_array_equal(node.brain.engine.get_weights(), learned)  # and the second, from scratch, the same
+    np.testing.assert_array_equal(engine(node).get_weights(), learned)  # and the second, from scratch, the same
     for a, b in zip(fresh, again):
         np.testing.assert_array_equal(a, b)
 
