@@ -439,6 +439,9 @@ def main(argv=None) -> int:
         except (RobotLinkError, ValueError, OSError) as e:
             log.error("%s", e)
             raise SystemExit(2) from None
+        except ImportError as e:  # the gateway installed alone (docs/robot.md) has no world
+            log.error("--backend %s needs the simulated world, which this install leaves out (%s)", args.backend, e)
+            raise SystemExit(2) from None
 
     return service_main(
         "gateway", parser(), lambda args, session: run(args, session, made["backend"]), argv, prepare=make_backend
