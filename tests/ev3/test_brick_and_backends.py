@@ -35,10 +35,17 @@ def frame(ops: bytes, counter=7, reply=True, global_mem=0) -> bytes:
     )
 
 
+def reply_to(brick: FakeBrick, request: bytes) -> bytes:
+    """The brick's reply to a request that asks for one."""
+    answer = brick.execute(request)
+    assert answer is not None, "no reply"
+    return answer
+
+
 def test_fake_brick_answers_reads_and_refuses_what_a_brick_would():
     brick = FakeBrick(colour=5, distance_cm=3.5, touch=1)
     read = bytes([0x99, 0x1D]) + LCX(0) + LCX(2) + LCX(29) + LCX(2) + LCX(1) + GVX(0)
-    reply = brick.execute(frame(read, global_mem=4))
+    reply = reply_to(brick, frame(read, global_mem=4))
     assert reply[:5] == struct.pack("<HH", 7, 7) + b"\x02" and struct.unpack("<f", reply[5:]) == (5.0,)
     assert (
         brick.execute(frame(bytes([0xB1]) + LCX(0) + LCX(6) + LCX(50) + LCX(0) + LCX(500) + LCX(1), reply=False))
@@ -46,8 +53,8 @@ def test_fake_brick_answers_reads_and_refuses_what_a_brick_would():
     )
     assert (brick.commands[-1].kind, brick.commands[-1].ms, brick.commands[-1].ports) == ("time_sync", 500, 6)
     wrong_type = bytes([0x99, 0x1D]) + LCX(0) + LCX(2) + LCX(30) + LCX(0) + LCX(1) + GVX(0)
-    assert brick.execute(frame(wrong_type, global_mem=4))[4] == 0x04  # the colour sensor is on port 3
-    assert brick.execute(frame(bytes([0x84, 0x00]), global_mem=0))[4] == 0x04  # an opcode it does not have
+    assert reply_to(brick, frame(wrong_type, global_mem=4))[4] == 0x04  # the colour sensor is on port 3
+    assert reply_to(brick, frame(bytes([0x84, 0x00]), global_mem=0))[4] == 0x04  # an opcode it does not have
     assert "no sensor of type 30 on port 3" in brick.errors[0]
 
 
