@@ -8,7 +8,6 @@ import subprocess
 import sys
 import time
 import tomllib
-from typing import TextIO
 
 import numpy as np
 import psutil
@@ -16,30 +15,9 @@ import pytest
 
 from services.launch import Launcher, Process, local_endpoints, shipped
 
+from .launching import READY, launch, launch_file
 from .processes import free_port, running_with, wait_for
 from .sockets import process_tree
-
-
-def launch_file(name: str, folder, **replace) -> str:
-    """A shipped launch file with its ports moved to free ones (and any other text replaced)."""
-    text = shipped()[name].read_text()
-    for port in ("7447", "7448"):
-        text = text.replace(port, str(replace.pop(port, free_port())))
-    for old, new in replace.items():
-        text = text.replace(old, new)
-    path = folder / f"{name}.toml"
-    path.write_text(text)
-    return str(path)
-
-
-def launch(folder, *args, stdout: int | TextIO = subprocess.PIPE) -> subprocess.Popen:
-    return subprocess.Popen(
-        [sys.executable, "-m", "spikinglab", "launch", *map(str, args), "--no-colour"],
-        cwd=folder,
-        stdout=stdout,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
 
 
 def test_simulation_runs_world_brain_and_recorder_with_prefixed_logs(tmp_path):
@@ -139,15 +117,6 @@ def test_a_service_that_dies_ends_the_launch_and_is_named(tmp_path):
     assert not running_with(str(tmp_path))
 
 
-READY = {  # lines that say a launch file's services are all up and at work
-    "simulation": ("tick/s", "recording group"),
-    "sharded-simulation": ("tick/s",),
-    "secure-simulation": ("tick/s", "recording group"),
-    "robot": ("first reading published", "brain is on the bus", "recording group"),
-    "secure-robot": ("first reading published", "brain is on the bus", "recording group"),
-    "remote-world": ("waiting for a brain", "recording group"),  # its world waits for a brain from elsewhere
-    "remote-brain": ("brain ready on group",),  # it waits for a world from elsewhere
-}
 CTRL_C_S = 10  # every launch ends within 3 s of Ctrl-C; this bound leaves room for a loaded
 # machine and still catches a service that the launcher has to kill after its 30 s
 

@@ -18,9 +18,9 @@ import pytest
 from services.commands import SERVICES
 from services.launch import Process, shipped
 
+from .launching import READY, launch, launch_file
 from .processes import ROOT, free_port, running_with
 from .sockets import Listener, listeners
-from .test_launch import READY, launch, launch_file
 
 TABLE_HEADING = "## What each file listens on"
 SETTLE_S = 3.0  # after every service is at work: long enough for a listener opened later to show

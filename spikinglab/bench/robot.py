@@ -102,7 +102,7 @@ def plot(results: dict, seconds: float, out: Path) -> None:
     plt.close(fig)
 
 
-def main(argv=None) -> dict:
+def parser() -> Parser:
     p = Parser(prog="spikinglab bench robot", description=(__doc__ or "").partition("\n\n")[0])
     p.add_argument("--seconds", type=positive, default=120, help="real time per run (default 120)")
     p.add_argument("--seeds", type=at_least(1), default=3, help="runs per condition (default 3)")
@@ -111,8 +111,11 @@ def main(argv=None) -> dict:
         "--spin-ms", type=at_least(1), default=100, help="the gateway's spin per ROTATE (default 100: 5 degrees)"
     )
     p.add_argument("--out", type=Path, default=Path("bench-results"))
-    args = p.parse_args(argv)
-    args.out.mkdir(parents=True, exist_ok=True)
+    return p
+
+
+def run_all(args) -> dict[str, list]:
+    """Every condition's runs, two at a time, each said as it ends."""
     jobs = [(name, seed) for seed in range(args.seeds) for name in CONDITIONS]
     print(
         f"{len(jobs)} runs of {args.seconds:.0f} s, two at a time: about "
@@ -134,6 +137,11 @@ def main(argv=None) -> dict:
                 f"collisions, {contact_s(stats['collisions']):.1f} s in contact, {stats['commands']} motor commands",
                 flush=True,
             )
+    return results
+
+
+def table_of(results: dict[str, list], args) -> tuple[str, dict]:
+    """The collisions per minute of each condition, per column of --bin seconds: markdown, and figures."""
     bins = int(args.seconds // args.bin)
     rows = [
         "| condition | "
@@ -159,6 +167,14 @@ def main(argv=None) -> dict:
         + "\n".join(rows)
         + "\n"
     )
+    return table, summary
+
+
+def main(argv=None) -> dict:
+    args = parser().parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    results = run_all(args)
+    table, summary = table_of(results, args)
     print(table)
     (args.out / "robot.md").write_text(table)
     (args.out / "robot.json").write_text(

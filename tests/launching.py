@@ -1,0 +1,44 @@
+"""Shipped launch files as tests run them: ports moved, the launcher started in a folder, and the
+lines that say each file's services are at work."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from typing import TextIO
+
+from services.launch import shipped
+
+from .processes import free_port
+
+READY = {  # lines that say a launch file's services are all up and at work
+    "simulation": ("tick/s", "recording group"),
+    "sharded-simulation": ("tick/s",),
+    "secure-simulation": ("tick/s", "recording group"),
+    "robot": ("first reading published", "brain is on the bus", "recording group"),
+    "secure-robot": ("first reading published", "brain is on the bus", "recording group"),
+    "remote-world": ("waiting for a brain", "recording group"),  # its world waits for a brain from elsewhere
+    "remote-brain": ("brain ready on group",),  # it waits for a world from elsewhere
+}
+
+
+def launch_file(name: str, folder, **replace) -> str:
+    """A shipped launch file with its ports moved to free ones (and any other text replaced)."""
+    text = shipped()[name].read_text()
+    for port in ("7447", "7448"):
+        text = text.replace(port, str(replace.pop(port, free_port())))
+    for old, new in replace.items():
+        text = text.replace(old, new)
+    path = folder / f"{name}.toml"
+    path.write_text(text)
+    return str(path)
+
+
+def launch(folder, *args, stdout: int | TextIO = subprocess.PIPE) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "spikinglab", "launch", *map(str, args), "--no-colour"],
+        cwd=folder,
+        stdout=stdout,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
