@@ -1,4 +1,5 @@
-"""The insect learns (MODEL.md section 8): fewer collisions, black and red associated with pain."""
+"""The insect learns (the paper's Table 1 and its account of training; docs/results.md): fewer
+collisions, black and red associated with pain."""
 
 import numpy as np
 

@@ -1,11 +1,12 @@
-"""Circuit files: the shipped ones load as MODEL.md describes; wrong ones name file, entry and problem."""
+"""Circuit files: the shipped ones load as the paper (fig. 2, 4, 6, 7) and the SpikingLab NetLogo demo
+give them (docs/circuits.md); wrong ones name file, entry and problem."""
 
 import pytest
 
 from services.brain.circuit import CircuitError, load_circuit
 
 INSECT_SYNAPSES = {
-    # MODEL.md section 6: (weight, delay, inhibitory, plastic)
+    # the paper's fig. 7 as the NetLogo demo codes it: (weight, delay, inhibitory, plastic)
     **{f"{a}->{m}": (5.0, 3, False, True) for a in ("BLACK", "RED", "GREEN") for m in ("PAIN", "REWARD")},
     "PAIN->REWARD": (22.0, 3, True, False),
     "REWARD->PAIN": (8.0, 3, True, False),

@@ -1,4 +1,5 @@
-"""Input neurons: latency code, pulse count, busy-ignore (MODEL.md section 5).
+"""Input neurons: latency code, pulse count, busy-ignore, as the NetLogo source's input
+neurons do (docs/tick.md).
 
 Fed v at tick t, an input neuron counts floor(v) + 1 ticks, the feed's own tick being the first,
 so its pulse comes at t + floor(v) and, over its synapse of delay 0, reaches its target then.

@@ -1,4 +1,5 @@
-"""The integrate-and-fire state machine against its analytic values (MODEL.md section 2)."""
+"""The integrate-and-fire state machine against its analytic values (the paper's neuron model; the
+NetLogo source's neuron types 1 and 2: docs/circuits.md, docs/tick.md)."""
 
 import numpy as np
 import pytest

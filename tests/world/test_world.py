@@ -1,4 +1,4 @@
-"""The world against MODEL.md section 7: map, vision, touch, actions, boundary, metrics."""
+"""The world against the NetLogo demo's (docs/world.md): map, vision, touch, actions, boundary, metrics."""
 
 import gc
 import math
