@@ -86,6 +86,14 @@ def test_a_peer_without_a_valid_certificate_cannot_connect(secure_bus, tmp_path)
         zenoh.open(make_config(connect=[endpoint.replace("tls/", "tcp/")], mode="client"))
 
 
+def key_or_error(reply: zenoh.Reply) -> str:
+    """A reply's key, or the text of an error reply."""
+    if reply.ok is not None:
+        return str(reply.ok.key_expr)
+    assert reply.err is not None  # a reply is a sample or an error
+    return f"error: {reply.err.payload.to_bytes()!r}"
+
+
 def others_admin_space(role: str, folder, endpoint: str) -> list[str]:
     """What `role`'s get on the admin space receives from any session but its own: the keys of the
     replies, and the text of any error reply. Its own session always answers it (about its own
@@ -93,7 +101,7 @@ def others_admin_space(role: str, folder, endpoint: str) -> list[str]:
     with session_as(role, folder, endpoint) as session:
         own = f"@/{session.zid()}/session/"
         replies = list(session.get(certs.ADMIN_SPACE, timeout=2))
-        keys_seen = [str(r.ok.key_expr) if r.ok else f"error: {r.err.payload.to_bytes()!r}" for r in replies]
+        keys_seen = [key_or_error(r) for r in replies]
     assert any(key.startswith(own) for key in keys_seen), keys_seen
     return [key for key in keys_seen if not key.startswith(own)]
 

@@ -72,6 +72,7 @@ def test_run_view_opens_the_rerun_viewer_on_a_display(tmp_path):
             stdout=subprocess.DEVNULL,
             text=True,
         )
+        assert run.stderr is not None  # stderr=PIPE
         try:
             while "live view" not in said:
                 line = run.stderr.readline()

@@ -214,7 +214,9 @@ def test_a_late_recorder_says_from_which_tick_it_has_data(tmp_path):
     texts = [t[0] for t in data["/events"]["TextLog:text"]]
     late = [t for t in texts if "the recorder started late" in t]
     assert len(late) == 1
-    start_tick = int(re.search(r"recording starts at tick (\d+)", late[0]).group(1))
+    starts = re.search(r"recording starts at tick (\d+)", late[0])
+    assert starts, late[0]
+    start_tick = int(starts.group(1))
     assert 1500 < start_tick < 30000
     assert data["/world/insects"]["tick"][0] >= start_tick  # no data before the tick it names
 

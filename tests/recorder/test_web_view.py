@@ -52,6 +52,7 @@ def test_run_view_serves_a_web_viewer_that_renders_the_run(tmp_path):
         stdout=subprocess.DEVNULL,
         text=True,
     )
+    assert run.stderr is not None  # stderr=PIPE
     try:
         said = ""
         while "live view" not in said:
