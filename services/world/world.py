@@ -76,6 +76,7 @@ class WorldParams:
     red_fraction: float = 0.1
     green_fraction: float = 0.1
     start: tuple[float, float] = (102.0, 30.0)
+    start_heading: float | None = None  # degrees; None: drawn from the seed per agent
     view_distance: float = 4.0
     ray_step: float = 0.2
     rotation_step: float = 5.0  # degrees per ROTATE spike (NetLogo demo: 4)
@@ -310,7 +311,10 @@ class World:
                 else generate_map(p, self.seed + int(self.numbers[g]))
             )
         self.pos[:] = p.start
-        self.heading[:] = [np.random.default_rng((self.seed, int(k), 1)).uniform(0, 360) for k in self.numbers]
+        if p.start_heading is not None:
+            self.heading[:] = p.start_heading
+        else:
+            self.heading[:] = [np.random.default_rng((self.seed, int(k), 1)).uniform(0, 360) for k in self.numbers]
         self.tick = 0
         self.last_patch[:] = -1
         A = self.agents
