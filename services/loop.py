@@ -228,6 +228,8 @@ def evaluate(
     learned_after: int = 5000,
     semantics: str = DEFAULT_SEMANTICS,
     order: str = "random",
+    cluster: str | None = None,
+    on_block: Callable[[int], None] | None = None,
 ) -> dict[str, np.ndarray]:
     """Train every parameter setting on every seed for `ticks` ticks, all as one population.
 
@@ -236,8 +238,17 @@ def evaluate(
     world of seed 0 (its arenas, headings and netlogo orders; seed s is agent s of `spikinglab run
     --agents`, and the sweep's seed s). Returns arrays [settings, seeds]: "learning_time" (the last
     tick on a noxious patch before `learned_after` ticks off them; -1: not within `ticks`),
-    "collisions", "food", and "collisions_last_quarter" (of the run's collision bins)."""
+    "collisions", "food", and "collisions_last_quarter" (of the run's collision bins).
+
+    `cluster`: a Dask scheduler's address (tcp://HOST:PORT, docs/cluster.md); the population runs
+    there in blocks, with the same result bit for bit, and `on_block(insects)` is called as each
+    block finishes."""
     seeds = list(seeds)
+    if cluster is not None:
+        from services.cluster import evaluate_on  # the cluster's packages only when one is named
+
+        options = dict(circuit=circuit, preset=preset, learned_after=learned_after, semantics=semantics, order=order)
+        return evaluate_on(cluster, params, ticks, seeds, on_block, **options)
     world, brain = population(
         params, seeds, circuit=circuit, preset=preset, learned_after=learned_after, semantics=semantics, order=order
     )

@@ -1,0 +1,122 @@
+"""Studies on a Dask cluster (the `cluster` extra; docs/cluster.md): a study's settings x seeds split
+into blocks, one task per block, each block's result handed back as it finishes.
+
+The only module that imports the engine (dask.distributed), and only once a study names a cluster.
+Each insect's run depends only on its own setting and seed (its arena, heading and netlogo order
+come from its seed; no random stream is shared across a population), so any split gives one
+process's result, bit for bit. A worker lost mid-block: the scheduler runs the block again on
+another worker.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from functools import partial
+from typing import cast
+
+import numpy as np
+
+CONNECT_S = 5  # a scheduler that does not answer within this is reported
+# insects per block, about: smaller blocks run slower per insect; more blocks show progress sooner,
+# balance the workers and lose less when a worker is lost
+BLOCK = 16
+ADDRESS = re.compile(r"tcp://(\[[0-9a-fA-F:]+\]|[\w.-]+):(\d{1,5})")
+
+
+class ClusterError(Exception):
+    """The cluster cannot be used (the extra missing, no scheduler answering); one line."""
+
+
+def cluster_address(text: str) -> str:
+    """A scheduler's address, tcp://HOST:PORT; ValueError says what was wrong."""
+    found = ADDRESS.fullmatch(text)
+    if not found or not 0 < int(found[2]) < 65536:
+        raise ValueError(f"expected a Dask scheduler's address tcp://HOST:PORT, got {text!r}")
+    return text
+
+
+@contextmanager
+def connected(address: str):
+    """A Dask client of the scheduler at `address`, closed (and its unfinished tasks cancelled) on leaving."""
+    cluster_address(address)
+    try:
+        from distributed import Client
+    except ImportError:
+        raise ClusterError("a cluster needs Dask distributed: pip install 'spikinglab[cluster]'") from None
+    try:
+        client = Client(address, timeout=CONNECT_S, set_as_default=False)
+    except (OSError, TimeoutError) as e:
+        raise ClusterError(
+            f"no Dask scheduler answers at {address} within {CONNECT_S} s ({type(e).__name__})"
+        ) from None
+    with client:
+        yield client
+
+
+def split(n: int, parts: int) -> list[range]:
+    """0..n-1 in `parts` contiguous ranges whose lengths differ by at most one."""
+    return [range(k * n // parts, (k + 1) * n // parts) for k in range(parts)]
+
+
+def blocks(settings: int, seeds: int, threads: int) -> list[tuple[range, range]]:
+    """The study's settings x seeds as rectangles (settings, seed positions): at least one per worker
+    thread, else about BLOCK insects each; whole settings where there are enough of them."""
+    count = min(settings * seeds, max(threads, settings * seeds // BLOCK, 1))
+    if count <= settings:
+        return [(s, range(seeds)) for s in split(settings, count)]
+    per_setting = min(seeds, -(-count // settings))
+    return [(s, j) for s in split(settings, settings) for j in split(seeds, per_setting)]
+
+
+def in_blocks(
+    address: str, task: Callable[[range, range], object], settings: int, seeds: int
+) -> Iterator[tuple[range, range, object]]:
+    """`task(settings, seed positions)` on the cluster, once per block; (settings, seed positions,
+    result) as each block finishes. `task` is pickled: a module-level function or a partial of one."""
+    from distributed import as_completed
+
+    with connected(address) as client:
+        threads = sum(cast(dict, client.nthreads()).values())  # a dict: the client is synchronous
+        futures = {client.submit(task, s, j, pure=False): (s, j) for s, j in blocks(settings, seeds, threads)}
+        for future in as_completed(futures, loop=client.loop):
+            yield (*futures[future], future.result())
+
+
+def settings_of(params: Mapping, chosen: range) -> dict:
+    """The per-agent parameter columns of the chosen settings (a single number stays one)."""
+    return {k: v if np.size(v) == 1 else np.asarray(v)[chosen.start : chosen.stop] for k, v in params.items()}
+
+
+def evaluate_block(params: Mapping, ticks: int, seeds: Sequence[int], options: Mapping, chosen: range, at: range):
+    """One block of `evaluate_on`, on a worker: the chosen settings on the seeds at positions `at`."""
+    from services.loop import evaluate
+
+    return evaluate(settings_of(params, chosen), ticks, [seeds[j] for j in at], **options)
+
+
+def evaluate_on(
+    address: str,
+    params: Mapping,
+    ticks: int,
+    seeds: Sequence[int],
+    on_block: Callable[[int], None] | None = None,
+    **options,
+) -> dict[str, np.ndarray]:
+    """services.loop.evaluate on the cluster at `address`: the same arrays, bit for bit.
+    `on_block(insects)` is called as each block finishes, with its number of insects."""
+    from services.params import agent_columns, setting_count
+
+    n = setting_count(params)
+    agent_columns(n, params)  # a bad column is refused here, before anything is sent
+    out: dict[str, np.ndarray] = {}
+    task = partial(evaluate_block, dict(params), ticks, list(seeds), options)
+    for chosen, at, result in in_blocks(address, task, n, len(seeds)):
+        for name, values in result.items():  # type: ignore[union-attr]
+            out.setdefault(name, np.empty((n, len(seeds)), values.dtype))[
+                chosen.start : chosen.stop, at.start : at.stop
+            ] = values
+        if on_block is not None:
+            on_block(len(chosen) * len(at))
+    return out
