@@ -78,7 +78,7 @@ def processes_of(file: Path) -> list[Process]:
 def process_names(file: Path, launcher_pid: int) -> dict[int, str]:
     """The launch file's process name of each pid of the launch (the launcher: "launch"), matched by
     the command line the launcher gives it."""
-    commands = {(SERVICES[p.service], *p.argv()): p.name for p in processes_of(file)}
+    commands: dict[tuple[str, ...], str] = {(SERVICES[p.service], *p.argv()): p.name for p in processes_of(file)}
     launcher = psutil.Process(launcher_pid)
     names = {launcher_pid: "launch"}
     for child in launcher.children(recursive=True):
