@@ -32,10 +32,10 @@ from services.brain.circuit import Circuit, CircuitError, load_circuit
 from services.brain.engine import PARALLEL_FROM
 from services.brain.engine_options import add_engine_args, brain_params
 from services.launch import STOP_S, Launcher, Process, local_endpoints, options_for
-from services.options import Parser, agent_list, at_least, positive
+from services.options import Parser, agent_list, at_least, config_from, positive
 from services.run_folder import KEPT_PARAMS, RunFolderError, failed, started_with, take
 from services.run_report import learning_rate, plot, plot_trajectory, recording_status, report, summarise
-from services.world.options import add_world_args, world_from_args
+from services.world.options import WorldOptions, add_world_args, world_from
 from services.world.world import BIN, SENSORS, MapError
 
 log = logging.getLogger("spikinglab.run")
@@ -194,7 +194,7 @@ def checked_inputs(args: argparse.Namespace) -> tuple[Circuit, dict]:
     check_sensors(circuit, SENSORS)
     if args.a_plus is not None:
         circuit = circuit.with_learning_rate(args.a_plus)
-    world_from_args(args)  # and the --params file, for the world's agents
+    world_from(config_from(args, WorldOptions, whole=False))  # and the --params file, for the world's agents
     columns = brain_params(args.params, circuit) if args.params else {}
     if args.load:
         load_weights(args.load, circuit)

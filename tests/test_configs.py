@@ -10,9 +10,15 @@ import pytest
 
 from services.brain import service as brain
 from services.options import config_from, option_names
+from services.world import service as world
 
 SERVICES = {
-    "brain": (brain.parser, brain.BrainConfig, ["--shard", "2/3", "--clock", "1000", "--params", "p.csv", "--a-plus", "0.03"]),
+    "brain": (
+        brain.parser,
+        brain.BrainConfig,
+        ["--shard", "2/3", "--clock", "1000", "--params", "p.csv", "--a-plus", "0.03"],
+    ),
+    "world": (world.parser, world.WorldConfig, ["--map", "m.txt", "--shards", "2", "--checkpoint", "c", "--out", "o"]),
 }
 
 

@@ -3,12 +3,12 @@ ticks, and resumed by the same command with the same options."""
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 from services import snapshots
 from services.bus.schemas import RUN_ID
 
+from .options import WorldOptions
 from .results import Trajectory
 from .world import World
 
@@ -18,39 +18,37 @@ CHECKPOINT = "world.npz"  # in --checkpoint DIR: the world of one run, at its la
 PENDING = "world-pending.npz"
 
 
-def run_options(args: argparse.Namespace) -> dict:
+def run_options(options: WorldOptions) -> dict:
     """The options that make a run what it is: a checkpoint resumes only under the same ones."""
     return {
-        "ticks": args.ticks,
-        "seed": args.seed,
-        "agents": args.agents,
-        "shared": args.shared,
-        "preset": args.preset,
-        "map": str(args.map) if args.map else None,
-        "no_training": args.no_training,
-        "learned_after": args.learned_after,
+        "ticks": options.ticks,
+        "seed": options.seed,
+        "agents": options.agents,
+        "shared": options.shared,
+        "preset": options.preset,
+        "map": str(options.map) if options.map else None,
+        "no_training": options.no_training,
+        "learned_after": options.learned_after,
     }
 
 
-def keep_checkpoint(args: argparse.Namespace, world: World, trajectory: Trajectory, run_id: str) -> None:
+def keep_checkpoint(folder: Path, options: WorldOptions, world: World, trajectory: Trajectory, run_id: str) -> None:
     """The world as it is now, kept as PENDING until the brain has kept its own (then CHECKPOINT)."""
     arrays = {
         **{f"world.{k}": v for k, v in world.snapshot().items()},
         **{f"trajectory.{k}": v for k, v in trajectory.arrays().items()},
     }
-    snapshots.write(
-        args.checkpoint / PENDING, arrays, {"run": run_id, "tick": world.tick, "options": run_options(args)}
-    )
+    snapshots.write(folder / PENDING, arrays, {"run": run_id, "tick": world.tick, "options": run_options(options)})
 
 
-def resume(args: argparse.Namespace, world: World, trajectory: Trajectory) -> str | None:
-    """The run kept in --checkpoint, restored into `world` and `trajectory` (None: nothing kept).
-    ValueError when it is not a checkpoint of a run with these options."""
-    path = args.checkpoint / CHECKPOINT
+def resume(folder: Path, options: WorldOptions, world: World, trajectory: Trajectory) -> str | None:
+    """The run kept in `folder` (--checkpoint), restored into `world` and `trajectory` (None:
+    nothing kept). ValueError when it is not a checkpoint of a run with these options."""
+    path = folder / CHECKPOINT
     if not path.exists():
         return None
     arrays, meta = snapshots.read(path)
-    kept, wanted = meta.get("options", {}), run_options(args)
+    kept, wanted = meta.get("options", {}), run_options(options)
     differ = [f"--{k.replace('_', '-')} {kept.get(k)} there, {v} here" for k, v in wanted.items() if kept.get(k) != v]
     if differ:
         raise ValueError(

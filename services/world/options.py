@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
+from dataclasses import dataclass
 from pathlib import Path
 
 from services.options import at_least
 from services.params import file_for_agents, side_of
 
+from .netlogo_setup import spikinglab_setup
 from .world import PRESETS, World, map_world, params_for
 
 
@@ -24,6 +27,13 @@ def add_world_args(p: argparse.ArgumentParser) -> None:
         help="rotation and move steps: paper (5 deg, 1 patch, default) or netlogo (4 deg, 0.4 patch)",
     )
     w.add_argument("--map", type=Path, help="a text map file instead of the generated arena (docs/world.md)")
+    w.add_argument(
+        "--netlogo-seed",
+        type=at_least(-(2**31)),
+        metavar="N",
+        help="the arena and first heading that the SpikingLab source's setup makes after `random-seed N` "
+        "(its own: 7850), for every agent (docs/netlogo-random.md)",
+    )
     w.add_argument("--no-training", action="store_true", help="no push on noxious patches (test mode)")
     w.add_argument(
         "--learned-after",
@@ -41,23 +51,46 @@ def add_world_args(p: argparse.ArgumentParser) -> None:
     )
 
 
-def world_from_args(args: argparse.Namespace) -> World:
-    """The World the options describe (MapError / ValueError on a bad map or option)."""
-    if args.ticks < 1 or args.agents < 1:
+@dataclass(frozen=True)
+class WorldOptions:
+    """add_world_args' options, in the world's config (services.options.config_from; `run` makes
+    one from its own options)."""
+
+    ticks: int
+    seed: int
+    agents: int
+    shared: bool
+    preset: str
+    map: Path | None
+    no_training: bool
+    learned_after: int
+    params: Path | None
+    netlogo_seed: int | None = None
+
+
+def world_from(options: WorldOptions, shards: int = 1) -> World:
+    """The World the options describe, for a brain in `shards` (MapError / ValueError on a bad map
+    or option)."""
+    if options.ticks < 1 or options.agents < 1:
         raise ValueError("--ticks and --agents must be >= 1")
-    if getattr(args, "shards", 1) > args.agents:
-        raise ValueError(f"--shards {args.shards}: more brain shards than agents ({args.agents})")
-    params = params_for(args.preset, learned_after=args.learned_after)
+    if shards > options.agents:
+        raise ValueError(f"--shards {shards}: more brain shards than agents ({options.agents})")
+    params = params_for(options.preset, learned_after=options.learned_after)
     grid = None
-    if args.map:
-        params, grid = map_world(args.map, params)
-    columns = file_for_agents(args.params, args.agents) if args.params else {}
+    if options.map:
+        params, grid = map_world(options.map, params)
+    if options.netlogo_seed is not None:
+        if options.map:
+            raise ValueError("--netlogo-seed and --map each give the arena: give one")
+        setup = spikinglab_setup(options.netlogo_seed, params)
+        params, grid = dataclasses.replace(params, start_heading=setup.heading), setup.grid
+    columns = file_for_agents(options.params, options.agents) if options.params else {}
     return World(
         params,
-        agents=args.agents,
-        seed=args.seed,
-        shared=args.shared,
+        agents=options.agents,
+        seed=options.seed,
+        shared=options.shared,
         grid=grid,
-        training=not args.no_training,
+        training=not options.no_training,
         agent_params=side_of(columns, "world"),
     )

@@ -17,10 +17,11 @@ import json
 import logging
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from services.bus import keys
-from services.bus.config import add_bus_args
+from services.bus.config import BusConfig, add_bus_args
 from services.bus.schemas import Control, Sensors, new_run_id
 from services.bus.transport import Bus, wait_for_subscriber
 from services.options import Parser, at_least
@@ -29,7 +30,7 @@ from services.runtime import service_main
 from . import checkpoint
 from .brains import Brains
 from .checkpoint import CHECKPOINT, PENDING, resume
-from .options import add_world_args, world_from_args
+from .options import WorldOptions, add_world_args, world_from
 from .results import Progress, Trajectory, metrics_of, outcome
 from .state import StateStream, world_map
 from .world import MapError, World
@@ -69,48 +70,62 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
-def run(args: argparse.Namespace, session) -> int:
+@dataclass(frozen=True)
+class WorldConfig:
+    """The world service's options (parser()), typed: what run() and its parts take."""
+
+    world: WorldOptions
+    out: Path | None
+    publish_state: bool
+    progress: bool
+    shards: int
+    checkpoint: Path | None
+    checkpoint_every: int
+    bus: BusConfig
+
+
+def run(config: WorldConfig, session) -> int:
     try:
-        world = world_from_args(args)
-        trajectory = Trajectory(world, args.ticks)
-        resumed = resume(args, world, trajectory) if args.checkpoint else None
-        if args.checkpoint:  # one the brain may not have answered: the run goes on from CHECKPOINT
-            (args.checkpoint / PENDING).unlink(missing_ok=True)
+        world = world_from(config.world, config.shards)
+        trajectory = Trajectory(world, config.world.ticks)
+        resumed = resume(config.checkpoint, config.world, world, trajectory) if config.checkpoint else None
+        if config.checkpoint:  # one the brain may not have answered: the run goes on from CHECKPOINT
+            (config.checkpoint / PENDING).unlink(missing_ok=True)
     except (MapError, ValueError) as e:
         log.error("%s", e)
         return 2
-    bus = Bus(session, args.group, "world")
+    bus = Bus(session, config.bus.group, "world")
     bus.watch_others(lambda: f" at tick {world.tick}")
     try:
-        return run_on(bus, args, world, trajectory, resumed)
+        return run_on(bus, config, world, trajectory, resumed)
     finally:
         bus.close()
 
 
-def run_on(bus: Bus, args: argparse.Namespace, world: World, trajectory: Trajectory, resumed: str | None) -> int:
+def run_on(bus: Bus, config: WorldConfig, world: World, trajectory: Trajectory, resumed: str | None) -> int:
     """The run on the bus, from the tick `world` is at: 0 when it ran to its end, 130 when cut short."""
-    start = world.tick
-    brains = Brains(bus, args.group, world.agents, args.shards)
-    control = bus.outbox(keys.control(args.group))
+    start, ticks, group = world.tick, config.world.ticks, bus.group
+    brains = Brains(bus, group, world.agents, config.shards)
+    control = bus.outbox(keys.control(group))
     # lossy: a recorder that falls behind or freezes must not hold the run back (it counts the gap)
-    state = bus.outbox(keys.world_state(args.group), lossy=True) if args.publish_state else None
+    state = bus.outbox(keys.world_state(group), lossy=True) if config.publish_state else None
     brains.wait()
     run_id = resumed or new_run_id()  # the brain answers for this run only; an end names it
     stream = None
     if state is not None:
         wait_for_subscriber(state, "a recorder")
-        bus.outbox(keys.world_map(args.group)).put(world_map(world, run_id))
+        bus.outbox(keys.world_map(group)).put(world_map(world, run_id))
         stream = StateStream(state, world, run_id)
-    if resumed:
-        log.info("run %s resumed at tick %d from %s", run_id, start, args.checkpoint / CHECKPOINT)
-    log.info("run %s: %d ticks, seed %d, %d agent(s)", run_id, args.ticks, world.seed, world.agents)
+    if resumed and config.checkpoint:
+        log.info("run %s resumed at tick %d from %s", run_id, start, config.checkpoint / CHECKPOINT)
+    log.info("run %s: %d ticks, seed %d, %d agent(s)", run_id, ticks, world.seed, world.agents)
     started = time.perf_counter()
-    progress = Progress(world, args.ticks, args.progress)  # from here on, Ctrl-C ends the run with a result
+    progress = Progress(world, ticks, config.progress)  # from here on, Ctrl-C ends the run with a result
     try:
         requests = brains.send(world, start, run_id, checkpoint=bool(resumed))  # the brain goes back to it too
-        tick_loop(args, world, brains, requests, progress, trajectory, stream)
+        tick_loop(config, world, brains, requests, progress, trajectory, stream)
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the ticks done are a result too, marked partial
-        log.warning("interrupted at tick %d of %d: ending the run there", world.tick, args.ticks)
+        log.warning("interrupted at tick %d of %d: ending the run there", world.tick, ticks)
         if stream is not None:
             stream.send(final=True)
     elapsed = time.perf_counter() - started
@@ -119,14 +134,14 @@ def run_on(bus: Bus, args: argparse.Namespace, world: World, trajectory: Traject
     result = metrics_of(world, world.tick, elapsed, start)
     result.update(steady_rate(brains, start, world.tick, started, elapsed))
     result["rejected_messages"] = bus.rejections()
-    result["partial"] = world.tick < args.ticks
+    result["partial"] = world.tick < ticks
     log.info("%d ticks in %.1f s (%.0f ticks/s); %s", world.tick, elapsed, result["ticks_per_s"], outcome(result))
-    finish(args, result, trajectory, world.tick)
-    return 0 if world.tick == args.ticks else 130
+    finish(config, result, trajectory, world.tick)
+    return 0 if world.tick == ticks else 130
 
 
 def tick_loop(
-    args: argparse.Namespace,
+    config: WorldConfig,
     world: World,
     brains: Brains,
     requests: list[Sensors],
@@ -137,24 +152,25 @@ def tick_loop(
     """The lock-step ticks: each waits for the brain's answer (every shard's) to the last sensors sent.
     The recorder's share of tick t is kept after tick t + 1's sensors are sent, while the brain steps."""
     spare = world.sensors.copy()  # the next tick's sensors go here while tick t's are kept
-    for t in range(world.tick, args.ticks):
+    ticks, folder = config.world.ticks, config.checkpoint
+    for t in range(world.tick, ticks):
         actions = brains.collect(world, requests)
-        if requests[0].checkpoint and args.checkpoint:
-            checkpoint.confirm(args.checkpoint)  # the brain has kept this tick too
+        if requests[0].checkpoint and folder:
+            checkpoint.confirm(folder)  # the brain has kept this tick too
         world.act(actions)
         trajectory.keep(t)
         sensed = world.sensors  # tick t's
-        if t + 1 < args.ticks:  # the brain's next tick first: the recorder can wait
-            keep = args.checkpoint is not None and (t + 1) % args.checkpoint_every == 0
-            if keep:
-                checkpoint.keep_checkpoint(args, world, trajectory, requests[0].run)
+        if t + 1 < ticks:  # the brain's next tick first: the recorder can wait
+            keep = folder is not None and (t + 1) % config.checkpoint_every == 0
+            if keep and folder:
+                checkpoint.keep_checkpoint(folder, config.world, world, trajectory, requests[0].run)
             if stream is not None:  # sense() fills every value: a swap, not a copy, keeps tick t's
                 world.sensors, spare = spare, world.sensors
             requests = brains.send(world, t + 1, requests[0].run, keep)
         if stream is not None:  # the next sense() left poses, events and changes as act() made them
             stream.keep(t, sensed)
-            if stream.full or t + 1 == args.ticks:
-                stream.send(final=t + 1 == args.ticks)
+            if stream.full or t + 1 == ticks:
+                stream.send(final=t + 1 == ticks)
         progress.update(t + 1)
 
 
@@ -170,21 +186,22 @@ def steady_rate(brains: Brains, start: int, done: int, started: float, elapsed: 
     }
 
 
-def finish(args: argparse.Namespace, result: dict, trajectory: Trajectory, done: int) -> None:
+def finish(config: WorldConfig, result: dict, trajectory: Trajectory, done: int) -> None:
     """The checkpoints settled and the results written (--out)."""
-    if args.checkpoint and done == args.ticks:
-        checkpoint.forget(args.checkpoint)
-    elif args.checkpoint and (args.checkpoint / CHECKPOINT).exists():
-        log.info("the same command resumes this run from its last checkpoint (%s)", args.checkpoint / CHECKPOINT)
-    if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "metrics.json").write_text(json.dumps(result))
+    folder, out = config.checkpoint, config.out
+    if folder and done == config.world.ticks:
+        checkpoint.forget(folder)
+    elif folder and (folder / CHECKPOINT).exists():
+        log.info("the same command resumes this run from its last checkpoint (%s)", folder / CHECKPOINT)
+    if out:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "metrics.json").write_text(json.dumps(result))
         if done:
-            trajectory.save(args.out / "trajectory.npz", done)
+            trajectory.save(out / "trajectory.npz", done)
 
 
 def main(argv=None) -> int:
-    return service_main("world", parser(), run, argv)
+    return service_main("world", parser(), run, argv, config=WorldConfig)
 
 
 if __name__ == "__main__":

@@ -24,25 +24,26 @@ def test_a_run_ended_before_its_first_tick_still_sends_a_final_state():
 
 
 def test_a_checkpoint_resumes_only_under_the_options_that_made_it(tmp_path):
+    from services.options import config_from
     from services.world.checkpoint import CHECKPOINT, PENDING, keep_checkpoint, resume
-    from services.world.options import world_from_args
+    from services.world.options import world_from
     from services.world.results import Trajectory
-    from services.world.service import parser
+    from services.world.service import WorldConfig, parser
 
-    made = parser().parse_args(["--seed", "4", "--ticks", "3000", "--checkpoint", str(tmp_path)])
-    world = world_from_args(made)
+    made = config_from(parser().parse_args(["--seed", "4", "--ticks", "3000"]), WorldConfig).world
+    world = world_from(made)
     for _ in range(1200):
         world.sense()
         world.act(np.array([[1, 1]], np.uint8))
-    keep_checkpoint(made, world, Trajectory(world, made.ticks), "0123456789abcdef")
-    again = world_from_args(made)
-    assert resume(made, again, Trajectory(again, made.ticks)) is None  # until the brain has answered its tick
+    keep_checkpoint(tmp_path, made, world, Trajectory(world, made.ticks), "0123456789abcdef")
+    again = world_from(made)
+    assert resume(tmp_path, made, again, Trajectory(again, made.ticks)) is None  # until the brain has answered its tick
     (tmp_path / PENDING).replace(tmp_path / CHECKPOINT)
-    assert resume(made, again, Trajectory(again, made.ticks)) == "0123456789abcdef"
+    assert resume(tmp_path, made, again, Trajectory(again, made.ticks)) == "0123456789abcdef"
     assert again.tick == 1200 and np.array_equal(again.pos, world.pos) and len(again.metrics.bins) == 1
-    other = parser().parse_args(["--seed", "5", "--ticks", "3000", "--checkpoint", str(tmp_path)])
+    other = config_from(parser().parse_args(["--seed", "5", "--ticks", "3000"]), WorldConfig).world
     with pytest.raises(ValueError, match=r"other options \(--seed 4 there, 5 here\)"):
-        resume(other, world_from_args(other), Trajectory(world_from_args(other), other.ticks))
+        resume(tmp_path, other, world_from(other), Trajectory(world_from(other), other.ticks))
     (tmp_path / "world.npz").write_bytes(b"not an npz")
     with pytest.raises(ValueError, match="not a run checkpoint"):
-        resume(made, world_from_args(made), Trajectory(world, made.ticks))
+        resume(tmp_path, made, world_from(made), Trajectory(world, made.ticks))
