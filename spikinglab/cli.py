@@ -46,7 +46,18 @@ def main(argv: list[str] | None = None) -> None:
     else:
         print(f"spikinglab: unknown command {name!r} (spikinglab --help lists the commands)", file=sys.stderr)
         sys.exit(2)
-    code = importlib.import_module(module).main(rest)
+    try:
+        command = importlib.import_module(module)
+    except ModuleNotFoundError as e:  # an install without it, such as the gateway's alone (docs/robot.md)
+        if not e.name or e.name.partition(".")[0] in ("services", "spikinglab"):
+            raise
+        print(
+            f"spikinglab {name}: needs the package {e.name.partition('.')[0]}, which this install leaves out "
+            "(the gateway alone installs only what the gateway needs: docs/robot.md)",
+            file=sys.stderr,
+        )
+        sys.exit(2)
+    code = command.main(rest)
     sys.exit(code if isinstance(code, int) else 0)  # benchmarks return their figures
 
 

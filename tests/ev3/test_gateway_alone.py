@@ -92,6 +92,9 @@ def test_the_gateway_alone(tmp_path):
     sim = in_venv(bin_dir / "spikinglab", "gateway", "--backend", "sim", timeout=60)
     assert sim.returncode == 2 and sim.stderr.count("\n") == 1, sim.stderr
     assert "--backend sim needs the simulated world" in sim.stderr
+    run = in_venv(bin_dir / "spikinglab", "run", "--ticks", "1000", timeout=60)  # a command this install leaves out
+    assert (run.returncode, run.stderr.count("\n")) == (2, 1), run.stderr
+    assert run.stderr.startswith("spikinglab run: needs the package "), run.stderr
 
     gateway_ep = endpoint(tmp_path, "gateway")
     brick_log, gateway_log = tmp_path / "brick.log", tmp_path / "gateway.log"
