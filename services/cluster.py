@@ -10,6 +10,7 @@ another worker.
 
 from __future__ import annotations
 
+import argparse
 import re
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -35,6 +36,14 @@ def cluster_address(text: str) -> str:
     if not found or not 0 < int(found[2]) < 65536:
         raise ValueError(f"expected a Dask scheduler's address tcp://HOST:PORT, got {text!r}")
     return text
+
+
+def address_option(text: str) -> str:
+    """A command line's --cluster option: cluster_address, refused as argparse refuses (exit 2)."""
+    try:
+        return cluster_address(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 @contextmanager

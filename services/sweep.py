@@ -1,8 +1,9 @@
 """`spikinglab sweep`: the paper's Table 1 — learning time for symmetric A+ = A- over several seeds.
 
 All values and seeds run as one population in one process (one arena each; each A+ value is a
-per-agent parameter), so a sweep takes seconds. Writes runs/<id>/table.md, table.json and
-learning.png, and prints the table beside the paper's numbers.
+per-agent parameter), so a sweep takes seconds; with --cluster, in blocks on a Dask cluster, with
+the same table. Writes runs/<id>/table.md, table.json and learning.png, and prints the table beside
+the paper's numbers.
 """
 
 from __future__ import annotations
@@ -10,12 +11,14 @@ from __future__ import annotations
 import datetime
 import json
 import sys
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from services.brain.engine import DEFAULT_SEMANTICS
 from services.brain.engine_options import add_engine_args
+from services.cluster import ClusterError, address_option
 from services.learning import PAPER, all_definitions, noxious_ticks, plot_table1, quarter_collisions, stats
 from services.loop import population
 from services.options import Parser, at_least, positive
@@ -31,28 +34,82 @@ def sweep(
     progress=None,
     semantics: str = DEFAULT_SEMANTICS,
     order: str = "random",
+    cluster: str | None = None,
 ) -> list[dict]:
-    """Every A+ = A- value on seeds 0..N-1, all as one population (agent = value-major, then seed);
-    a row per value."""
+    """Every A+ = A- value on seeds 0..N-1 (agent = value-major, then seed); a row per value. In
+    this process as one population (`progress.update(1)` per tick), or on the Dask scheduler at
+    `cluster` in blocks (`progress.update(insects)` per block), with the same rows."""
+    options: dict = dict(preset=preset, learned_after=learned_after, semantics=semantics, order=order)
+    if cluster is None:
+        on_tick = (lambda t: progress.update(1)) if progress else None
+        found = insects(a_values, list(range(seeds)), ticks, on_tick=on_tick, **options)
+    else:
+        found = on_cluster(cluster, a_values, seeds, ticks, progress, options)
+    return rows(a_values, seeds, ticks, preset, semantics, found)
+
+
+def insects(
+    a_values: list[float],
+    seeds: list[int],
+    ticks: int,
+    preset: str,
+    learned_after: int,
+    semantics: str,
+    order: str,
+    on_tick=None,
+) -> dict:
+    """Every value on every seed as one population: per insect (value-major, then seed) its ticks
+    on a noxious patch ("noxious"), its collisions per bin ("bins") and the world's learning time."""
     world, brain = population(
         {"a_plus": a_values, "a_minus": a_values},
-        range(seeds),
+        seeds,
         preset=preset,
         learned_after=learned_after,
         semantics=semantics,
         order=order,
     )
-    noxious = noxious_ticks(world, brain, ticks, (lambda t: progress.update(1)) if progress else None)
-    all_bins = np.array(world.metrics.bins).T  # [agents, ticks / 1000]
-    rows = []
+    noxious = noxious_ticks(world, brain, ticks, on_tick)
+    return {
+        "noxious": [np.asarray(c, np.int64) for c in noxious],
+        "bins": np.array(world.metrics.bins).T,  # [agents, ticks / 1000]
+        "learned_at": world.metrics.learned_at.copy(),
+    }
+
+
+def sweep_block(a_values: list[float], ticks: int, options: dict, chosen: range, at: range) -> dict:
+    """One block of a sweep on a cluster worker: the chosen values on seeds `at`."""
+    return insects([a_values[k] for k in chosen], list(at), ticks, **options)
+
+
+def on_cluster(address: str, a_values: list[float], seeds: int, ticks: int, progress, options: dict) -> dict:
+    """`insects` for every value on seeds 0..N-1, in blocks on the cluster at `address`."""
+    from services.cluster import in_blocks  # the cluster's packages only when one is named
+
+    found: dict = {"noxious": [None] * (len(a_values) * seeds)}
+    task = partial(sweep_block, a_values, ticks, options)
+    for chosen, at, part in in_blocks(address, task, len(a_values), seeds):
+        agents = [k * seeds + j for k in chosen for j in at]
+        for agent, c in zip(agents, part["noxious"]):  # type: ignore[index]
+            found["noxious"][agent] = c
+        for name in ("bins", "learned_at"):
+            values = part[name]  # type: ignore[index]
+            found.setdefault(name, np.empty((len(found["noxious"]), *values.shape[1:]), values.dtype))[agents] = values
+        if progress:
+            progress.update(len(agents))
+    return found
+
+
+def rows(a_values: list[float], seeds: int, ticks: int, preset: str, semantics: str, found: dict) -> list[dict]:
+    """A row per value from its insects' records (`insects`)."""
+    out = []
     for k, a_plus in enumerate(a_values):
         mine = slice(k * seeds, (k + 1) * seeds)
-        bins = all_bins[mine]
+        bins = found["bins"][mine]
         first_quarter, last_quarter = quarter_collisions(bins)
-        definitions = all_definitions(noxious[mine], ticks)
-        times = [int(t) if t >= 0 else None for t in world.metrics.learned_at[mine]]  # the world's own counter
+        definitions = all_definitions(found["noxious"][mine], ticks)
+        times = [int(t) if t >= 0 else None for t in found["learned_at"][mine]]  # the world's own counter
         main = {"times": times, **stats(times, ticks)}
-        rows.append(
+        out.append(
             {
                 "name": f"{semantics} semantics, {preset} steps",
                 "a": a_plus,
@@ -69,7 +126,7 @@ def sweep(
                 "collisions_per_1000_ticks_mean": bins.mean(axis=0).round(2).tolist(),
             }
         )
-    return rows
+    return out
 
 
 def table(rows: list[dict], learned_after: int) -> str:
@@ -127,6 +184,27 @@ def plot(rows: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
+def run_with_progress(args) -> list[dict]:
+    """The sweep of the command's arguments, its progress shown: ticks in one process, insects on a cluster."""
+    from tqdm import tqdm
+
+    insects = len(args.a_plus) * args.seeds
+    total, unit = (args.ticks, "tick") if args.cluster is None else (insects, "insect")
+    with tqdm(total=total, unit=unit, unit_scale=True, mininterval=1) as bar:
+        bar.set_postfix_str(f"{insects} insects: A+ = A- in {args.a_plus} x {args.seeds} seeds")
+        return sweep(
+            args.a_plus,
+            args.seeds,
+            args.ticks,
+            args.preset,
+            args.learned_after,
+            bar,
+            args.semantics,
+            args.order,
+            args.cluster,
+        )
+
+
 def main(argv=None) -> int:
     p = Parser(prog="spikinglab sweep", description=(__doc__ or "").partition("\n")[0])
     p.add_argument("--a-plus", type=positive, nargs="+", default=[0.01, 0.02, 0.03, 0.04])
@@ -142,16 +220,23 @@ def main(argv=None) -> int:
     add_engine_args(p)
     p.add_argument("--runs", type=Path, default=Path("runs"))
     p.add_argument("--id", help="folder name (default sweep-<date>)")
+    p.add_argument(
+        "--cluster",
+        type=address_option,
+        metavar="ADDRESS",
+        help="run on the Dask scheduler at tcp://HOST:PORT, in blocks of insects (docs/cluster.md)",
+    )
     args = p.parse_args(argv)
-    from tqdm import tqdm
-
     folder = args.runs / (args.id or f"sweep-{datetime.datetime.now():%Y%m%d-%H%M%S}")
+    created = not folder.exists()
     folder.mkdir(parents=True, exist_ok=True)
-    with tqdm(total=args.ticks, unit="tick", unit_scale=True, mininterval=1) as bar:
-        bar.set_postfix_str(f"{len(args.a_plus) * args.seeds} insects: A+ = A- in {args.a_plus} x {args.seeds} seeds")
-        rows = sweep(
-            args.a_plus, args.seeds, args.ticks, args.preset, args.learned_after, bar, args.semantics, args.order
-        )
+    try:
+        rows = run_with_progress(args)
+    except ClusterError as e:
+        if created:
+            folder.rmdir()
+        print(f"spikinglab sweep: {e}", file=sys.stderr)
+        return 1
     text = table(rows, args.learned_after)
     (folder / "table.md").write_text(text + "\n")
     (folder / "table.json").write_text(json.dumps(rows, indent=1))
