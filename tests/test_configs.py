@@ -10,6 +10,7 @@ import pytest
 
 from services.brain import service as brain
 from services.options import config_from, option_names
+from services.recorder import service as recorder
 from services.world import service as world
 
 SERVICES = {
@@ -18,6 +19,7 @@ SERVICES = {
         brain.BrainConfig,
         ["--shard", "2/3", "--clock", "1000", "--params", "p.csv", "--a-plus", "0.03"],
     ),
+    "recorder": (recorder.parser, recorder.RecorderConfig, ["--detail", "0,3", "--viewer", "rerun+http://h:1/proxy"]),
     "world": (world.parser, world.WorldConfig, ["--map", "m.txt", "--shards", "2", "--checkpoint", "c", "--out", "o"]),
 }
 

@@ -22,12 +22,13 @@ import socket
 import sys
 import time
 import urllib.parse
+from dataclasses import dataclass
 from pathlib import Path
 
 import rerun as rr
 
 from services.bus import keys
-from services.bus.config import add_bus_args
+from services.bus.config import BusConfig, add_bus_args
 from services.bus.schemas import BrainLayout, BrainState, WorldMap, WorldState
 from services.bus.transport import Bus
 from services.options import Parser, agent_list, at_least, port
@@ -89,6 +90,25 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
+@dataclass(frozen=True)
+class RecorderConfig:
+    """The recorder's options (parser()), typed: what run() and its parts take."""
+
+    out: Path | None
+    viewer: str | None
+    serve: bool
+    web: bool
+    grpc_host: str
+    grpc_port: int
+    web_port: int
+    detail: tuple[int, ...]
+    flush_every: int
+    forever: bool
+    backlog_mb: int
+    nice: int
+    bus: BusConfig
+
+
 def viewer_url(text: str) -> str:
     """A viewer's gRPC URL (rerun+http://host:port/proxy), checked before anything starts."""
     url = urllib.parse.urlsplit(text)
@@ -126,35 +146,35 @@ def viewer_answers(text: str, timeout: float = 3.0) -> bool:
         return False
 
 
-def run(args: argparse.Namespace, session) -> int:
-    if not can_serve(args):
+def run(config: RecorderConfig, session) -> int:
+    if not can_serve(config):
         return 1
-    serve = args.serve or args.web
-    out = args.out or Path("runs") / f"{datetime.datetime.now():%Y%m%d-%H%M%S}" / "recording.rrd"
+    serve, group = config.serve or config.web, config.bus.group
+    out = config.out or Path("runs") / f"{datetime.datetime.now():%Y%m%d-%H%M%S}" / "recording.rrd"
     out.parent.mkdir(parents=True, exist_ok=True)
-    rec = open_recording(args, out, f"{args.group}-{out.parent.name}", serving=serve)
+    rec = open_recording(config, out, f"{group}-{out.parent.name}", serving=serve)
     if serve:
-        log.info("serving the run live: rerun rerun+http://127.0.0.1:%d/proxy", args.grpc_port)
-    if args.web:
+        log.info("serving the run live: rerun rerun+http://127.0.0.1:%d/proxy", config.grpc_port)
+    if config.web:
         rr.serve_web_viewer(
-            web_port=args.web_port, open_browser=False, connect_to=f"rerun+http://127.0.0.1:{args.grpc_port}/proxy"
+            web_port=config.web_port, open_browser=False, connect_to=f"rerun+http://127.0.0.1:{config.grpc_port}/proxy"
         )
-        log.info("web viewer: %s", web_viewer_url(args.web_port, args.grpc_port))
-    bus = Bus(session, args.group, "recorder")
-    recorder = Recorder(rec, detail=args.detail, flush_every=args.flush_every)
+        log.info("web viewer: %s", web_viewer_url(config.web_port, config.grpc_port))
+    bus = Bus(session, group, "recorder")
+    recorder = Recorder(rec, detail=config.detail, flush_every=config.flush_every)
     # only the state streams: the lock-step messages (sensors, motor) never come to the recorder
     inbox = bus.inbox(
-        keys.state(args.group), (WorldMap, WorldState, BrainState, BrainLayout), backlog_bytes=args.backlog_mb << 20
+        keys.state(group), (WorldMap, WorldState, BrainState, BrainLayout), backlog_bytes=config.backlog_mb << 20
     )
     watched = {name: bus.presence(name) for name in ("world", "brain")}
 
     def open_next(path: Path, run_id: str) -> rr.RecordingStream:
-        return open_recording(args, path, f"{args.group}-{run_id}", served_at=serve and args.grpc_port)
+        return open_recording(config, path, f"{group}-{run_id}", served_at=serve and config.grpc_port)
 
-    listener = Listener(inbox, watched, rec, recorder, out, args.group, args.forever, open_next)
+    listener = Listener(inbox, watched, rec, recorder, out, group, config.forever, open_next)
     bus.watch_others(lambda: f" (recorded up to tick {listener.recorder.last_tick})")
-    recorder.event(f"recorder started on group {args.group}, writing {out}")
-    log.info("recording group %s to %s", args.group, out)
+    recorder.event(f"recorder started on group {group}, writing {out}")
+    log.info("recording group %s to %s", group, out)
     try:
         while not listener.step(inbox.get(timeout=0.25)):
             pass
@@ -175,13 +195,16 @@ def run(args: argparse.Namespace, session) -> int:
     return 0
 
 
-def can_serve(args: argparse.Namespace) -> bool:
+def can_serve(config: RecorderConfig) -> bool:
     """Whether the viewer to stream to answers and the ports to serve on are free (says why not)."""
-    if args.viewer and not viewer_answers(args.viewer):
-        log.error("no viewer answers at %s (start one with `rerun`, or leave out --viewer)", args.viewer)
+    if config.viewer and not viewer_answers(config.viewer):
+        log.error("no viewer answers at %s (start one with `rerun`, or leave out --viewer)", config.viewer)
         return False
-    serve = args.serve or args.web
-    for wanted, number, option in ((serve, args.grpc_port, "--grpc-port"), (args.web, args.web_port, "--web-port")):
+    serve = config.serve or config.web
+    for wanted, number, option in (
+        (serve, config.grpc_port, "--grpc-port"),
+        (config.web, config.web_port, "--web-port"),
+    ):
         if wanted and free_port(number) != number:
             log.error("port %d is in use: nothing can be served there (choose another with %s)", number, option)
             return False
@@ -189,34 +212,34 @@ def can_serve(args: argparse.Namespace) -> bool:
 
 
 def open_recording(
-    args: argparse.Namespace, path: Path, recording_id: str, serving: bool = False, served_at: int | None = None
+    config: RecorderConfig, path: Path, recording_id: str, serving: bool = False, served_at: int | None = None
 ) -> rr.RecordingStream:
     """A recording written to `path`, streamed to --viewer, and served live (`serving`: this
     recording's stream serves at --grpc-port; `served_at`: sent to the one that serves there)."""
     rec = rr.RecordingStream("spikinglab", recording_id=recording_id)
     sinks: list = [rr.FileSink(str(path))]
-    if args.viewer:
-        sinks.append(rr.GrpcSink(args.viewer))
+    if config.viewer:
+        sinks.append(rr.GrpcSink(config.viewer))
     if serving:  # beside the file: the recording is written whoever watches
-        sinks.append(rr.GrpcServerSink(bind_ip=args.grpc_host, port=args.grpc_port))
+        sinks.append(rr.GrpcServerSink(bind_ip=config.grpc_host, port=config.grpc_port))
     elif served_at:
         sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{served_at}/proxy"))
-    rec.set_sinks(*sinks, default_blueprint=blueprint(args.detail[0] if args.detail else 0))
+    rec.set_sinks(*sinks, default_blueprint=blueprint(config.detail[0] if config.detail else 0))
     return rec
 
 
-def step_back(args: argparse.Namespace) -> None:
+def step_back(config: RecorderConfig) -> None:
     """Run behind the lock-step pair (--nice); the recorder buffers (losslessly) and catches up."""
     try:
-        os.nice(args.nice)
+        os.nice(config.nice)
     except OSError as e:  # a negative increment needs root or CAP_SYS_NICE: record at the usual priority
         log.warning(
-            "cannot change the priority by --nice %d (%s): recording at the usual priority", args.nice, e.strerror
+            "cannot change the priority by --nice %d (%s): recording at the usual priority", config.nice, e.strerror
         )
 
 
 def main(argv=None) -> int:
-    return service_main("recorder", parser(), run, argv, interrupted=0, prepare=step_back)
+    return service_main("recorder", parser(), run, argv, interrupted=0, prepare=step_back, config=RecorderConfig)
 
 
 if __name__ == "__main__":
