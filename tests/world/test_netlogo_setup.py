@@ -107,3 +107,30 @@ def test_world_takes_the_sources_arena_and_heading():
 def test_another_arena_size_is_refused():
     with pytest.raises(ValueError, match="80..120"):
         spikinglab_setup(7850, WorldParams(x_max=100))
+
+
+def world_options(*argv: str):
+    from services.options import config_from
+    from services.world.service import WorldConfig, parser
+
+    return config_from(parser().parse_args(list(argv)), WorldConfig).world
+
+
+def test_netlogo_seed_option_builds_the_sources_arena_for_every_agent():
+    from services.world.options import world_from
+
+    setup = spikinglab_setup(7850)
+    world = world_from(world_options("--preset", "netlogo", "--netlogo-seed", "7850", "--agents", "2"))
+    assert all(np.array_equal(g, setup.grid) for g in world.grid)
+    assert list(world.heading) == [setup.heading] * 2
+    assert tuple(world.steps[0]) == (4.0, 0.4)
+
+
+def test_netlogo_seed_and_a_map_are_refused_together(tmp_path):
+    from services.world.options import world_from
+
+    (tmp_path / "m.txt").write_text("###\n#S#\n###\n")
+    with pytest.raises(ValueError, match="--netlogo-seed and --map"):
+        world_from(world_options("--netlogo-seed", "1", "--map", str(tmp_path / "m.txt")))
+    with pytest.raises(ValueError, match="outside -2147483648"):
+        world_from(world_options("--netlogo-seed", str(2**31)))
