@@ -85,7 +85,7 @@ def options(service: str) -> set[str]:
 
 def known(command: str) -> bool:
     words = command.split()
-    return words[1] in BENCHMARKS if words[0] == "bench" else command in COMMANDS
+    return words[1] in BENCHMARKS if words[0] == "bench" and len(words) > 1 else command in COMMANDS
 
 
 def relative(doc: Path) -> str:
@@ -117,9 +117,9 @@ def commands_named(text: str) -> list[tuple[str, list[str]]]:
     return named
 
 
-def option_lists(text: str) -> list[tuple[str, list[str]]]:
+def option_lists(text: str) -> list[tuple[str, str]]:
     """A markdown list introduced by a line that names one command and ends with ':' (`spikinglab
-    run` options: ...): that command, and every option the list's items name."""
+    run` options: ...): that command, and the list's items."""
     lists, lines = [], text.splitlines()
     for i, line in enumerate(lines):
         if not line.rstrip().endswith(":") or i + 1 >= len(lines) or not lines[i + 1].startswith("- "):
@@ -132,8 +132,12 @@ def option_lists(text: str) -> list[tuple[str, list[str]]]:
             if not item.startswith(("- ", "  ")):
                 break
             items.append(item)
-        lists.append((commands.pop(), re.findall(r"`(" + OPTION + ")", "\n".join(items))))
+        lists.append((commands.pop(), "\n".join(items)))
     return lists
+
+
+def listed_options(items: str) -> list[str]:
+    return re.findall(r"`(" + OPTION + ")", items)
 
 
 @pytest.mark.parametrize("service", sorted(README_OF))
@@ -160,7 +164,7 @@ def test_the_registry_has_a_parser_for_every_command():
 @pytest.mark.parametrize("doc", DOCS, ids=relative)
 def test_every_command_named_exists_with_the_options_named_beside_it(doc):
     text = doc.read_text()
-    named = commands_named(text) + option_lists(text)
+    named = commands_named(text) + [(c, listed_options(items)) for c, items in option_lists(text)]
     unknown = sorted({c for c, _ in named if not known(c)})
     assert not unknown, f"{relative(doc)} names commands that spikinglab has not: {unknown}"
     wrong = sorted(
@@ -173,19 +177,20 @@ def test_the_command_checks_catch_what_is_gone():
     """The two checks above can fail: a command or option that is not there is found."""
     text = "`spikinglab fake-brik`, `spikinglab run --tick 5`\n```\nspikinglab bench engin  # x\n```\n"
     assert [c for c, _ in commands_named(text) if not known(c)] == ["fake-brik", "bench engin"]
-    listed = option_lists("`spikinglab run` options:\n- `--ticks N`: ticks\n- `--tick`: gone\n\nafter\n")
-    assert listed == [("run", ["--ticks", "--tick"])] and "--tick" not in actions("run")
+    ((command, items),) = option_lists("`spikinglab run` options:\n- `--ticks N`: ticks\n- `--tick`: gone\n\nafter\n")
+    assert (command, listed_options(items)) == ("run", ["--ticks", "--tick"]) and "--tick" not in actions("run")
 
 
 def stated_defaults(text: str) -> list[tuple[str, str, str | None, str]]:
     """Every default the text states for an option: (option, value, unit, the clause) for
     "`--option ...` (default 5 ms)" and for "5 ms (`--option`)"."""
     stated = []
-    clauses = re.split(r"(?<=[.;])\s+(?=[A-Z(`])|\n(?=\s*[-|])|\|", text)  # sentences, list items, table cells
-    value = r"([\w.,:/+-]*\w)(?: (ms|s|cm|MB|ticks)\b)?"
+    clauses = re.split(r"(?<=[.;])\s+(?=[A-Z(`])|\n(?=\s*[-|])|\s\|\s", text)  # sentences, list items, table cells
+    number = r"\d(?:[\d,.]*\d)?"
+    value = rf"({number}(?: {number})+|[\w.,:/+-]*\w)(?: (ms|s|cm|MB|ticks)\b)?"  # a list: numbers and spaces
     for clause in clauses:
-        clause = clause.replace("\n", " ")
-        for m in re.finditer(r"`(" + OPTION + r")[^`]*`(?:(?!`--).)*?\bdefault:? " + value, clause):
+        clause = " ".join(clause.split())
+        for m in re.finditer(r"`(" + OPTION + r")[^`]*`(?:(?!`--).)*?(?<!by )(?<!'s )\bdefault:? `?" + value, clause):
             stated.append((m.group(1), m.group(2), m.group(3), clause))
         for m in re.finditer(
             r"(?<![\w.,])(\d[\d,]*(?:\.\d+)?) ?(ms|s|cm|MB)?\b \(`(" + OPTION + r")`(?=\)| on |,)", clause
@@ -196,13 +201,16 @@ def stated_defaults(text: str) -> list[tuple[str, str, str | None, str]]:
 
 def same_value(stated: str, unit: str | None, option: str, default) -> bool:
     """Whether a value the docs state is the option's default, a time in the option's own unit (ms
-    for an option named -ms, else seconds)."""
+    for an option named -ms, else seconds); a list, its values one by one."""
+    if default is None or isinstance(default, bool) or default == []:
+        return True  # the parser says nothing to compare with: the code decides (a flag, a default made later)
     if isinstance(default, (tuple, list)):
-        default = ",".join(map(str, default))
+        values = stated.split(" ") if " " in stated else stated.split(",")
+        return len(values) == len(default) and all(same_value(v, unit, option, d) for v, d in zip(values, default))
     number = re.fullmatch(r"-?\d[\d,]*(?:\.\d+)?", stated)
     if number is None:
-        return str(default) == stated or isinstance(default, bool) or default is None
-    if not isinstance(default, (int, float, str)) or isinstance(default, bool):
+        return str(default) == stated
+    if not isinstance(default, (int, float, str)):
         return False
     value = float(stated.replace(",", ""))
     if unit in UNITS:
@@ -226,9 +234,16 @@ def candidates(option: str, clause: str, doc: str) -> list[str]:
 
 @pytest.mark.parametrize("doc", DOCS, ids=relative)
 def test_every_default_stated_is_the_parsers(doc):
+    """An option list's defaults are its command's; elsewhere an option's command is the one the
+    sentence names, or the doc's own."""
+    text, stated = doc.read_text(), []
+    for command, items in option_lists(text):
+        stated += [(*default, [command]) for default in stated_defaults(items)]
+        text = text.replace(items, "")
+    stated += [(*default, None) for default in stated_defaults(text)]
     wrong = []
-    for option, value, unit, clause in stated_defaults(doc.read_text()):
-        commands = candidates(option, clause, relative(doc))
+    for option, value, unit, clause, listed in stated:
+        commands = [c for c in listed if option in actions(c)] if listed else candidates(option, clause, relative(doc))
         defaults = [actions(c)[option].default for c in commands]
         if commands and not any(same_value(value, unit, option, d) for d in defaults):
             wrong.append(f"{option} {value}{' ' + unit if unit else ''} ({', '.join(commands)}: default {defaults})")
@@ -245,6 +260,8 @@ def test_the_default_check_catches_a_wrong_default():
     assert same_value("0.2", "s", "--motor-timeout", gateway["--motor-timeout"].default)
     assert same_value("500", "ms", "--move-ms", gateway["--move-ms"].default)
     assert not same_value("40,000", None, "--ticks", actions("run")["--ticks"].default)
+    assert same_value("0.01 0.02 0.03 0.04", None, "--a-plus", [0.01, 0.02, 0.03, 0.04])
+    assert not same_value("0.01 0.02", None, "--a-plus", [0.01, 0.02, 0.03, 0.04])
 
 
 def bus_keys() -> set[str]:
