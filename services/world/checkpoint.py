@@ -27,6 +27,7 @@ def run_options(options: WorldOptions) -> dict:
         "shared": options.shared,
         "preset": options.preset,
         "map": str(options.map) if options.map else None,
+        "netlogo_seed": options.netlogo_seed,
         "no_training": options.no_training,
         "learned_after": options.learned_after,
     }

@@ -134,3 +134,19 @@ def test_netlogo_seed_and_a_map_are_refused_together(tmp_path):
         world_from(world_options("--netlogo-seed", "1", "--map", str(tmp_path / "m.txt")))
     with pytest.raises(ValueError, match="outside -2147483648"):
         world_from(world_options("--netlogo-seed", str(2**31)))
+
+
+def test_a_checkpoint_resumes_only_under_its_netlogo_seed(tmp_path):
+    from services.world.checkpoint import CHECKPOINT, PENDING, keep_checkpoint, resume
+    from services.world.options import world_from
+    from services.world.results import Trajectory
+
+    made = world_options("--netlogo-seed", "7850", "--ticks", "100")
+    world = world_from(made)
+    keep_checkpoint(tmp_path, made, world, Trajectory(world, made.ticks), "0123456789abcdef")
+    (tmp_path / PENDING).replace(tmp_path / CHECKPOINT)
+    other = world_options("--netlogo-seed", "7851", "--ticks", "100")
+    with pytest.raises(ValueError, match=r"--netlogo-seed 7850 there, 7851 here"):
+        resume(tmp_path, other, world_from(other), Trajectory(world_from(other), other.ticks))
+    again = world_from(made)
+    assert resume(tmp_path, made, again, Trajectory(again, made.ticks)) == "0123456789abcdef"
