@@ -17,7 +17,7 @@ from services.bus.batching import state_batch
 from services.loop import brain_for, closed_loop
 from services.world.world import SENSORS, World, generate_map, params_for
 
-from ..processes import ROOT, Watcher, finish, start, ticks_in, wait_for
+from ..processes import ROOT, Watcher, endpoint, finish, start, ticks_in, wait_for
 from ..recordings import read
 
 TICKS, SEED = 3000, 3
@@ -145,9 +145,7 @@ def test_screenshot_of_the_replay_is_not_blank(recorded_run, tmp_path):
 
 
 def test_a_killed_recorder_leaves_a_readable_file(tmp_path):
-    from ..processes import endpoint, free_port
-
-    world_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
+    world_ep, brain_ep = endpoint(tmp_path, "world"), endpoint(tmp_path, "brain")
     recorder = start(
         "record",
         "--connect",
@@ -183,9 +181,7 @@ def test_a_killed_recorder_leaves_a_readable_file(tmp_path):
 
 
 def test_a_late_recorder_says_from_which_tick_it_has_data(tmp_path):
-    from ..processes import endpoint, free_port
-
-    world_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
+    world_ep, brain_ep = endpoint(tmp_path, "world"), endpoint(tmp_path, "brain")
     early = Watcher([world_ep, brain_ep], [keys.world_state("insect"), keys.brain_state("insect")])
     # long enough (several seconds) for the late recorder to start up before the run ends
     world = start("world", "--listen", world_ep, "--ticks", 30000, "--publish-state", log=tmp_path / "world.log")
@@ -225,9 +221,7 @@ def test_each_run_gets_its_own_recording(tmp_path):
     """Two runs one after the other on one recorder (--forever) and one brain: the second goes to
     a file of its own, named by its run id, with its map and every tick from 0 (held while the
     first run could still go on); the first file holds only the first run."""
-    from ..processes import endpoint, free_port
-
-    world_ep, brain_ep = endpoint(free_port()), endpoint(free_port())
+    world_ep, brain_ep = endpoint(tmp_path, "world"), endpoint(tmp_path, "brain")
     recorder = start(
         "record",
         "--connect",
