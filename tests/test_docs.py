@@ -93,16 +93,17 @@ def relative(doc: Path) -> str:
 
 
 def fragments(text: str) -> list[str]:
-    """The code of a markdown text: each line of a fenced block, and each inline `code` span."""
-    found, fenced = [], False
+    """The code of a markdown text: each line of a fenced block, and each inline `code` span (which
+    may go on over a line break)."""
+    found, prose, fenced = [], [], False
     for line in text.splitlines():
         if line.lstrip().startswith("```"):
             fenced = not fenced
         elif fenced:
             found.append(line.split(" #")[0])
         else:
-            found += re.findall(r"`([^`]+)`", line)
-    return found
+            prose.append(line)
+    return found + [" ".join(span.split()) for span in re.findall(r"`([^`]+)`", "\n".join(prose))]
 
 
 def commands_named(text: str) -> list[tuple[str, list[str]]]:
@@ -176,7 +177,7 @@ def test_every_command_named_exists_with_the_options_named_beside_it(doc):
 def test_the_command_checks_catch_what_is_gone():
     """The two checks above can fail: a command or option that is not there is found."""
     text = "`spikinglab fake-brik`, `spikinglab run --tick 5`\n```\nspikinglab bench engin  # x\n```\n"
-    assert [c for c, _ in commands_named(text) if not known(c)] == ["fake-brik", "bench engin"]
+    assert sorted(c for c, _ in commands_named(text) if not known(c)) == ["bench engin", "fake-brik"]
     ((command, items),) = option_lists("`spikinglab run` options:\n- `--ticks N`: ticks\n- `--tick`: gone\n\nafter\n")
     assert (command, listed_options(items)) == ("run", ["--ticks", "--tick"]) and "--tick" not in actions("run")
 
@@ -349,7 +350,14 @@ def test_docs_cite_only_files_that_exist():
             if not path.endswith("circuits/mine.toml"):  # docs/circuits.md: a user's own file in its error examples
                 cited.setdefault(path, relative(source))
     missing = {path: doc for path, doc in cited.items() if not (ROOT / path).exists()}
-    assert len(cited) > 20 and not missing
+    assert len(cited) > 20 and not missing, f"files cited but not in the repository: {missing}"
+
+
+def test_docs_cite_only_tests_that_exist():
+    """A test cited by its file and name (path::name): the file defines it."""
+    cited = {m for doc in DOCS for m in re.findall(r"\b(tests/[\w/]+\.py)::(\w+)", doc.read_text())}
+    missing = [f"{f}::{t}" for f, t in cited if not re.search(rf"^def {t}\(", (ROOT / f).read_text(), re.M)]
+    assert cited and not missing, f"tests cited but not defined: {missing}"
 
 
 def test_docs_and_code_cite_only_top_level_docs_that_exist():
