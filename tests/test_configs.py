@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from services.brain import service as brain
+from services.ev3_gateway import service as gateway
 from services.options import config_from, option_names
 from services.recorder import service as recorder
 from services.world import service as world
@@ -19,6 +20,7 @@ SERVICES = {
         brain.BrainConfig,
         ["--shard", "2/3", "--clock", "1000", "--params", "p.csv", "--a-plus", "0.03"],
     ),
+    "gateway": (gateway.parser, gateway.GatewayConfig, ["--backend", "sim", "--sim-map", "m.txt", "--host", "00:16"]),
     "recorder": (recorder.parser, recorder.RecorderConfig, ["--detail", "0,3", "--viewer", "rerun+http://h:1/proxy"]),
     "world": (world.parser, world.WorldConfig, ["--map", "m.txt", "--shards", "2", "--checkpoint", "c", "--out", "o"]),
 }

@@ -36,7 +36,7 @@ import numpy as np
 import zenoh
 
 from services.bus import keys
-from services.bus.config import add_bus_args
+from services.bus.config import BusConfig, add_bus_args
 from services.bus.schemas import Array, BusError, Control, Motor, Sensors, new_run_id
 from services.bus.transport import Bus
 from services.options import Parser, at_least, not_negative, number, positive
@@ -126,6 +126,36 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
+@dataclass(frozen=True)
+class GatewayConfig:
+    """The gateway's options (parser()), typed: what run() and its parts take."""
+
+    backend: str
+    protocol: str  # the EV3's
+    host: str | None
+    touch_port: int
+    colour_port: int
+    ultrasonic_port: int
+    motors: str
+    speed: int
+    spin_speed: int
+    sim_seed: int  # the simulated EV3's
+    sim_map: Path | None
+    sim_patch_cm: float
+    sim_object_cm: float
+    link_ms: float
+    move_ms: int  # mapping and safety
+    spin_ms: int
+    pain_below_cm: float
+    contact_value: float
+    motor_timeout: float
+    max_command_age: float
+    max_polls: float
+    duration: float
+    stats: Path | None
+    bus: BusConfig
+
+
 def sensor_values(reading: Reading, pain_below_cm: float, contact: float) -> np.ndarray:
     """One row of the insect's sensors (NaN: nothing) from a robot reading."""
     values = np.full((1, len(INSECT_SENSORS)), np.nan)
@@ -211,15 +241,15 @@ def motor_actions(message: Motor, run: str) -> dict:
 class Gateway:
     """The robot side: poll and publish in the calling thread, motor commands and safety in another."""
 
-    def __init__(self, backend, bus: Bus, args: argparse.Namespace):
-        self.backend, self.bus, self.args = backend, bus, args
+    def __init__(self, backend, bus: Bus, config: GatewayConfig):
+        self.backend, self.bus, self.config = backend, bus, config
         self.sensors = bus.outbox(keys.sensors(bus.group))
         self.motor = bus.inbox(keys.motor(bus.group), Motor)
         self.brain = bus.presence("brain")
         self.lock = threading.Lock()  # one backend call at a time (the link is one socket)
         self.linked = threading.Event()
         self.done = threading.Event()
-        self.rules = MotorRules(args.move_ms, args.spin_ms, args.motor_timeout)
+        self.rules = MotorRules(config.move_ms, config.spin_ms, config.motor_timeout)
         self.run_id = new_run_id()  # the brain's motor messages answer readings of this run
         self.started = time.monotonic()
         self.driven = False  # a brain's motor message was followed
@@ -273,7 +303,7 @@ class Gateway:
     def count_collision(self, reading: Reading, touching: bool) -> bool:
         """The paper's collision on the robot: the ultrasonic distance below --pain-below-cm. Each
         is noted as [start, end] in seconds since the start, to see learning on the robot."""
-        now_touching = reading.distance_cm < self.args.pain_below_cm
+        now_touching = reading.distance_cm < self.config.pain_below_cm
         if now_touching != touching:
             at = round(reading.at - self.started, 3)
             if now_touching:
@@ -285,8 +315,8 @@ class Gateway:
     def poll(self) -> None:
         tick = 0
         names = INSECT_SENSORS
-        args = self.args
-        interval = 1.0 / args.max_polls if args.max_polls else 0.0
+        config = self.config
+        interval = 1.0 / config.max_polls if config.max_polls else 0.0
         next_at = self.started = time.monotonic()
         touching = False
         while not self.done.is_set() and time.monotonic() < self.ends_at:
@@ -310,7 +340,7 @@ class Gateway:
                     tick=tick,
                     names=names,
                     run=self.run_id,
-                    values=Array.of(sensor_values(reading, args.pain_below_cm, args.contact_value)),
+                    values=Array.of(sensor_values(reading, config.pain_below_cm, config.contact_value)),
                 )
             )
             if tick == 0:
@@ -320,9 +350,10 @@ class Gateway:
     def first_reading_out(self) -> None:
         """--duration counts from here, when the robot is linked and the gateway under way (not from
         the process's start: the simulated floor, the session and the link take their time)."""
-        if self.args.duration:
-            self.ends_at = time.monotonic() + self.args.duration
-        log.info("first reading published%s", f"; ending in {self.args.duration:g} s" if self.args.duration else "")
+        duration = self.config.duration
+        if duration:
+            self.ends_at = time.monotonic() + duration
+        log.info("first reading published%s", f"; ending in {duration:g} s" if duration else "")
 
     def commands(self) -> None:
         """Motor events -> timed commands, under the MotorRules."""
@@ -360,7 +391,7 @@ class Gateway:
             raise BusError(f"does not fit the run: answers reading {message.reading}, the robot has published {polls}")
         published = self.published[message.reading % READINGS_KEPT] if polls - message.reading < READINGS_KEPT else 0
         age = time.monotonic() - published
-        if age <= self.args.max_command_age:
+        if age <= self.config.max_command_age:
             return False
         self.stats["stale_commands"] += 1
         if self.stats["stale_commands"] <= 5 or self.stats["stale_commands"] % 1000 == 0:
@@ -386,31 +417,31 @@ class Gateway:
                 self.stats["collisions"][-1][1] = self.stats["seconds"]
 
 
-def backend_from(args: argparse.Namespace):
-    if args.backend == "sim":
+def backend_from(config: GatewayConfig):
+    if config.backend == "sim":
         return SimBackend(
-            seed=args.sim_seed,
-            patch_cm=args.sim_patch_cm,
-            object_cm=args.sim_object_cm,
-            link_ms=args.link_ms,
-            map_path=args.sim_map,
+            seed=config.sim_seed,
+            patch_cm=config.sim_patch_cm,
+            object_cm=config.sim_object_cm,
+            link_ms=config.link_ms,
+            map_path=config.sim_map,
         )
     wiring = Wiring(
-        touch=args.touch_port,
-        colour=args.colour_port,
-        ultrasonic=args.ultrasonic_port,
-        motors=args.motors,
-        speed=args.speed,
-        spin_speed=args.spin_speed,
+        touch=config.touch_port,
+        colour=config.colour_port,
+        ultrasonic=config.ultrasonic_port,
+        motors=config.motors,
+        speed=config.speed,
+        spin_speed=config.spin_speed,
     )
-    return EV3Backend(protocol=args.protocol, host=args.host, wiring=wiring)
+    return EV3Backend(protocol=config.protocol, host=config.host, wiring=wiring)
 
 
-def run(args: argparse.Namespace, session: zenoh.Session, backend) -> int:
-    bus = Bus(session, args.group, "gateway")
-    gateway = Gateway(backend, bus, args)
+def run(config: GatewayConfig, session: zenoh.Session, backend) -> int:
+    bus = Bus(session, config.bus.group, "gateway")
+    gateway = Gateway(backend, bus, config)
     bus.watch_others(lambda: f" ({gateway.stats['polls']} polls, {time.monotonic() - gateway.started:.1f} s in)")
-    control = bus.outbox(keys.control(args.group))
+    control = bus.outbox(keys.control(bus.group))
     # Ctrl-C and SIGTERM end the loops between two robot calls: an exception raised inside ev3-dc
     # would leave its lock taken, and the final stop command would wait for it forever
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -424,27 +455,32 @@ def run(args: argparse.Namespace, session: zenoh.Session, backend) -> int:
         backend.close()
         bus.close()
         log.info("gateway done: %s", {k: len(v) if k == "collisions" else v for k, v in gateway.stats.items()})
-        if args.stats:
-            args.stats.write_text(json.dumps(gateway.stats))
+        if config.stats:
+            config.stats.write_text(json.dumps(gateway.stats))
     return 0
 
 
 def main(argv=None) -> int:
     made = {}
 
-    def make_backend(args: argparse.Namespace) -> None:
+    def make_backend(config: GatewayConfig) -> None:
         """Before the bus: wiring refused, a map file unread, or the simulated floor built (seconds)."""
         try:
-            made["backend"] = backend_from(args)
+            made["backend"] = backend_from(config)
         except (RobotLinkError, ValueError, OSError) as e:
             log.error("%s", e)
             raise SystemExit(2) from None
         except ImportError as e:  # the gateway installed alone (docs/robot.md) has no world
-            log.error("--backend %s needs the simulated world, which this install leaves out (%s)", args.backend, e)
+            log.error("--backend %s needs the simulated world, which this install leaves out (%s)", config.backend, e)
             raise SystemExit(2) from None
 
     return service_main(
-        "gateway", parser(), lambda args, session: run(args, session, made["backend"]), argv, prepare=make_backend
+        "gateway",
+        parser(),
+        lambda config, session: run(config, session, made["backend"]),
+        argv,
+        prepare=make_backend,
+        config=GatewayConfig,
     )
 
 
