@@ -74,6 +74,31 @@ def parser() -> argparse.ArgumentParser:
         help="the objects in the centre of black and red squares (default 15 cm)",
     )
     sim.add_argument("--link-ms", type=not_negative, default=5.0, help="simulated link round trip (default 5 ms)")
+    add_safety_args(p)
+    p.add_argument(
+        "--max-polls",
+        type=not_negative,
+        default=0,
+        metavar="PER_S",
+        help="poll at most this often (default 0: as fast as the link allows)",
+    )
+    p.add_argument(
+        "--duration",
+        type=not_negative,
+        default=0,
+        help="stop this many seconds after the first reading is published (default 0: run until Ctrl-C)",
+    )
+    p.add_argument(
+        "--stats",
+        type=Path,
+        help="write polls, commands, stops, link losses and the times of collisions here (JSON) at the end",
+    )
+    add_bus_args(p)
+    return p
+
+
+def add_safety_args(p: argparse.ArgumentParser) -> None:
+    """How spikes become motor commands, and when the motors stop."""
     m = p.add_argument_group("mapping and safety")
     m.add_argument(
         "--move-ms",
@@ -104,26 +129,6 @@ def parser() -> argparse.ArgumentParser:
         help="drop a motor command that answers a reading older than this (default 0.2 s): a brain "
         "that stalled sends no backlog",
     )
-    p.add_argument(
-        "--max-polls",
-        type=not_negative,
-        default=0,
-        metavar="PER_S",
-        help="poll at most this often (default 0: as fast as the link allows)",
-    )
-    p.add_argument(
-        "--duration",
-        type=not_negative,
-        default=0,
-        help="stop this many seconds after the first reading is published (default 0: run until Ctrl-C)",
-    )
-    p.add_argument(
-        "--stats",
-        type=Path,
-        help="write polls, commands, stops, link losses and the times of collisions here (JSON) at the end",
-    )
-    add_bus_args(p)
-    return p
 
 
 @dataclass(frozen=True)
