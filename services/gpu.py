@@ -1,0 +1,189 @@
+"""The fused closed loop on a CUDA GPU: one thread per insect, a stretch of ticks per launch.
+
+Each thread runs its insect's ticks as services.loop's fused loop runs them for all: sense, the
+brain's netlogo tick, act (collisions, pushes, food, learning time, boundary), with no host work
+between ticks. World and brain state stay on the device for the whole run; only the metrics and
+the final state come back, into the same World and Brain objects the CPU path fills, so both
+paths are compared field by field (tests/test_gpu.py). docs/gpu.md says why the device functions
+below are a port of the CPU kernels rather than calls into them, and where the device's floating
+point may differ.
+
+numba.cuda is imported only here and only when a run asks for the device. Without a GPU, or
+under NUMBA_ENABLE_CUDASIM=1, numba's CUDA simulator runs the same kernel in Python (slowly).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+
+from services.brain.brain import Brain, bind
+from services.brain.build import TICK, TRAINING
+from services.brain.circuit import Circuit
+from services.learning import quarter_collisions
+from services.loop import population
+from services.params import setting_count
+from services.world.world import ACTIONS, BIN, RAY_STEP, VIEW, World
+
+DEVICES = ("cuda",)
+STRETCH = 1000  # ticks per kernel launch: long enough that a launch's cost is nothing beside it
+THREADS = 128  # threads (insects) per block
+
+
+def device_problem() -> str | None:
+    """Why a run cannot go on a CUDA device here (one line), or None when it can."""
+    try:
+        from numba import cuda
+    except ImportError as e:  # a numba without its CUDA target
+        return f"numba's CUDA target cannot be imported ({e}); install the gpu extra: pip install 'spikinglab[gpu]'"
+    if not cuda.is_available():
+        return (
+            "no CUDA GPU or driver found (numba.cuda.is_available() is False): install the gpu extra "
+            "(pip install 'spikinglab[gpu]') on a machine with an NVIDIA GPU, or leave device unset to run on the CPU"
+        )
+    return None
+
+
+def check_device(device: str, semantics: str = "netlogo") -> None:
+    """ValueError for a device or semantics this path does not run; RuntimeError when the device is missing."""
+    if device not in DEVICES:
+        raise ValueError(f"device must be one of {', '.join(DEVICES)}, got {device!r}")
+    if semantics != "netlogo":
+        raise ValueError(f"device={device!r} runs the netlogo semantics only so far, got {semantics!r}")
+    problem = device_problem()
+    if problem is not None:
+        raise RuntimeError(f"device={device!r} refused: {problem}")
+
+
+def evaluate_cuda(
+    params: Mapping,
+    ticks: int,
+    seeds: Iterable[int] = range(4),
+    *,
+    circuit: str | Circuit = "insect",
+    preset: str = "paper",
+    learned_after: int = 5000,
+    semantics: str = "netlogo",
+    order: str = "random",
+    device: str = "cuda",
+) -> dict[str, np.ndarray]:
+    """services.loop.evaluate on a CUDA device: the same population, arguments and results."""
+    check_device(device, semantics)
+    seeds = list(seeds)
+    world, brain = population(
+        params, seeds, circuit=circuit, preset=preset, learned_after=learned_after, semantics=semantics, order=order
+    )
+    fused_loop_cuda(world, brain, ticks)
+    m, shape = world.metrics, (setting_count(params), len(seeds))
+    bins = np.array(m.bins, np.int64).reshape(-1, world.agents)
+    _, last_quarter = quarter_collisions(bins.T)
+    return {
+        "learning_time": m.learned_at.reshape(shape),
+        "collisions": m.collisions.reshape(shape),
+        "food": m.food.reshape(shape),
+        "collisions_last_quarter": last_quarter.reshape(shape),
+    }
+
+
+def fused_loop_cuda(world: World, brain: Brain, ticks: int, stretch: int = STRETCH) -> None:
+    """`ticks` ticks of services.loop.fused_loop on the device: world and brain end as the CPU
+    path leaves them (state, metrics, collision bins). Netlogo semantics, an arena per insect."""
+    from numba import cuda
+
+    from services.gpu_kernels import fused_kernel
+
+    kernel: Any = fused_kernel  # a CUDA dispatcher: kernel[blocks, threads](...)
+    if brain.engine.semantics != "netlogo":
+        raise ValueError(f"fused_loop_cuda runs the netlogo semantics only, got {brain.engine.semantics!r}")
+    if world.shared:
+        raise ValueError("fused_loop_cuda needs an arena per insect (in a shared one, insects race for food)")
+    t0, agents = world.tick, world.agents
+    bins = np.zeros(((t0 + ticks) // BIN - t0 // BIN + 1, agents), np.int64)  # by bin from t0's
+    bins[0] = world.bin_collisions
+    host = _arguments(world, brain, bins)
+    dev = [cuda.to_device(x) for x in host]
+    threads = min(THREADS, agents)
+    tb0, blocks = int(brain.engine.state.clock[TICK]), (agents + threads - 1) // threads
+    for done in range(0, ticks, stretch):
+        kernel[blocks, threads](min(stretch, ticks - done), t0 + done, tb0 + done, t0 // BIN, *dev)
+    for d, x in zip(dev, host):
+        if x.flags.writeable:
+            d.copy_to_host(x)
+    _close_bins(world, bins, ticks)
+    brain.engine.state.clock[TICK] += ticks
+    bind(brain.engine.spiked, brain.actuator_neurons, brain.action_cols, brain.actions)
+
+
+def _close_bins(world: World, bins: np.ndarray, ticks: int) -> None:
+    """Move the world's clock on as the CPU loop does, bin by bin, with the device's counts."""
+    end, bin0 = world.tick + ticks, world.tick // BIN
+    while world.tick < end:
+        world.bin_collisions[:] = bins[world.tick // BIN - bin0]
+        world.advance(min(end - world.tick, BIN - world.tick % BIN))  # closes the bin at its end
+
+
+def _arguments(world: World, brain: Brain, bins: np.ndarray) -> list[np.ndarray]:
+    """The kernel's arrays after its four numbers, in its order. Read-only ones are not copied back."""
+    m, net, st = world.metrics, brain.engine.network, brain.engine.state
+    steps_per_ray = int(round(world.fpar[VIEW] / world.fpar[RAY_STEP]))
+    # the brain's actuators -> the world's action columns, as services.loop.fused_loop binds them
+    bound = [(brain.action_names[c], int(n)) for c, n in zip(brain.action_cols, brain.actuator_neurons)]
+    world_cols = np.array([ACTIONS.index(name) for name, _ in bound if name in ACTIONS], np.int64)
+    actuators = np.array([n for name, n in bound if name in ACTIONS], np.int64)
+    consts = [
+        np.array([steps_per_ray, int(world.training), int(st.clock[TRAINING]), net.rules], np.int64),
+        world.fpar,
+        world.kind,
+        world.arena_of,
+        world.steps,
+        brain.sensor_cols,
+        brain.input_cols,
+        world_cols,
+        actuators,
+        net.syn,
+        net.npar,
+        net.inpar,
+        net.stdp,
+        net.group,
+        net.profile,
+        net.out_start,
+        net.out_syn,
+        net.order_key,
+    ]
+    state = [
+        world.grid,
+        world.pos,
+        world.heading,
+        world.sensors,
+        world.last_patch,
+        world.events,
+        world.eaten,
+        m.collisions,
+        m.collisions_by_colour,
+        m.food,
+        m.distance,
+        m.last_collision,
+        m.last_noxious,
+        m.learned_at,
+        m.resets,
+        bins,
+        np.zeros((world.agents, len(ACTIONS)), np.uint8),
+        brain.feed,
+        st.v,
+        st.w,
+        st.counters,
+        st.last_spike,
+        st.hist,
+        st.ring,
+        st.spiked,
+        np.zeros(st.v.shape, np.uint64),  # each insect's netlogo order, scratch
+    ]
+    return [_read_only(x) for x in consts] + state
+
+
+def _read_only(x: np.ndarray) -> np.ndarray:
+    view = x.view()
+    view.flags.writeable = False
+    return view

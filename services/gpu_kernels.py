@@ -1,0 +1,327 @@
+"""The device side of services/gpu.py: the fused closed loop as one CUDA kernel, one thread per insect.
+
+A port of the CPU path's per-agent code (services/world/world.py's sense, touch and act;
+services/brain/engine.py's netlogo tick) to numba.cuda device functions on plain arrays:
+docs/gpu.md says why a port and not calls into those kernels. The arrays keep the engine's layout
+(agent axis last), so neighbouring threads read neighbouring words. tests/test_gpu.py holds the
+port to the CPU path. Importing this module imports numba.cuda (the simulator under
+NUMBA_ENABLE_CUDASIM=1).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import cuda
+from numba.core import config
+
+from services.brain.build import (
+    AT_START,
+    COUNT,
+    COUNT_FROM_SEND,
+    DECAY,
+    DELAY,
+    DT0_AGAIN,
+    FLAGS,
+    FLOOR,
+    HI,
+    HIST_LEN,
+    HISTORY,
+    INHIBITORY,
+    LATENCY,
+    LEFT,
+    LO,
+    PLASTIC,
+    POST,
+    PULSES,
+    REFR_LEFT,
+    REFR_PERIOD,
+    REFR_V,
+    REFRACTORY,
+    REOPEN_IN_TURN,
+    REST,
+    SHUFFLE,
+    STDP_OFFSET,
+    SYN_BITS,
+    SYN_MASK,
+    TABLE,
+    THRESHOLD,
+)
+from services.vocabulary import BLACK, EMPTY, EV_ATE, EV_COLLISION, EV_LEARNED, EV_RESET, GREEN, RED
+from services.world.world import (
+    BIN,
+    LEARNED_AFTER,
+    MOVE,
+    PAIN,
+    PAIN_VALUE,
+    PUSH,
+    RAY_STEP,
+    REWARD,
+    REWARD_VALUE,
+    ROTATE,
+    START_X,
+    START_Y,
+    X_MIN,
+    Y_MIN,
+)
+
+device = cuda.jit(device=True)
+
+if config.ENABLE_CUDASIM:  # pyright: ignore[reportAttributeAccessIssue] (set from the environment)
+
+    @device
+    def mul(x, y):
+        return x * y
+
+else:  # a product rounded before the add that follows, as on the CPU: the device would fuse them (FMA)
+    from numba.cuda.libdevice import dmul_rn as mul
+
+
+@device
+def colour_at(grid, g, x, y, fpar):
+    ix = int(math.floor(x + 0.5)) - int(fpar[X_MIN])
+    iy = int(math.floor(y + 0.5)) - int(fpar[Y_MIN])
+    if ix < 0 or iy < 0 or ix >= grid.shape[1] or iy >= grid.shape[2]:
+        return EMPTY, -1
+    return grid[g, ix, iy], ix * grid.shape[2] + iy
+
+
+@device
+def sense_one(a, grid, arena_of, pos, heading, fpar, kind, sensors, steps):
+    g = arena_of[a]
+    for k in range(sensors.shape[1]):
+        sensors[a, k] = math.nan
+    h = math.radians(heading[a])
+    dx, dy = math.sin(h), math.cos(h)
+    d = 0.0  # a running sum, as the CPU's and NetLogo's
+    for _ in range(steps):
+        d += fpar[RAY_STEP]
+        colour, _patch = colour_at(grid, g, pos[a, 0] + mul(d, dx), pos[a, 1] + mul(d, dy), fpar)
+        if colour != EMPTY:
+            if colour == BLACK:
+                sensors[a, 0] = d
+            elif colour == RED:
+                sensors[a, 1] = d
+            elif colour == GREEN:
+                sensors[a, 2] = d
+            break
+    colour, _patch = colour_at(grid, g, pos[a, 0], pos[a, 1], fpar)
+    if kind[colour] == 1:
+        sensors[a, PAIN] = fpar[PAIN_VALUE]
+    elif kind[colour] == 2:
+        sensors[a, REWARD] = fpar[REWARD_VALUE]
+
+
+@device
+def touch_one(a, t, training, grid, arena_of, pos, heading, fpar, kind, last_patch, events, eaten, metrics, bin_row):
+    collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins = metrics
+    g = arena_of[a]
+    for k in range(events.shape[1]):
+        events[a, k] = 0
+    eaten[a, 0] = -1
+    eaten[a, 1] = -1
+    colour, patch = colour_at(grid, g, pos[a, 0], pos[a, 1], fpar)
+    if kind[colour] == 1:
+        last_noxious[a] = t
+        if patch != last_patch[a]:
+            collisions[a] += 1
+            by_colour[a, colour] += 1
+            bins[bin_row, a] += 1
+            last_collision[a] = t
+            events[a, EV_COLLISION] = colour
+        if training:
+            h = math.radians(heading[a])
+            pos[a, 0] += mul(fpar[PUSH], math.sin(h))
+            pos[a, 1] += mul(fpar[PUSH], math.cos(h))
+            distance[a] += fpar[PUSH]
+    elif kind[colour] == 2:
+        ix, iy = patch // grid.shape[2], patch % grid.shape[2]
+        grid[g, ix, iy] = EMPTY
+        eaten[a, 0] = ix
+        eaten[a, 1] = iy
+        food[a] += 1
+        events[a, EV_ATE] = 1
+    last_patch[a] = patch
+    if learned_at[a] < 0 and t - max(last_noxious[a], 0) >= fpar[LEARNED_AFTER]:
+        learned_at[a] = max(last_noxious[a], 0)
+        events[a, EV_LEARNED] = 1
+
+
+@device
+def act_one(a, width, height, pos, heading, fpar, steps, actions, events, distance, resets):
+    if actions[a, ROTATE]:
+        heading[a] = (heading[a] + steps[a, 0]) % 360.0
+    if actions[a, MOVE]:
+        h = math.radians(heading[a])
+        pos[a, 0] += mul(steps[a, 1], math.sin(h))
+        pos[a, 1] += mul(steps[a, 1], math.cos(h))
+        distance[a] += steps[a, 1]
+    x = pos[a, 0] - fpar[X_MIN]
+    y = pos[a, 1] - fpar[Y_MIN]
+    if x < 0.0 or y < 0.0 or x > width - 1 or y > height - 1:
+        pos[a, 0] = fpar[START_X]
+        pos[a, 1] = fpar[START_Y]
+        resets[a] += 1
+        events[a, EV_RESET] = 1
+
+
+@device
+def learn(w, s, a, post, dt, npar, stdp, group, profile):
+    k = dt + int(npar[post, STDP_OFFSET])
+    if 0 <= k < stdp.shape[2] - TABLE:
+        g, p = group[a], profile[post]
+        w[s, a] = min(max(w[s, a] + stdp[g, p, TABLE + k], stdp[g, p, LO]), stdp[g, p, HI])
+
+
+@device
+def feed_and_inputs(a, t, feed, inpar, syn, n_neurons, counters, ring, spiked):
+    mask = ring.shape[0] - 1
+    n_net = syn.shape[0] - feed.shape[1]
+    for i in range(feed.shape[1]):
+        node, s = n_neurons + i, n_net + i
+        pulses = np.int32(inpar[i, PULSES])
+        start = t == 0 and not math.isnan(inpar[i, AT_START])
+        slot = (t + syn[s, DELAY]) & mask
+        x = inpar[i, AT_START] if start else feed[a, i]
+        left = counters[LEFT, node, a]
+        take = left == 0 and x >= 0.0 and x < 1e9
+        lat = np.int32(int(x) + 1) if take else counters[LATENCY, node, a]
+        count = np.int32(0) if take else counters[COUNT, node, a]
+        left = pulses if take else left
+        if left > 0:
+            count += 1
+        fired = left > 0 and count == lat
+        counters[LATENCY, node, a] = lat
+        counters[COUNT, node, a] = 0 if fired else count
+        counters[LEFT, node, a] = left - 1 if fired else left
+        spiked[node, a] = 1 if fired else 0
+        ring[slot, s, a] = 1 if fired else 0
+
+
+@device
+def mix(x):
+    z = x + np.uint64(0x9E3779B97F4A7C15)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
+
+
+@device
+def receive(a, t, s, training, rules, syn, npar, lrn, v, w, counters, last_spike, hist):
+    stdp, group, profile = lrn
+    post = syn[s, POST]
+    if counters[REFRACTORY, post, a] == 0:
+        if syn[s, FLAGS] & INHIBITORY:
+            v[post, a] = max(v[post, a] - w[s, a], npar[post, FLOOR])
+        else:
+            v[post, a] += w[s, a]
+    if training and syn[s, FLAGS] & PLASTIC:
+        n = counters[HIST_LEN, post, a]
+        if n > HISTORY:
+            for h in range(n - 1):
+                hist[a, post, h] = hist[a, post, h + 1]
+            n -= 1
+        hist[a, post, n] = (t << SYN_BITS) | s
+        counters[HIST_LEN, post, a] = n + 1
+        last = last_spike[post, a]
+        if rules & DT0_AGAIN:
+            for h in range(n + 1):
+                entry = hist[a, post, h]
+                if (entry >> SYN_BITS) != last:
+                    break
+                learn(w, entry & SYN_MASK, a, post, 0, npar, stdp, group, profile)
+            if t > last:
+                learn(w, s, a, post, t - last, npar, stdp, group, profile)
+        else:
+            learn(w, s, a, post, t - last, npar, stdp, group, profile)
+
+
+@device
+def netlogo_tick(a, t, training, rules, feed, net, brain):
+    syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key = net
+    v, w, counters, last_spike, hist, ring, spiked, order = brain
+    lrn = (stdp, group, profile)
+    n_neurons = v.shape[0]
+    feed_and_inputs(a, t, feed, inpar, syn, n_neurons, counters, ring, spiked)
+    mask = ring.shape[0] - 1
+    now = t & mask
+    n_net = syn.shape[0] - feed.shape[1]
+    send = 1 if rules & COUNT_FROM_SEND else 0
+    if not rules & REOPEN_IN_TURN:
+        for n in range(n_neurons):
+            if counters[REFRACTORY, n, a] and counters[REFR_LEFT, n, a] <= 0:
+                counters[REFRACTORY, n, a] = 0
+    for s in range(n_net, syn.shape[0]):
+        if ring[now, s, a]:
+            ring[now, s, a] = 0
+            post = syn[s, POST]
+            if counters[REFRACTORY, post, a] == 0:
+                v[post, a] += w[s, a]
+    for n in range(n_neurons):
+        order[n, a] = n
+    if rules & SHUFFLE:  # the engine's Fisher-Yates from (agent seed, tick)
+        r = mix(order_key[a] + np.uint64(t))
+        for i in range(n_neurons - 1, 0, -1):
+            r = r * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
+            j = ((r >> np.uint64(32)) * np.uint64(i + 1)) >> np.uint64(32)
+            order[i, a], order[j, a] = order[j, a], order[i, a]
+    for k in range(n_neurons):
+        n = order[k, a]
+        spiked[n, a] = 0
+        if counters[REFRACTORY, n, a] == 0:
+            if v[n, a] != npar[n, REST]:
+                if v[n, a] >= npar[n, THRESHOLD]:
+                    last_spike[n, a] = t
+                    for h in range(counters[HIST_LEN, n, a]):
+                        entry = hist[a, n, h]
+                        learn(w, entry & SYN_MASK, a, n, (entry >> SYN_BITS) - t, npar, stdp, group, profile)
+                    counters[HIST_LEN, n, a] = 0
+                    for q in range(out_start[n], out_start[n + 1]):
+                        s = out_syn[q]
+                        ring[(t + syn[s, DELAY] - send) & mask, s, a] = 1
+                    counters[REFRACTORY, n, a] = 1
+                    counters[REFR_LEFT, n, a] = np.int32(npar[n, REFR_PERIOD])
+                    spiked[n, a] = 1
+                else:
+                    v[n, a] += mul(npar[n, REST] - v[n, a], npar[n, DECAY])
+        else:
+            counters[REFR_LEFT, n, a] -= 1
+            v[n, a] = npar[n, REFR_V]
+            if counters[REFR_LEFT, n, a] <= 0 and rules & REOPEN_IN_TURN:
+                counters[REFRACTORY, n, a] = 0
+        for q in range(out_start[n], out_start[n + 1]):
+            s = out_syn[q]
+            if ring[now, s, a]:
+                ring[now, s, a] = 0
+                receive(a, t, s, training, rules, syn, npar, lrn, v, w, counters, last_spike, hist)
+
+
+@cuda.jit
+def fused_kernel(
+    ticks, t0, tb0, bin0, flags, fpar, kind, arena_of, steps, sensor_cols, input_cols, world_cols, actuators,
+    syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key,
+    grid, pos, heading, sensors, last_patch, events, eaten, collisions, by_colour, food, distance,
+    last_collision, last_noxious, learned_at, resets, bins, actions, feed,
+    v, w, counters, last_spike, hist, ring, spiked, order,
+):  # fmt: skip
+    a = cuda.grid(1)  # pyright: ignore[reportCallIssue] (numba's stub)
+    if a >= pos.shape[0]:
+        return
+    steps_per_ray, world_training, brain_training, rules = flags[0], flags[1] != 0, flags[2] != 0, flags[3]
+    net = (syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key)
+    brain = (v, w, counters, last_spike, hist, ring, spiked, order)
+    metrics = (collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins)
+    for k in range(ticks):
+        t = t0 + k
+        sense_one(a, grid, arena_of, pos, heading, fpar, kind, sensors, steps_per_ray)
+        for j in range(sensor_cols.shape[0]):
+            feed[a, input_cols[j]] = sensors[a, sensor_cols[j]]
+        netlogo_tick(a, tb0 + k, brain_training, rules, feed, net, brain)
+        for j in range(world_cols.shape[0]):
+            actions[a, world_cols[j]] = spiked[actuators[j], a]
+        row = t // BIN - bin0
+        touch_one(
+            a, t, world_training, grid, arena_of, pos, heading, fpar, kind, last_patch, events, eaten, metrics, row
+        )
+        act_one(a, grid.shape[1], grid.shape[2], pos, heading, fpar, steps, actions, events, distance, resets)

@@ -1,0 +1,119 @@
+"""The fused closed loop on a CUDA device (services/gpu.py) against the CPU path, same seeds.
+
+Without a GPU the device run goes through numba's CUDA simulator (NUMBA_ENABLE_CUDASIM=1, set in
+a subprocess before numba.cuda is imported; it runs the kernel in Python, so populations and runs
+are small). With a GPU the same comparison runs on it too. docs/gpu.md says what must agree bit
+for bit and why the positions on a real device are compared to within 1e-9 patch.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pytest
+
+from services.gpu import check_device, fused_loop_cuda
+from services.loop import closed_loop, evaluate, population
+
+from .processes import ROOT
+
+# three insects (settings of A+ on one seed) that collide and learn within the run: 200 ticks from
+# tick 0 (learning times, in three launches), and 100 ticks across the first bin's end (bins)
+PARAMS = {"a_plus": [0.01, 0.03, 0.05]}
+SEEDS = [1]
+LEARNED_AFTER = 50
+RUNS = {"learning": (0, 200, 80), "bin": (950, 100, 1000)}  # name: (start tick, ticks, ticks per launch)
+WORLD = ("pos", "heading", "grid", "last_patch", "events", "eaten", "bin_collisions")
+METRICS = ("collisions", "collisions_by_colour", "food", "distance", "last_collision", "last_noxious")
+METRICS += ("learned_at", "resets")
+ENGINE = ("clock", "v", "w", "counters", "last_spike", "hist", "ring", "spiked")
+
+
+def run(start: int, ticks: int, stretch: int | None) -> dict[str, np.ndarray]:
+    """Everything the run leaves in the world and brain; stretch None: the CPU path."""
+    world, brain = population(PARAMS, SEEDS, learned_after=LEARNED_AFTER)
+    world.tick = start  # as a run resumed there
+    if stretch is None:
+        closed_loop(world, brain, ticks)
+    else:
+        with warnings.catch_warnings():  # the simulator's numpy scalars warn where uint64 hashing wraps
+            warnings.filterwarnings("ignore", "overflow encountered", RuntimeWarning)
+            fused_loop_cuda(world, brain, ticks, stretch)
+    out = {name: np.asarray(getattr(world, name)) for name in WORLD}
+    out |= {f"metrics.{name}": getattr(world.metrics, name) for name in METRICS}
+    out |= {f"engine.{name}": getattr(brain.engine.state, name) for name in ENGINE}
+    bins = np.array(world.metrics.bins, np.int64).reshape(-1, world.agents)
+    return out | {"bins": bins, "tick": np.array(world.tick), "actions": brain.actions}
+
+
+def device_runs(path: str) -> None:
+    """In the subprocess: every run of RUNS on the device (or the simulator), saved to `path`."""
+    arrays = {}
+    for name, (start, ticks, stretch) in RUNS.items():
+        arrays |= {f"{name}/{k}": v for k, v in run(start, ticks, stretch).items()}
+    np.savez(path, **arrays)
+
+
+def on_device(tmp_path, simulator: bool) -> dict[str, np.ndarray]:
+    path = tmp_path / "device.npz"
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_ENABLE_CUDASIM"}
+    if simulator:
+        env["NUMBA_ENABLE_CUDASIM"] = "1"
+    code = f"from tests.test_gpu import device_runs; device_runs({str(path)!r})"
+    subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, check=True, timeout=240)
+    return dict(np.load(path))
+
+
+def device_present() -> bool:
+    probe = "from services.gpu import device_problem; print(device_problem() is None)"
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_ENABLE_CUDASIM"}
+    done = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, env=env, capture_output=True, text=True)
+    return done.stdout.strip() == "True"
+
+
+@pytest.mark.parametrize("simulator", [True, False], ids=["simulator", "device"])
+def test_device_run_equals_cpu(tmp_path, simulator):
+    if not simulator and not device_present():
+        pytest.skip("no CUDA device here (the simulator case compares the same kernel)")
+    device = on_device(tmp_path, simulator)
+    for name, (start, ticks, _) in RUNS.items():
+        cpu = run(start, ticks, None)
+        for key, expected in cpu.items():
+            got = device[f"{name}/{key}"]
+            if key == "pos" and not simulator:  # the device's sin and cos may differ in the last bit
+                np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9, err_msg=f"{name}: {key}")
+            else:
+                np.testing.assert_array_equal(got, expected, err_msg=f"{name}: {key}")
+    # the runs compared something: collisions, learning, weights moved, a bin closed
+    learning, crossing = run(*RUNS["learning"][:2], None), run(*RUNS["bin"][:2], None)
+    assert learning["metrics.collisions"].sum() > 0 and (learning["metrics.learned_at"] > 0).any()
+    world, brain = population(PARAMS, SEEDS, learned_after=LEARNED_AFTER)
+    assert not np.array_equal(learning["engine.w"], brain.engine.state.w)
+    assert crossing["bins"].shape == (1, 3) and crossing["bins"].sum() + crossing["bin_collisions"].sum() > 0
+
+
+def test_cuda_refused_without_a_device_in_one_line():
+    if device_present():
+        pytest.skip("a CUDA device is present here")
+    code = (
+        "from services.gpu import evaluate_cuda\n"
+        "try:\n    evaluate_cuda({'a_plus': [0.01]}, 10, [0])\n"
+        "except RuntimeError as e:\n    print(e)"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_ENABLE_CUDASIM"}
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, check=True)
+    message = done.stdout.strip()
+    assert message.startswith("device='cuda' refused: ") and "\n" not in message, message
+    assert "pip install 'spikinglab[gpu]'" in message
+    evaluate({"a_plus": [0.01]}, 10, [0])  # the CPU path is untouched
+
+
+def test_unknown_device_and_semantics_are_named():
+    with pytest.raises(ValueError, match="device must be one of cuda, got 'tpu'"):
+        check_device("tpu")
+    with pytest.raises(ValueError, match="netlogo semantics only so far, got 'phased'"):
+        check_device("cuda", "phased")
