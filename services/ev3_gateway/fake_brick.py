@@ -33,6 +33,7 @@ import struct
 import sys
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 from services.options import Parser
@@ -41,6 +42,7 @@ from services.runtime import process_main
 log = logging.getLogger("spikinglab.fake_brick")
 
 BEACON_PORT = 3015
+KEPT_COMMANDS = 100_000  # motor commands kept for inspection (minutes of a brain at full speed)
 OP_INPUT_DEVICE, OP_OUTPUT_TIME_SYNC, OP_OUTPUT_STOP = 0x99, 0xB1, 0xA3
 READY_RAW, READY_SI = 0x1C, 0x1D
 REPLY_OK, REPLY_ERROR = 0x02, 0x04
@@ -95,7 +97,8 @@ class FakeBrick:
     touch: int = 0
 
     def __post_init__(self):
-        self.commands: list[MotorCommand] = []
+        self.commands: deque[MotorCommand] = deque(maxlen=KEPT_COMMANDS)  # the latest: bounded for a long soak
+        self.commanded = 0  # motor commands executed, all told
         self.reads = 0
         self.errors: list[str] = []
         self.connections = 0
@@ -268,16 +271,18 @@ class FakeBrick:
             elif op == OP_OUTPUT_TIME_SYNC:
                 args, i = self._params(ops, i, 6)
                 layer, ports, speed, turn, ms, brake = args
-                self.commands.append(
+                self._executed(
                     MotorCommand(time.monotonic(), "time_sync", ports, speed, turn, ms, brake, self.connections)
                 )
             elif op == OP_OUTPUT_STOP:
                 args, i = self._params(ops, i, 3)
-                self.commands.append(
-                    MotorCommand(time.monotonic(), "stop", args[1], brake=args[2], link=self.connections)
-                )
+                self._executed(MotorCommand(time.monotonic(), "stop", args[1], brake=args[2], link=self.connections))
             else:
                 raise ProtocolError(f"opcode 0x{op:02X} is not supported by this brick")
+
+    def _executed(self, command: MotorCommand) -> None:
+        self.commands.append(command)
+        self.commanded += 1
 
     def _params(self, ops: bytes, i: int, count: int) -> tuple[list[int], int]:
         values = []
@@ -326,7 +331,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         while True:
             time.sleep(args.report_every)
-            print(f"reads {brick.reads}, motor commands {len(brick.commands)}, connected {brick.connected}", flush=True)
+            print(f"reads {brick.reads}, motor commands {brick.commanded}, connected {brick.connected}", flush=True)
     finally:
         brick.stop()
 
