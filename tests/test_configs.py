@@ -27,7 +27,7 @@ SERVICES = {
 
 
 def options_of(parser: argparse.ArgumentParser) -> set[str]:
-    return {action.dest for action in parser._actions} - {"help"}
+    return set(vars(parser.parse_args([])))  # every option, with its default
 
 
 @pytest.mark.parametrize("service", SERVICES)
