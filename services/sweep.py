@@ -190,7 +190,7 @@ def run_with_progress(args) -> list[dict]:
 
     insects = len(args.a_plus) * args.seeds
     total, unit = (args.ticks, "tick") if args.cluster is None else (insects, "insect")
-    with tqdm(total=total, unit=unit, unit_scale=True, mininterval=1) as bar:
+    with tqdm(total=total, unit=unit, unit_scale=unit == "tick", mininterval=1) as bar:
         bar.set_postfix_str(f"{insects} insects: A+ = A- in {args.a_plus} x {args.seeds} seeds")
         return sweep(
             args.a_plus,

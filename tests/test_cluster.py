@@ -1,0 +1,178 @@
+"""Studies on a Dask cluster (services/cluster.py): a scheduler and two workers started here as
+separate processes, as on several machines. A study split into blocks gives one process's arrays
+bit for bit, and still does when a worker is killed (kill -9) while it holds a block: the scheduler
+runs that block again on another worker. Without a cluster, nothing of Dask (or Ray) is imported."""
+
+import json
+import socket
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from typing import cast
+
+import numpy as np
+import pytest
+from distributed import Client
+
+from services import sweep
+from services.cluster import blocks
+from services.loop import evaluate
+
+from .processes import ROOT
+
+# 2 settings x 3 seeds (not in order, so that a block's seeds are placed by position), a learning
+# time short enough that some insects learn within the run
+PARAMS = {"a_plus": [0.02, 0.04], "a_minus": [0.02, 0.04], "w_max": 15}
+SEEDS = [5, 0, 7]
+OPTIONS: dict = dict(ticks=3000, seeds=SEEDS, learned_after=500)
+
+
+def dask(*args: str, log) -> subprocess.Popen:
+    """A `dask scheduler` or `dask worker` process from this environment, started in the repository."""
+    command = [sys.executable, "-m", f"distributed.cli.dask_{args[0]}", *args[1:], "--no-dashboard"]
+    return subprocess.Popen(command, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+
+
+def worker(address: str, name: str, folder) -> subprocess.Popen:
+    """A worker of one thread, without a nanny: the process killed is the worker itself."""
+    return dask(
+        "worker", address, "--nthreads", "1", "--no-nanny", "--name", name, log=open(folder / f"{name}.log", "w")
+    )
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    """A scheduler on the loopback and two workers, each a process; (address, folder of their logs)."""
+    folder = tmp_path_factory.mktemp("cluster")
+    file = folder / "scheduler.json"
+    args = ("scheduler", "--host", "127.0.0.1", "--port", "0", "--scheduler-file", str(file))
+    processes = [dask(*args, log=open(folder / "scheduler.log", "w"))]
+    try:
+        started = time.monotonic()
+        while not file.exists() and processes[0].poll() is None and time.monotonic() - started < 60:
+            time.sleep(0.1)
+        address = json.loads(file.read_text())["address"]
+        processes += [worker(address, f"worker-{k}", folder) for k in range(2)]
+        with Client(address, timeout=30) as client:
+            client.wait_for_workers(2, timeout=120)
+        yield address, folder
+    finally:
+        for p in processes[:0:-1] + processes[:1]:  # the workers first: a worker closing with its scheduler may hang
+            stop(p)
+
+
+def stop(process: subprocess.Popen) -> None:
+    process.terminate()
+    try:
+        process.wait(20)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait(10)
+
+
+@pytest.fixture(scope="module")
+def one_process():
+    """The study in this process: the arrays every split must give."""
+    return evaluate(PARAMS, **OPTIONS)
+
+
+def assert_identical(found: dict, expected: dict) -> None:
+    assert list(found) == list(expected)
+    for name, values in expected.items():
+        assert found[name].dtype == values.dtype and np.array_equal(found[name], values), name
+    assert (expected["learning_time"] >= 0).any() and (expected["learning_time"] < 0).any()  # both kinds met
+
+
+@pytest.mark.parametrize("settings, seeds, threads", [(2, 3, 2), (1, 40, 2), (3, 2, 5), (100, 4, 8), (7, 1, 1)])
+def test_blocks_cover_every_insect_once(settings, seeds, threads):
+    found = blocks(settings, seeds, threads)
+    insects = sorted((k, j) for chosen, at in found for k in chosen for j in at)
+    assert insects == [(k, j) for k in range(settings) for j in range(seeds)]
+    assert len(found) >= min(threads, settings * seeds)  # every worker thread gets a block
+
+
+def test_without_a_cluster_neither_dask_nor_ray_is_imported():
+    """A fresh interpreter imports the sweep and runs a plain evaluate: no module of either engine."""
+    code = (
+        "import json, sys, services.sweep\n"
+        "from spikinglab import evaluate\n"
+        "evaluate({'a_plus': 0.02}, 1000, range(1))\n"
+        "print(json.dumps(sorted({m.split('.')[0] for m in sys.modules} & {'dask', 'distributed', 'ray'})))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert json.loads(done.stdout.splitlines()[-1]) == []
+
+
+def test_a_study_in_blocks_on_two_workers_is_the_one_process_study(cluster, one_process):
+    address, _ = cluster
+    finished = []
+    found = evaluate(PARAMS, **OPTIONS, cluster=address, on_block=finished.append)
+    assert_identical(found, one_process)
+    assert len(finished) == 2 and sum(finished) == 6  # a block per worker, each reported as it finished
+
+
+def test_a_worker_killed_mid_study_leaves_the_result_identical(cluster, one_process):
+    """A third worker joins; once it is running a block (its first: importing and running the loop
+    takes a while), kill -9: the scheduler runs that block again and the study ends on the other two."""
+    address, folder = cluster
+    victim = worker(address, "victim", folder)
+    try:
+        with Client(address, timeout=30) as client, ThreadPoolExecutor(1) as pool:
+            client.wait_for_workers(3, timeout=120)
+            (victim_address,) = [
+                a for a, w in client.scheduler_info(n_workers=-1)["workers"].items() if w["name"] == "victim"
+            ]
+
+            def running() -> int:  # blocks the victim is executing now
+                counts = client.run(lambda dask_worker: dask_worker.state.executing_count, workers=[victim_address])
+                return cast(dict, counts)[victim_address]  # a dict: the client is synchronous
+
+            study = pool.submit(evaluate, PARAMS, **OPTIONS, cluster=address)
+            while not study.done() and not running():
+                time.sleep(0.02)
+            assert not study.done(), "the victim never ran a block"
+            victim.kill()
+            found = study.result(timeout=240)
+            assert victim_address not in client.scheduler_info(n_workers=-1)["workers"]
+        assert_identical(found, one_process)
+    finally:
+        victim.kill()
+        victim.wait(30)
+
+
+def test_the_sweep_on_the_cluster_writes_the_one_process_table(cluster, tmp_path, capsys):
+    address, _ = cluster
+    args = ["--a-plus", "0.02", "0.04", "--seeds", "3", "--ticks", "3000", "--learned-after", "500"]
+    assert sweep.main([*args, "--cluster", address, "--runs", str(tmp_path), "--id", "on-cluster"]) == 0
+    written = json.loads((tmp_path / "on-cluster" / "table.json").read_text())
+    assert written == json.loads(json.dumps(sweep.sweep([0.02, 0.04], 3, 3000, "paper", 500)))
+    assert "6/6" in capsys.readouterr().err  # the progress bar counts insects
+
+
+@pytest.fixture
+def closed_port():
+    """A port where nothing listens: held bound without listening, so that no process takes it."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        yield s.getsockname()[1]
+
+
+def test_a_cluster_where_nothing_answers_is_one_line(closed_port, tmp_path, capsys):
+    address = f"tcp://127.0.0.1:{closed_port}"
+    assert sweep.main(["--seeds", "1", "--ticks", "1000", "--cluster", address, "--runs", str(tmp_path)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == f"spikinglab sweep: no Dask scheduler answers at {address} within 5 s (OSError)"
+    assert "Traceback" not in "\n".join(err) and not list(tmp_path.iterdir())  # no run folder left
+
+
+def test_a_malformed_address_is_refused_before_anything_starts(tmp_path, capsys):
+    with pytest.raises(SystemExit) as ended:
+        sweep.main(["--cluster", "127.0.0.1:8786", "--runs", str(tmp_path)])
+    assert ended.value.code == 2
+    assert "argument --cluster: expected a Dask scheduler's address tcp://HOST:PORT, got '127.0.0.1:8786'" in (
+        capsys.readouterr().err
+    )
+    with pytest.raises(ValueError, match="tcp://HOST:PORT"):
+        evaluate(PARAMS, 1000, [0], cluster="scheduler")
