@@ -1,15 +1,15 @@
 """The fused closed loop on a CUDA GPU: one thread per insect, a stretch of ticks per launch.
 
 Each thread runs its insect's ticks as services.loop's fused loop runs them for all: sense, the
-brain's netlogo tick, act (collisions, pushes, food, learning time, boundary), with no host work
-between ticks. World and brain state stay on the device for the whole run; only the metrics and
-the final state come back, into the same World and Brain objects the CPU path fills, so both
-paths are compared field by field (tests/test_gpu.py). docs/gpu.md says why the device functions
-below are a port of the CPU kernels rather than calls into them, and where the device's floating
-point may differ.
+brain's tick (netlogo or phased), act (collisions, pushes, food, learning time, boundary), with no
+host work between ticks. World and brain state stay on the device for the whole run; only the
+metrics and the final state come back, into the same World and Brain objects the CPU path fills,
+so the two paths are compared field by field (tests/test_gpu.py). The kernel is
+services/gpu_kernels.py; docs/gpu.md says why it is a port of the CPU kernels and where a
+device's floating point may differ.
 
-numba.cuda is imported only here and only when a run asks for the device. Without a GPU, or
-under NUMBA_ENABLE_CUDASIM=1, numba's CUDA simulator runs the same kernel in Python (slowly).
+numba.cuda is imported only when a run asks for the device. Without a GPU, under
+NUMBA_ENABLE_CUDASIM=1, numba's CUDA simulator runs the same kernel in Python (slowly).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from services.brain.brain import Brain, bind
-from services.brain.build import TICK, TRAINING
+from services.brain.build import DEFAULT_SEMANTICS, TICK, TRAINING
 from services.brain.circuit import Circuit
 from services.learning import quarter_collisions
 from services.loop import population
@@ -46,12 +46,10 @@ def device_problem() -> str | None:
     return None
 
 
-def check_device(device: str, semantics: str = "netlogo") -> None:
-    """ValueError for a device or semantics this path does not run; RuntimeError when the device is missing."""
+def check_device(device: str) -> None:
+    """ValueError for a device this path does not know; RuntimeError when it is missing here."""
     if device not in DEVICES:
         raise ValueError(f"device must be one of {', '.join(DEVICES)}, got {device!r}")
-    if semantics != "netlogo":
-        raise ValueError(f"device={device!r} runs the netlogo semantics only so far, got {semantics!r}")
     problem = device_problem()
     if problem is not None:
         raise RuntimeError(f"device={device!r} refused: {problem}")
@@ -65,12 +63,12 @@ def evaluate_cuda(
     circuit: str | Circuit = "insect",
     preset: str = "paper",
     learned_after: int = 5000,
-    semantics: str = "netlogo",
+    semantics: str = DEFAULT_SEMANTICS,
     order: str = "random",
     device: str = "cuda",
 ) -> dict[str, np.ndarray]:
     """services.loop.evaluate on a CUDA device: the same population, arguments and results."""
-    check_device(device, semantics)
+    check_device(device)
     seeds = list(seeds)
     world, brain = population(
         params, seeds, circuit=circuit, preset=preset, learned_after=learned_after, semantics=semantics, order=order
@@ -89,14 +87,12 @@ def evaluate_cuda(
 
 def fused_loop_cuda(world: World, brain: Brain, ticks: int, stretch: int = STRETCH) -> None:
     """`ticks` ticks of services.loop.fused_loop on the device: world and brain end as the CPU
-    path leaves them (state, metrics, collision bins). Netlogo semantics, an arena per insect."""
+    path leaves them (state, metrics, collision bins). Either semantics; an arena per insect."""
     from numba import cuda
 
     from services.gpu_kernels import fused_kernel
 
     kernel: Any = fused_kernel  # a CUDA dispatcher: kernel[blocks, threads](...)
-    if brain.engine.semantics != "netlogo":
-        raise ValueError(f"fused_loop_cuda runs the netlogo semantics only, got {brain.engine.semantics!r}")
     if world.shared:
         raise ValueError("fused_loop_cuda needs an arena per insect (in a shared one, insects race for food)")
     t0, agents = world.tick, world.agents
@@ -127,13 +123,14 @@ def _close_bins(world: World, bins: np.ndarray, ticks: int) -> None:
 def _arguments(world: World, brain: Brain, bins: np.ndarray) -> list[np.ndarray]:
     """The kernel's arrays after its four numbers, in its order. Read-only ones are not copied back."""
     m, net, st = world.metrics, brain.engine.network, brain.engine.state
+    netlogo = brain.engine.semantics == "netlogo"
     steps_per_ray = int(round(world.fpar[VIEW] / world.fpar[RAY_STEP]))
     # the brain's actuators -> the world's action columns, as services.loop.fused_loop binds them
     bound = [(brain.action_names[c], int(n)) for c, n in zip(brain.action_cols, brain.actuator_neurons)]
     world_cols = np.array([ACTIONS.index(name) for name, _ in bound if name in ACTIONS], np.int64)
     actuators = np.array([n for name, n in bound if name in ACTIONS], np.int64)
     consts = [
-        np.array([steps_per_ray, int(world.training), int(st.clock[TRAINING]), net.rules], np.int64),
+        np.array([steps_per_ray, world.training, st.clock[TRAINING], net.rules, netlogo], np.int64),
         world.fpar,
         world.kind,
         world.arena_of,

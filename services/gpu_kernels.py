@@ -32,8 +32,10 @@ from services.brain.build import (
     LATENCY,
     LEFT,
     LO,
+    NEVER,
     PLASTIC,
     POST,
+    PRE,
     PULSES,
     REFR_LEFT,
     REFR_PERIOD,
@@ -238,6 +240,69 @@ def receive(a, t, s, training, rules, syn, npar, lrn, v, w, counters, last_spike
 
 
 @device
+def deliver(a, t, training, syn, npar, lrn, v, w, counters, last_spike, hist, ring):
+    """Phased semantics, phase 3 (engine._deliver) for insect a."""
+    stdp, group, profile = lrn
+    slot = t & (ring.shape[0] - 1)
+    for s in range(syn.shape[0]):
+        post = syn[s, POST]
+        dv = w[s, a] * ring[slot, s, a] * (counters[REFR_LEFT, post, a] == 0)  # exactly w or 0
+        if syn[s, FLAGS] & INHIBITORY:
+            v[post, a] = max(v[post, a] - dv, npar[post, FLOOR])
+        else:
+            v[post, a] += dv
+        if syn[s, FLAGS] & PLASTIC and ring[slot, s, a] != 0:
+            last = last_spike[post, a]
+            if training and last != NEVER:
+                learn(w, s, a, post, t - last, npar, stdp, group, profile)
+            n = counters[HIST_LEN, post, a]
+            if n == HISTORY:
+                for h in range(HISTORY - 1):
+                    hist[a, post, h] = hist[a, post, h + 1]
+                n -= 1
+            hist[a, post, n] = (t << SYN_BITS) | s
+            counters[HIST_LEN, post, a] = n + 1
+        ring[slot, s, a] = 0
+
+
+@device
+def fire(a, t, training, npar, lrn, v, w, counters, last_spike, hist, spiked):
+    """Phased semantics, phase 4 (engine._fire) for insect a."""
+    stdp, group, profile = lrn
+    for n in range(v.shape[0]):
+        refractory = counters[REFR_LEFT, n, a] > 0
+        fires = not refractory and v[n, a] >= npar[n, THRESHOLD]
+        decayed = v[n, a] + mul(npar[n, REST] - v[n, a], npar[n, DECAY])
+        v[n, a] = npar[n, REFR_V] if refractory or fires else decayed
+        if fires:
+            counters[REFR_LEFT, n, a] = np.int32(npar[n, REFR_PERIOD])
+            last_spike[n, a] = t
+        elif refractory:
+            counters[REFR_LEFT, n, a] -= 1
+        spiked[n, a] = 1 if fires else 0
+        if fires and counters[HIST_LEN, n, a] > 0:
+            if training:
+                for h in range(counters[HIST_LEN, n, a]):
+                    entry = hist[a, n, h]
+                    learn(w, entry & SYN_MASK, a, n, (entry >> SYN_BITS) - t, npar, stdp, group, profile)
+            counters[HIST_LEN, n, a] = 0
+
+
+@device
+def phased_tick(a, t, training, feed, net, brain):
+    """One phased tick (engine._step_range) for insect a: feed and inputs, deliver, fire, emit."""
+    syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key = net
+    v, w, counters, last_spike, hist, ring, spiked, order = brain
+    lrn = (stdp, group, profile)
+    feed_and_inputs(a, t, feed, inpar, syn, v.shape[0], counters, ring, spiked)
+    deliver(a, t, training, syn, npar, lrn, v, w, counters, last_spike, hist, ring)
+    fire(a, t, training, npar, lrn, v, w, counters, last_spike, hist, spiked)
+    mask = ring.shape[0] - 1
+    for s in range(syn.shape[0] - feed.shape[1]):  # emit: input neurons sent theirs in phase 2
+        ring[(t + syn[s, DELAY]) & mask, s, a] = spiked[syn[s, PRE], a]
+
+
+@device
 def netlogo_tick(a, t, training, rules, feed, net, brain):
     syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key = net
     v, w, counters, last_spike, hist, ring, spiked, order = brain
@@ -308,7 +373,13 @@ def fused_kernel(
     a = cuda.grid(1)  # pyright: ignore[reportCallIssue] (numba's stub)
     if a >= pos.shape[0]:
         return
-    steps_per_ray, world_training, brain_training, rules = flags[0], flags[1] != 0, flags[2] != 0, flags[3]
+    steps_per_ray, world_training, brain_training, rules, netlogo = (
+        flags[0],
+        flags[1] != 0,
+        flags[2] != 0,
+        flags[3],
+        flags[4] != 0,
+    )
     net = (syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key)
     brain = (v, w, counters, last_spike, hist, ring, spiked, order)
     metrics = (collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins)
@@ -317,7 +388,10 @@ def fused_kernel(
         sense_one(a, grid, arena_of, pos, heading, fpar, kind, sensors, steps_per_ray)
         for j in range(sensor_cols.shape[0]):
             feed[a, input_cols[j]] = sensors[a, sensor_cols[j]]
-        netlogo_tick(a, tb0 + k, brain_training, rules, feed, net, brain)
+        if netlogo:
+            netlogo_tick(a, tb0 + k, brain_training, rules, feed, net, brain)
+        else:
+            phased_tick(a, tb0 + k, brain_training, feed, net, brain)
         for j in range(world_cols.shape[0]):
             actions[a, world_cols[j]] = spiked[actuators[j], a]
         row = t // BIN - bin0

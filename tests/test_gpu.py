@@ -22,20 +22,22 @@ from services.loop import closed_loop, evaluate, population
 from .processes import ROOT
 
 # three insects (settings of A+ on one seed) that collide and learn within the run: 200 ticks from
-# tick 0 (learning times, in three launches), and 100 ticks across the first bin's end (bins)
+# tick 0 (learning times, in three launches), 60 ticks across the first bin's end (bins), and the
+# phased semantics for 150 ticks
 PARAMS = {"a_plus": [0.01, 0.03, 0.05]}
 SEEDS = [1]
 LEARNED_AFTER = 50
-RUNS = {"learning": (0, 200, 80), "bin": (950, 100, 1000)}  # name: (start tick, ticks, ticks per launch)
+# name: (semantics, start tick, ticks, ticks per launch)
+RUNS = {"learning": ("netlogo", 0, 200, 80), "bin": ("netlogo", 970, 60, 1000), "phased": ("phased", 0, 150, 1000)}
 WORLD = ("pos", "heading", "grid", "last_patch", "events", "eaten", "bin_collisions")
 METRICS = ("collisions", "collisions_by_colour", "food", "distance", "last_collision", "last_noxious")
 METRICS += ("learned_at", "resets")
 ENGINE = ("clock", "v", "w", "counters", "last_spike", "hist", "ring", "spiked")
 
 
-def run(start: int, ticks: int, stretch: int | None) -> dict[str, np.ndarray]:
+def run(semantics: str, start: int, ticks: int, stretch: int | None) -> dict[str, np.ndarray]:
     """Everything the run leaves in the world and brain; stretch None: the CPU path."""
-    world, brain = population(PARAMS, SEEDS, learned_after=LEARNED_AFTER)
+    world, brain = population(PARAMS, SEEDS, learned_after=LEARNED_AFTER, semantics=semantics)
     world.tick = start  # as a run resumed there
     if stretch is None:
         closed_loop(world, brain, ticks)
@@ -53,8 +55,8 @@ def run(start: int, ticks: int, stretch: int | None) -> dict[str, np.ndarray]:
 def device_runs(path: str) -> None:
     """In the subprocess: every run of RUNS on the device (or the simulator), saved to `path`."""
     arrays = {}
-    for name, (start, ticks, stretch) in RUNS.items():
-        arrays |= {f"{name}/{k}": v for k, v in run(start, ticks, stretch).items()}
+    for name, case in RUNS.items():
+        arrays |= {f"{name}/{k}": v for k, v in run(*case).items()}
     np.savez(path, **arrays)
 
 
@@ -80,8 +82,8 @@ def test_device_run_equals_cpu(tmp_path, simulator):
     if not simulator and not device_present():
         pytest.skip("no CUDA device here (the simulator case compares the same kernel)")
     device = on_device(tmp_path, simulator)
-    for name, (start, ticks, _) in RUNS.items():
-        cpu = run(start, ticks, None)
+    cpu_runs = {name: run(*case[:3], None) for name, case in RUNS.items()}
+    for name, cpu in cpu_runs.items():
         for key, expected in cpu.items():
             got = device[f"{name}/{key}"]
             if key == "pos" and not simulator:  # the device's sin and cos may differ in the last bit
@@ -89,10 +91,11 @@ def test_device_run_equals_cpu(tmp_path, simulator):
             else:
                 np.testing.assert_array_equal(got, expected, err_msg=f"{name}: {key}")
     # the runs compared something: collisions, learning, weights moved, a bin closed
-    learning, crossing = run(*RUNS["learning"][:2], None), run(*RUNS["bin"][:2], None)
+    learning, crossing = cpu_runs["learning"], cpu_runs["bin"]
     assert learning["metrics.collisions"].sum() > 0 and (learning["metrics.learned_at"] > 0).any()
-    world, brain = population(PARAMS, SEEDS, learned_after=LEARNED_AFTER)
-    assert not np.array_equal(learning["engine.w"], brain.engine.state.w)
+    _, brain = population(PARAMS, SEEDS, learned_after=LEARNED_AFTER)
+    for name in ("learning", "phased"):
+        assert not np.array_equal(cpu_runs[name]["engine.w"], brain.engine.state.w), name
     assert crossing["bins"].shape == (1, 3) and crossing["bins"].sum() + crossing["bin_collisions"].sum() > 0
 
 
@@ -112,8 +115,6 @@ def test_cuda_refused_without_a_device_in_one_line():
     evaluate({"a_plus": [0.01]}, 10, [0])  # the CPU path is untouched
 
 
-def test_unknown_device_and_semantics_are_named():
+def test_an_unknown_device_is_named():
     with pytest.raises(ValueError, match="device must be one of cuda, got 'tpu'"):
         check_device("tpu")
-    with pytest.raises(ValueError, match="netlogo semantics only so far, got 'phased'"):
-        check_device("cuda", "phased")
