@@ -110,7 +110,7 @@ def evaluate_on(
     params: Mapping,
     ticks: int,
     seeds: Sequence[int],
-    on_block: Callable[[int], None] | None = None,
+    on_block: Callable[[int], object] | None = None,
     **options,
 ) -> dict[str, np.ndarray]:
     """services.loop.evaluate on the cluster at `address`: the same arrays, bit for bit.

@@ -229,7 +229,7 @@ def evaluate(
     semantics: str = DEFAULT_SEMANTICS,
     order: str = "random",
     cluster: str | None = None,
-    on_block: Callable[[int], None] | None = None,
+    on_block: Callable[[int], object] | None = None,
 ) -> dict[str, np.ndarray]:
     """Train every parameter setting on every seed for `ticks` ticks, all as one population.
 

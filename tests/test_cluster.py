@@ -89,7 +89,7 @@ def test_blocks_cover_every_insect_once(settings, seeds, threads):
     found = blocks(settings, seeds, threads)
     insects = sorted((k, j) for chosen, at in found for k in chosen for j in at)
     assert insects == [(k, j) for k in range(settings) for j in range(seeds)]
-    assert len(found) >= min(threads, settings * seeds)  # every worker thread gets a block
+    assert len(found) >= min(threads, settings * seeds)  # every thread gets a block
 
 
 def test_without_a_cluster_neither_dask_nor_ray_is_imported():
@@ -149,6 +149,29 @@ def test_the_sweep_on_the_cluster_writes_the_one_process_table(cluster, tmp_path
     written = json.loads((tmp_path / "on-cluster" / "table.json").read_text())
     assert written == json.loads(json.dumps(sweep.sweep([0.02, 0.04], 3, 3000, "paper", 500)))
     assert "6/6" in capsys.readouterr().err  # the progress bar counts insects
+
+
+def optimise(*args: str) -> list[str]:
+    """examples/optimise.py's printed lines, a short search."""
+    search = ["--generations", "2", "--ticks", "3000", "--seeds", "2", "--population", "4", *args]
+    done = subprocess.run(
+        [sys.executable, ROOT / "examples" / "optimise.py", *search],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    return done.stdout.splitlines()
+
+
+def test_the_optimiser_on_the_cluster_makes_the_same_search(cluster):
+    """CMA-ES's ask/tell loop, each generation in blocks on the cluster: the same costs, so the same
+    candidates, generation by generation, and the same best."""
+    address, _ = cluster
+    on_cluster = optimise("--cluster", address)
+    assert on_cluster == optimise()
+    assert [line.split(":")[0] for line in on_cluster] == ["generation 1", "generation 2", "best"]
 
 
 @pytest.fixture
