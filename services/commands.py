@@ -33,6 +33,7 @@ BENCHMARKS = {  # `spikinglab bench NAME`
     "robot": "spikinglab.bench.robot",
     "fuzz": "spikinglab.bench.fuzz",
     "soak": "spikinglab.bench.soak",
+    "gpu": "spikinglab.bench.gpu",
 }
 
 COMMANDS = {

@@ -14,6 +14,7 @@ NUMBA_ENABLE_CUDASIM=1, numba's CUDA simulator runs the same kernel in Python (s
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -41,7 +42,7 @@ def device_problem() -> str | None:
     if not cuda.is_available():
         return (
             "no CUDA GPU or driver found (numba.cuda.is_available() is False): install the gpu extra "
-            "(pip install 'spikinglab[gpu]') on a machine with an NVIDIA GPU, or leave device unset to run on the CPU"
+            "(pip install 'spikinglab[gpu]') on a machine with an NVIDIA GPU, or use the CPU path (the default)"
         )
     return None
 
@@ -102,8 +103,10 @@ def fused_loop_cuda(world: World, brain: Brain, ticks: int, stretch: int = STRET
     dev = [cuda.to_device(x) for x in host]
     threads = min(THREADS, agents)
     tb0, blocks = int(brain.engine.state.clock[TICK]), (agents + threads - 1) // threads
-    for done in range(0, ticks, stretch):
-        kernel[blocks, threads](min(stretch, ticks - done), t0 + done, tb0 + done, t0 // BIN, *dev)
+    with warnings.catch_warnings():  # the simulator's numpy scalars warn where the order's uint64 hash wraps
+        warnings.filterwarnings("ignore", "overflow encountered", RuntimeWarning)
+        for done in range(0, ticks, stretch):
+            kernel[blocks, threads](min(stretch, ticks - done), t0 + done, tb0 + done, t0 // BIN, *dev)
     for d, x in zip(dev, host):
         if x.flags.writeable:
             d.copy_to_host(x)

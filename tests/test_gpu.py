@@ -8,10 +8,10 @@ for bit and why the positions on a real device are compared to within 1e-9 patch
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
-import warnings
 
 import numpy as np
 import pytest
@@ -42,9 +42,7 @@ def run(semantics: str, start: int, ticks: int, stretch: int | None) -> dict[str
     if stretch is None:
         closed_loop(world, brain, ticks)
     else:
-        with warnings.catch_warnings():  # the simulator's numpy scalars warn where uint64 hashing wraps
-            warnings.filterwarnings("ignore", "overflow encountered", RuntimeWarning)
-            fused_loop_cuda(world, brain, ticks, stretch)
+        fused_loop_cuda(world, brain, ticks, stretch)
     out = {name: np.asarray(getattr(world, name)) for name in WORLD}
     out |= {f"metrics.{name}": getattr(world.metrics, name) for name in METRICS}
     out |= {f"engine.{name}": getattr(brain.engine.state, name) for name in ENGINE}
@@ -113,6 +111,20 @@ def test_cuda_refused_without_a_device_in_one_line():
     assert message.startswith("device='cuda' refused: ") and "\n" not in message, message
     assert "pip install 'spikinglab[gpu]'" in message
     evaluate({"a_plus": [0.01]}, 10, [0])  # the CPU path is untouched
+
+
+def test_bench_gpu_prints_its_figures_under_the_simulator_and_is_refused_without_a_device():
+    command = [sys.executable, "-m", "spikinglab", "bench", "gpu", "--agents", "2", "--ticks", "5"]
+    command += ["--warmup", "1", "--cpu-ticks", "5"]
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_ENABLE_CUDASIM"}
+    done = subprocess.run(command, cwd=ROOT, env=env | {"NUMBA_ENABLE_CUDASIM": "1"}, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    figures = json.loads(done.stdout.splitlines()[-1])
+    assert figures["simulator"] and figures["agents"] == 2 and figures["device"] > 0 and figures["cpu"] > 0
+    if not device_present():
+        done = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True)
+        assert done.returncode != 0 and done.stderr.startswith("spikinglab bench gpu: refused: no CUDA GPU")
+        assert len(done.stderr.strip().splitlines()) == 1, done.stderr
 
 
 def test_an_unknown_device_is_named():
