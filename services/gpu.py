@@ -39,12 +39,17 @@ def device_problem() -> str | None:
         from numba import cuda
     except ImportError as e:  # a numba without its CUDA target
         return f"numba's CUDA target cannot be imported ({e}); install the gpu extra: pip install 'spikinglab[gpu]'"
-    if not cuda.is_available():
+    if cuda.is_available():
+        return None
+    if getattr(cuda, "implementation", "") != "NVIDIA":  # numba's own CUDA target, without numba-cuda
         return (
-            "no CUDA GPU or driver found (numba.cuda.is_available() is False): install the gpu extra "
-            "(pip install 'spikinglab[gpu]') on a machine with an NVIDIA GPU, or use the CPU path (the default)"
+            "numba-cuda is not installed: pip install 'spikinglab[gpu]' on a machine with an NVIDIA GPU, "
+            "or use the CPU path (the default)"
         )
-    return None
+    return (
+        "no CUDA GPU or driver found (numba.cuda.is_available() is False): run on a machine with an NVIDIA GPU "
+        "and its driver, or use the CPU path (the default)"
+    )
 
 
 def check_device(device: str) -> None:

@@ -109,7 +109,7 @@ def test_cuda_refused_without_a_device_in_one_line():
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, check=True)
     message = done.stdout.strip()
     assert message.startswith("device='cuda' refused: ") and "\n" not in message, message
-    assert "pip install 'spikinglab[gpu]'" in message
+    assert "NVIDIA GPU" in message and "CPU path" in message, message
     evaluate({"a_plus": [0.01]}, 10, [0])  # the CPU path is untouched
 
 
@@ -123,7 +123,7 @@ def test_bench_gpu_prints_its_figures_under_the_simulator_and_is_refused_without
     assert figures["simulator"] and figures["agents"] == 2 and figures["device"] > 0 and figures["cpu"] > 0
     if not device_present():
         done = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True)
-        assert done.returncode != 0 and done.stderr.startswith("spikinglab bench gpu: refused: no CUDA GPU")
+        assert done.returncode != 0 and done.stderr.startswith("spikinglab bench gpu: refused: ")
         assert len(done.stderr.strip().splitlines()) == 1, done.stderr
 
 
