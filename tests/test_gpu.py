@@ -21,23 +21,29 @@ from services.loop import closed_loop, evaluate, population
 
 from .processes import ROOT
 
-# three insects (settings of A+ on one seed) that collide and learn within the run: 200 ticks from
-# tick 0 (learning times, in three launches), 60 ticks across the first bin's end (bins), and the
-# phased semantics for 150 ticks
+# Three settings of A+, each on the seeds given. On seed 1 the insects collide and learn within
+# the run: 200 ticks from tick 0 (learning times, in three launches), 60 ticks across the first
+# bin's end (bins), the phased semantics for 150 ticks; then more seeds for fewer ticks. On a
+# device, also many seeds for many ticks.
 PARAMS = {"a_plus": [0.01, 0.03, 0.05]}
-SEEDS = [1]
 LEARNED_AFTER = 50
-# name: (semantics, start tick, ticks, ticks per launch)
-RUNS = {"learning": ("netlogo", 0, 200, 80), "bin": ("netlogo", 970, 60, 1000), "phased": ("phased", 0, 150, 1000)}
+# name: (semantics, seeds, start tick, ticks, ticks per launch)
+RUNS = {
+    "learning": ("netlogo", [1], 0, 200, 80),
+    "bin": ("netlogo", [1], 970, 60, 1000),
+    "phased": ("phased", [1], 0, 150, 1000),
+    "seeds": ("netlogo", [2, 3, 4, 5], 0, 100, 1000),
+}
+DEVICE_RUNS = {"many": ("netlogo", range(64), 0, 6000, 1000), "many phased": ("phased", range(64), 0, 6000, 1000)}
 WORLD = ("pos", "heading", "grid", "last_patch", "events", "eaten", "bin_collisions")
 METRICS = ("collisions", "collisions_by_colour", "food", "distance", "last_collision", "last_noxious")
 METRICS += ("learned_at", "resets")
 ENGINE = ("clock", "v", "w", "counters", "last_spike", "hist", "ring", "spiked")
 
 
-def run(semantics: str, start: int, ticks: int, stretch: int | None) -> dict[str, np.ndarray]:
+def run(semantics: str, seeds, start: int, ticks: int, stretch: int | None) -> dict[str, np.ndarray]:
     """Everything the run leaves in the world and brain; stretch None: the CPU path."""
-    world, brain = population(PARAMS, SEEDS, learned_after=LEARNED_AFTER, semantics=semantics)
+    world, brain = population(PARAMS, seeds, learned_after=LEARNED_AFTER, semantics=semantics)
     world.tick = start  # as a run resumed there
     if stretch is None:
         closed_loop(world, brain, ticks)
@@ -50,10 +56,14 @@ def run(semantics: str, start: int, ticks: int, stretch: int | None) -> dict[str
     return out | {"bins": bins, "tick": np.array(world.tick), "actions": brain.actions}
 
 
-def device_runs(path: str) -> None:
-    """In the subprocess: every run of RUNS on the device (or the simulator), saved to `path`."""
+def runs(simulator: bool) -> dict[str, tuple]:
+    return RUNS if simulator else RUNS | DEVICE_RUNS
+
+
+def device_runs(path: str, simulator: bool) -> None:
+    """In the subprocess: every run on the device (or the simulator), saved to `path`."""
     arrays = {}
-    for name, case in RUNS.items():
+    for name, case in runs(simulator).items():
         arrays |= {f"{name}/{k}": v for k, v in run(*case).items()}
     np.savez(path, **arrays)
 
@@ -63,8 +73,8 @@ def on_device(tmp_path, simulator: bool) -> dict[str, np.ndarray]:
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_ENABLE_CUDASIM"}
     if simulator:
         env["NUMBA_ENABLE_CUDASIM"] = "1"
-    code = f"from tests.test_gpu import device_runs; device_runs({str(path)!r})"
-    subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, check=True, timeout=240)
+    code = f"from tests.test_gpu import device_runs; device_runs({str(path)!r}, {simulator})"
+    subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, check=True, timeout=280)
     return dict(np.load(path))
 
 
@@ -80,7 +90,9 @@ def test_device_run_equals_cpu(tmp_path, simulator):
     if not simulator and not device_present():
         pytest.skip("no CUDA device here (the simulator case compares the same kernel)")
     device = on_device(tmp_path, simulator)
-    cpu_runs = {name: run(*case[:3], None) for name, case in RUNS.items()}
+    cpu_runs = {
+        name: run(sem, seeds, start, ticks, None) for name, (sem, seeds, start, ticks, _) in runs(simulator).items()
+    }
     for name, cpu in cpu_runs.items():
         for key, expected in cpu.items():
             got = device[f"{name}/{key}"]
@@ -91,7 +103,7 @@ def test_device_run_equals_cpu(tmp_path, simulator):
     # the runs compared something: collisions, learning, weights moved, a bin closed
     learning, crossing = cpu_runs["learning"], cpu_runs["bin"]
     assert learning["metrics.collisions"].sum() > 0 and (learning["metrics.learned_at"] > 0).any()
-    _, brain = population(PARAMS, SEEDS, learned_after=LEARNED_AFTER)
+    _, brain = population(PARAMS, [1], learned_after=LEARNED_AFTER)
     for name in ("learning", "phased"):
         assert not np.array_equal(cpu_runs[name]["engine.w"], brain.engine.state.w), name
     assert crossing["bins"].shape == (1, 3) and crossing["bins"].sum() + crossing["bin_collisions"].sum() > 0
