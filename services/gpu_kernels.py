@@ -362,7 +362,7 @@ def netlogo_tick(a, t, training, rules, feed, net, brain):
                 receive(a, t, s, training, rules, syn, npar, lrn, v, w, counters, last_spike, hist)
 
 
-@cuda.jit
+@cuda.jit(cache=True)  # the compiled kernel kept on disk, as the CPU kernels are
 def fused_kernel(
     ticks, t0, tb0, bin0, flags, fpar, kind, arena_of, steps, sensor_cols, input_cols, world_cols, actuators,
     syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key,
