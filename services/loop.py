@@ -12,11 +12,12 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Mapping
 
 import numpy as np
-from numba import njit
+from numba import get_num_threads, njit, prange
 
 from services.brain.brain import Brain, bind
+from services.brain.build import TICK
 from services.brain.circuit import Circuit, load_circuit
-from services.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, serial_tick
+from services.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, range_tick
 from services.learning import quarter_collisions
 from services.params import AGENT_PARAMS, agent_columns, setting_count
 from services.world.world import (
@@ -50,7 +51,7 @@ def brain_for(world: World, circuit: Circuit, params: Mapping | None = None, **e
 
 def closed_loop(world: World, brain: Brain, ticks: int, on_tick: Callable[[int], None] | None = None) -> None:
     """Run `ticks` ticks: sense -> brain -> act. `on_tick(t)` is called after each tick."""
-    if on_tick is None and brain.agents < PARALLEL_FROM:
+    if on_tick is None:
         fused_loop(world, brain, ticks)
         return
     names = brain.action_names
@@ -61,9 +62,10 @@ def closed_loop(world: World, brain: Brain, ticks: int, on_tick: Callable[[int],
 
 
 def fused_loop(world: World, brain: Brain, ticks: int, noxious: np.ndarray | None = None) -> None:
-    """`ticks` ticks of the closed loop as compiled calls, one per stretch up to a bin's end.
-    `noxious` ([ticks, agents] uint8): row t set to 1 where an agent's pain sensor was fed in the
-    call's tick t (services.learning.noxious_ticks)."""
+    """`ticks` ticks of the closed loop as compiled calls, one per stretch up to a bin's end; from
+    PARALLEL_FROM agents in arenas of their own, one block of agents per thread. `noxious`
+    ([ticks, agents] uint8): row t set to 1 where an agent's pain sensor was fed in the call's
+    tick t (services.learning.noxious_ticks)."""
     engine, m = brain.engine, world.metrics
     if noxious is None:
         noxious = np.zeros((0, world.agents), np.uint8)  # none kept
@@ -72,11 +74,13 @@ def fused_loop(world: World, brain: Brain, ticks: int, noxious: np.ndarray | Non
     world_cols = np.array([ACTIONS.index(name) for name, _ in bound if name in ACTIONS], np.int64)
     actuators = np.array([n for name, n in bound if name in ACTIONS], np.int64)
     actions = np.zeros((world.agents, len(ACTIONS)), np.uint8)
+    blocks = get_num_threads() if world.agents >= PARALLEL_FROM and not world.shared else 1
     done = 0
     while done < ticks:
         n = min(ticks - done, BIN - world.tick % BIN)
-        _fused(
-            n,
+        kernel, lead = (_fused, (n,)) if blocks == 1 else (_fused_parallel, (blocks, n))
+        kernel(
+            *lead,
             engine.semantics == "netlogo",
             world.tick,
             world.training,
@@ -115,7 +119,9 @@ def fused_loop(world: World, brain: Brain, ticks: int, noxious: np.ndarray | Non
 
 
 @njit(cache=True)
-def _fused(
+def _fused_block(
+    lo,
+    hi,
     ticks,
     netlogo,
     t0,
@@ -150,39 +156,66 @@ def _fused(
     net,
     st,
 ):
+    """`ticks` ticks of agents lo..hi-1: the world's kernels on their rows, the brain's on their
+    columns. The brain's clock is read, not moved (the caller moves it once)."""
     spiked = st.spiked  # the engine's own [nodes, agents]
+    t_brain = st.clock[TICK]
+    b = slice(lo, hi)
+    a_pos, a_heading, a_sensors, a_actions, a_events = pos[b], heading[b], sensors[b], actions[b], events[b]
+    a_arena, a_distance, a_feed = arena_of[b], distance[b], feed[b]
     for k in range(ticks):
-        sense_kernel(grid, arena_of, pos, heading, fpar, kind, sensors)
+        sense_kernel(grid, a_arena, a_pos, a_heading, fpar, kind, a_sensors)
         if noxious.shape[0] > 0:
-            for a in range(sensors.shape[0]):
+            for a in range(lo, hi):
                 noxious[k, a] = sensors[a, PAIN] == sensors[a, PAIN]  # fed: not NaN
-        bind(sensors, sensor_cols, input_cols, feed)
-        serial_tick(netlogo, feed, net, st)
-        for a in range(feed.shape[0]):  # not bind(spiked.T, ...): the kernel's own [nodes, agents], 5-10 % faster
+        bind(a_sensors, sensor_cols, input_cols, a_feed)
+        range_tick(netlogo, lo, hi, t_brain + k, feed, net, st)
+        for a in range(lo, hi):  # not bind(spiked.T, ...): the kernel's own [nodes, agents], 5-10 % faster
             for j in range(world_cols.shape[0]):
                 actions[a, world_cols[j]] = spiked[actuators[j], a]
         touch_kernel(
             grid,
-            arena_of,
-            pos,
-            heading,
+            a_arena,
+            a_pos,
+            a_heading,
             fpar,
             kind,
             world_training,
             t0 + k,
-            last_patch,
-            events,
-            eaten,
-            collisions,
-            by_colour,
-            food,
-            distance,
-            last_collision,
-            last_noxious,
-            learned_at,
-            bins,
+            last_patch[b],
+            a_events,
+            eaten[b],
+            collisions[b],
+            by_colour[b],
+            food[b],
+            a_distance,
+            last_collision[b],
+            last_noxious[b],
+            learned_at[b],
+            bins[b],
         )
-        act_kernel(grid.shape[1], grid.shape[2], pos, heading, fpar, steps, actions, events, distance, resets)
+        act_kernel(
+            grid.shape[1], grid.shape[2], a_pos, a_heading, fpar, steps[b], a_actions, a_events, a_distance, resets[b]
+        )
+
+
+@njit(cache=True)
+def _fused(ticks, *args):
+    """`ticks` ticks of the closed loop for all agents on this thread (`_fused_block`'s arguments after lo, hi)."""
+    st = args[-1]
+    _fused_block(0, st.v.shape[1], ticks, *args)
+    st.clock[TICK] += ticks
+
+
+@njit(cache=True, parallel=True)
+def _fused_parallel(chunks, ticks, *args):
+    """The same, each of `chunks` blocks of agents on a thread of its own: agents in arenas of their
+    own are independent, so each block runs all `ticks` without waiting for the others."""
+    st = args[-1]
+    agents = st.v.shape[1]
+    for c in prange(chunks):
+        _fused_block(c * agents // chunks, (c + 1) * agents // chunks, ticks, *args)
+    st.clock[TICK] += ticks
 
 
 def population(

@@ -203,10 +203,9 @@ def _emit(lo, hi, t, syn, n_inputs, ring, spiked):
 
 
 @njit(cache=True, inline="always")
-def _step_range(lo, hi, feed, net, st):
-    """One tick for agents lo..hi-1 (unsigned). Arrays have the agent axis last, so each phase is
+def _step_range(lo, hi, t, feed, net, st):
+    """Tick t for agents lo..hi-1 (unsigned). Arrays have the agent axis last, so each phase is
     a loop across agents; only events (plastic arrivals, spikes of learning neurons) branch."""
-    t = st.clock[TICK]
     training = st.clock[TRAINING] != 0
     syn, npar, lrn = net.syn, net.npar, (net.stdp, net.group, net.profile)
     v, w, counters, last_spike, hist, ring, spiked = st.v, st.w, st.counters, st.last_spike, st.hist, st.ring, st.spiked
@@ -218,7 +217,7 @@ def _step_range(lo, hi, feed, net, st):
 
 @njit(cache=True)
 def _step_serial(feed, net, st):
-    _step_range(np.uint64(0), np.uint64(st.v.shape[1]), feed, net, st)
+    _step_range(np.uint64(0), np.uint64(st.v.shape[1]), st.clock[TICK], feed, net, st)
     st.clock[TICK] += 1
 
 
@@ -227,7 +226,7 @@ def _step_parallel(feed, net, st, chunks):
     agents = st.v.shape[1]
     for c in prange(chunks):  # one contiguous block of agents per thread
         lo, hi = np.uint64(c * agents // chunks), np.uint64((c + 1) * agents // chunks)
-        _step_range(lo, hi, feed, net, st)
+        _step_range(lo, hi, st.clock[TICK], feed, net, st)
     st.clock[TICK] += 1
 
 
@@ -240,8 +239,8 @@ def _step_parallel(feed, net, st, chunks):
 
 
 @njit(cache=True, inline="always")
-def _netlogo_range(lo, hi, feed, net, st):
-    """One NetLogo tick for agents lo..hi-1: each agent is a sequence of turns (no vector loop).
+def _netlogo_range(lo, hi, t, feed, net, st):
+    """NetLogo tick t for agents lo..hi-1: each agent is a sequence of turns (no vector loop).
 
     Of a neuron's whole history only two kinds of entry change w when a plastic pulse arrives:
     every remembered arrival came at or after the post's last spike (the history is cleared when
@@ -257,7 +256,6 @@ def _netlogo_range(lo, hi, feed, net, st):
     out_start, out_syn, order_key, rules = net.out_start, net.out_syn, net.order_key, net.rules
     clock, v, w, counters, last_spike, hist = st.clock, st.v, st.w, st.counters, st.last_spike, st.hist
     ring, spiked = st.ring, st.spiked
-    t = clock[TICK]
     training = clock[TRAINING] != 0
     n_neurons = v.shape[0]
     _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, counters, ring, spiked)  # input pulses: slot t
@@ -358,7 +356,7 @@ def _netlogo_range(lo, hi, feed, net, st):
 
 @njit(cache=True)
 def _netlogo_serial(feed, net, st):
-    _netlogo_range(np.uint64(0), np.uint64(st.v.shape[1]), feed, net, st)
+    _netlogo_range(np.uint64(0), np.uint64(st.v.shape[1]), st.clock[TICK], feed, net, st)
     st.clock[TICK] += 1
 
 
@@ -367,7 +365,7 @@ def _netlogo_parallel(feed, net, st, chunks):
     agents = st.v.shape[1]
     for c in prange(chunks):
         lo, hi = np.uint64(c * agents // chunks), np.uint64((c + 1) * agents // chunks)
-        _netlogo_range(lo, hi, feed, net, st)
+        _netlogo_range(lo, hi, st.clock[TICK], feed, net, st)
     st.clock[TICK] += 1
 
 
@@ -379,6 +377,18 @@ def serial_tick(netlogo, feed, net, st):
         _netlogo_serial(feed, net, st)
     else:
         _step_serial(feed, net, st)
+
+
+@njit(cache=True, inline="always")
+def range_tick(netlogo, lo, hi, t, feed, net, st):
+    """Tick t of either semantics for agents lo..hi-1 only, the clock left alone: for compiled
+    loops that step blocks of agents on several threads, each block many ticks on (agents are
+    independent), and move the clock on once after (services.loop's parallel fused loop)."""
+    lo, hi = np.uint64(lo), np.uint64(hi)
+    if netlogo:
+        _netlogo_range(lo, hi, t, feed, net, st)
+    else:
+        _step_range(lo, hi, t, feed, net, st)
 
 
 @njit(cache=True)
