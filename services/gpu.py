@@ -15,17 +15,12 @@ NUMBA_ENABLE_CUDASIM=1, numba's CUDA simulator runs the same kernel in Python (s
 from __future__ import annotations
 
 import warnings
-from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
 
 from services.brain.brain import Brain, bind
-from services.brain.build import DEFAULT_SEMANTICS, TICK, TRAINING
-from services.brain.circuit import Circuit
-from services.learning import quarter_collisions
-from services.loop import population
-from services.params import setting_count
+from services.brain.build import TICK, TRAINING
 from services.world.world import ACTIONS, BIN, RAY_STEP, VIEW, World
 
 DEVICES = ("cuda",)
@@ -59,36 +54,6 @@ def check_device(device: str) -> None:
     problem = device_problem()
     if problem is not None:
         raise RuntimeError(f"device={device!r} refused: {problem}")
-
-
-def evaluate_cuda(
-    params: Mapping,
-    ticks: int,
-    seeds: Iterable[int] = range(4),
-    *,
-    circuit: str | Circuit = "insect",
-    preset: str = "paper",
-    learned_after: int = 5000,
-    semantics: str = DEFAULT_SEMANTICS,
-    order: str = "random",
-    device: str = "cuda",
-) -> dict[str, np.ndarray]:
-    """services.loop.evaluate on a CUDA device: the same population, arguments and results."""
-    check_device(device)
-    seeds = list(seeds)
-    world, brain = population(
-        params, seeds, circuit=circuit, preset=preset, learned_after=learned_after, semantics=semantics, order=order
-    )
-    fused_loop_cuda(world, brain, ticks)
-    m, shape = world.metrics, (setting_count(params), len(seeds))
-    bins = np.array(m.bins, np.int64).reshape(-1, world.agents)
-    _, last_quarter = quarter_collisions(bins.T)
-    return {
-        "learning_time": m.learned_at.reshape(shape),
-        "collisions": m.collisions.reshape(shape),
-        "food": m.food.reshape(shape),
-        "collisions_last_quarter": last_quarter.reshape(shape),
-    }
 
 
 def fused_loop_cuda(world: World, brain: Brain, ticks: int, stretch: int = STRETCH) -> None:

@@ -263,6 +263,7 @@ def evaluate(
     order: str = "random",
     cluster: str | None = None,
     on_block: Callable[[int], object] | None = None,
+    device: str = "cpu",
 ) -> dict[str, np.ndarray]:
     """Train every parameter setting on every seed for `ticks` ticks, all as one population.
 
@@ -275,8 +276,17 @@ def evaluate(
 
     `cluster`: a Dask scheduler's address (tcp://HOST:PORT, docs/cluster.md); the population runs
     there in blocks, with the same result bit for bit, and `on_block(insects)` is called as each
-    block finishes."""
+    block finishes.
+
+    `device`: "cpu", or "cuda" for an NVIDIA GPU (services/gpu.py, docs/gpu.md): the same results;
+    refused in one line (RuntimeError) where numba-cuda or the GPU is missing."""
     seeds = list(seeds)
+    if device != "cpu":
+        from services.gpu import check_device  # numba.cuda only when the device is asked for
+
+        check_device(device)
+        if cluster is not None:
+            raise ValueError("device and cluster: choose one (the cluster's workers run on their CPUs)")
     if cluster is not None:
         from services.cluster import evaluate_on  # the cluster's packages only when one is named
 
@@ -285,12 +295,21 @@ def evaluate(
     world, brain = population(
         params, seeds, circuit=circuit, preset=preset, learned_after=learned_after, semantics=semantics, order=order
     )
-    closed_loop(world, brain, ticks)
-    n, agents = setting_count(params), world.agents
+    if device == "cpu":
+        closed_loop(world, brain, ticks)
+    else:
+        from services.gpu import fused_loop_cuda
+
+        fused_loop_cuda(world, brain, ticks)
+    return study_results(world, setting_count(params), len(seeds))
+
+
+def study_results(world: World, settings: int, seeds: int) -> dict[str, np.ndarray]:
+    """evaluate's arrays [settings, seeds] from a population's world after its run."""
     m = world.metrics
-    bins = np.array(m.bins, np.int64).reshape(-1, agents)
+    bins = np.array(m.bins, np.int64).reshape(-1, world.agents)
     _, last_quarter = quarter_collisions(bins.T)
-    shape = (n, len(seeds))
+    shape = (settings, seeds)
     return {
         "learning_time": m.learned_at.reshape(shape),
         "collisions": m.collisions.reshape(shape),

@@ -113,8 +113,8 @@ def test_cuda_refused_without_a_device_in_one_line():
     if device_present():
         pytest.skip("a CUDA device is present here")
     code = (
-        "from services.gpu import evaluate_cuda\n"
-        "try:\n    evaluate_cuda({'a_plus': [0.01]}, 10, [0])\n"
+        "from services.loop import evaluate\n"
+        "try:\n    evaluate({'a_plus': [0.01]}, 10, [0], device='cuda')\n"
         "except RuntimeError as e:\n    print(e)"
     )
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_ENABLE_CUDASIM"}
