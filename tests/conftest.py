@@ -50,9 +50,10 @@ INSTALL = {"chromium": "chromium", "Xvfb": "xvfb", "a Vulkan driver": "libvulkan
 @cache
 def module_functions(module) -> dict[str, str]:
     """The source of each function (fixtures included) defined in a test module."""
+    functions = {name: inspect.unwrap(f) for name, f in vars(module).items() if callable(f)}  # a fixture wraps its
     return {
         name: inspect.getsource(f)
-        for name, f in vars(module).items()
+        for name, f in functions.items()
         if inspect.isfunction(f) and getattr(f, "__module__", None) == module.__name__
     }
 
