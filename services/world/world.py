@@ -18,7 +18,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit, prange
+from numba import get_num_threads, njit, prange
 
 from services.kernels import Kernel
 from services.params import PARALLEL_FROM, agent_columns
@@ -438,61 +438,71 @@ class World:
 
 
 @njit(cache=True, inline="always")
-def _colour_at(grid, g, x, y, fpar):
-    ix = int(math.floor(x + 0.5)) - int(fpar[X_MIN])
-    iy = int(math.floor(y + 0.5)) - int(fpar[Y_MIN])
-    if ix < 0 or iy < 0 or ix >= grid.shape[1] or iy >= grid.shape[2]:
-        return EMPTY, -1
-    return grid[g, ix, iy], ix * grid.shape[2] + iy
+def _cell(x, y, x_min, y_min, width, height):
+    """The patch at (x, y): its column and row in the grid, or (-1, -1) outside it. Numbers only:
+    numba counts references to arrays handed to a helper at each call, even an inlined one."""
+    ix = int(math.floor(x + 0.5)) - int(x_min)
+    iy = int(math.floor(y + 0.5)) - int(y_min)
+    if ix < 0 or iy < 0 or ix >= width or iy >= height:
+        return -1, -1
+    return ix, iy
 
 
 @njit(cache=True, inline="always")
-def _sense_one(a, grid, arena_of, pos, heading, fpar, kind, sensors, steps):
-    g = arena_of[a]
-    for k in range(sensors.shape[1]):
-        sensors[a, k] = np.nan
-    h = math.radians(heading[a])
-    dx, dy = math.sin(h), math.cos(h)
-    # vision: the first non-empty patch along the heading, sampled every ray_step. The
-    # distance is a running sum, as NetLogo's `set itemcount itemcount + 0.2`: its 10th
-    # sample is 1.9999999999999998, so a patch seen there fires its smell one tick sooner.
-    d = 0.0
-    for _step in range(steps):
-        d += fpar[RAY_STEP]
-        colour, _ = _colour_at(grid, g, pos[a, 0] + d * dx, pos[a, 1] + d * dy, fpar)
-        if colour != EMPTY:
-            if colour == BLACK:
-                sensors[a, 0] = d
-            elif colour == RED:
-                sensors[a, 1] = d
-            elif colour == GREEN:
-                sensors[a, 2] = d
-            break
-    # touch: the patch under the insect
-    colour, _ = _colour_at(grid, g, pos[a, 0], pos[a, 1], fpar)
-    if kind[colour] == 1:
-        sensors[a, PAIN] = fpar[PAIN_VALUE]
-    elif kind[colour] == 2:
-        sensors[a, REWARD] = fpar[REWARD_VALUE]
+def _sense_range(lo, hi, grid, arena_of, pos, heading, fpar, kind, sensors):
+    """Vision then touch for agents lo..hi-1. The loop over agents is here, not in a caller: numba
+    counts references to the arrays handed to an inlined function at every call, which in a loop
+    over agents cost more than the sensing."""
+    steps = int(round(fpar[VIEW] / fpar[RAY_STEP]))
+    x_min, y_min, width, height = fpar[X_MIN], fpar[Y_MIN], grid.shape[1], grid.shape[2]
+    for a in range(lo, hi):
+        g = arena_of[a]
+        for k in range(sensors.shape[1]):
+            sensors[a, k] = np.nan
+        h = math.radians(heading[a])
+        dx, dy = math.sin(h), math.cos(h)
+        # vision: the first non-empty patch along the heading, sampled every ray_step. The
+        # distance is a running sum, as NetLogo's `set itemcount itemcount + 0.2`: its 10th
+        # sample is 1.9999999999999998, so a patch seen there fires its smell one tick sooner.
+        d = 0.0
+        for _step in range(steps):
+            d += fpar[RAY_STEP]
+            ix, iy = _cell(pos[a, 0] + d * dx, pos[a, 1] + d * dy, x_min, y_min, width, height)
+            colour = grid[g, ix, iy] if ix >= 0 else EMPTY
+            if colour != EMPTY:
+                if colour == BLACK:
+                    sensors[a, 0] = d
+                elif colour == RED:
+                    sensors[a, 1] = d
+                elif colour == GREEN:
+                    sensors[a, 2] = d
+                break
+        # touch: the patch under the insect
+        ix, iy = _cell(pos[a, 0], pos[a, 1], x_min, y_min, width, height)
+        colour = grid[g, ix, iy] if ix >= 0 else EMPTY
+        if kind[colour] == 1:
+            sensors[a, PAIN] = fpar[PAIN_VALUE]
+        elif kind[colour] == 2:
+            sensors[a, REWARD] = fpar[REWARD_VALUE]
 
 
 @njit(cache=True)
 def sense_kernel(grid, arena_of, pos, heading, fpar, kind, sensors):
-    steps = int(round(fpar[VIEW] / fpar[RAY_STEP]))
-    for a in range(pos.shape[0]):
-        _sense_one(a, grid, arena_of, pos, heading, fpar, kind, sensors, steps)
+    _sense_range(0, pos.shape[0], grid, arena_of, pos, heading, fpar, kind, sensors)
 
 
 @njit(cache=True, parallel=True)
 def _sense_parallel(grid, arena_of, pos, heading, fpar, kind, sensors):
-    steps = int(round(fpar[VIEW] / fpar[RAY_STEP]))
-    for a in prange(pos.shape[0]):  # reads only: agents are independent, in a shared arena too
-        _sense_one(a, grid, arena_of, pos, heading, fpar, kind, sensors, steps)
+    agents, blocks = pos.shape[0], get_num_threads()
+    for c in prange(blocks):  # reads only: agents are independent, in a shared arena too
+        lo, hi = c * agents // blocks, (c + 1) * agents // blocks
+        _sense_range(lo, hi, grid, arena_of, pos, heading, fpar, kind, sensors)
 
 
 @njit(cache=True, inline="always")
-def _touch_one(
-    a,
+def _touch_range(
+    lo,
+    hi,
     grid,
     arena_of,
     pos,
@@ -513,36 +523,40 @@ def _touch_one(
     learned_at,
     bins,
 ):
-    g = arena_of[a]
-    for k in range(events.shape[1]):
-        events[a, k] = 0
-    eaten[a, 0] = eaten[a, 1] = -1
-    colour, patch = _colour_at(grid, g, pos[a, 0], pos[a, 1], fpar)
-    if kind[colour] == 1:  # noxious
-        last_noxious[a] = t
-        if patch != last_patch[a]:  # entering it: a collision event
-            collisions[a] += 1
-            by_colour[a, colour] += 1
-            bins[a] += 1
-            last_collision[a] = t
-            events[a, EV_COLLISION] = colour
-        if training:  # pushed on, so it cannot spin on the spot forever
-            h = math.radians(heading[a])
-            pos[a, 0] += fpar[PUSH] * math.sin(h)
-            pos[a, 1] += fpar[PUSH] * math.cos(h)
-            distance[a] += fpar[PUSH]
-    elif kind[colour] == 2:  # rewarding: eaten (in a shared arena, by the first insect on it)
-        ix, iy = patch // grid.shape[2], patch % grid.shape[2]
-        grid[g, ix, iy] = EMPTY
-        eaten[a, 0], eaten[a, 1] = ix, iy
-        food[a] += 1
-        events[a, EV_ATE] = 1
-    last_patch[a] = patch
-    # learning time: the last tick on a noxious patch before the first W ticks off them (NetLogo
-    # resets its error_free_counter in every tick on one: staying on a wall is no progress)
-    if learned_at[a] < 0 and t - max(last_noxious[a], 0) >= fpar[LEARNED_AFTER]:
-        learned_at[a] = max(last_noxious[a], 0)
-        events[a, EV_LEARNED] = 1
+    """What touching the patch under each insect lo..hi-1 does in tick t: count, push, eat, learn
+    (the loop over agents here, as in _sense_range)."""
+    x_min, y_min, width, height = fpar[X_MIN], fpar[Y_MIN], grid.shape[1], grid.shape[2]
+    for a in range(lo, hi):
+        g = arena_of[a]
+        for k in range(events.shape[1]):
+            events[a, k] = 0
+        eaten[a, 0] = eaten[a, 1] = -1
+        ix, iy = _cell(pos[a, 0], pos[a, 1], x_min, y_min, width, height)
+        colour, patch = (grid[g, ix, iy], ix * height + iy) if ix >= 0 else (EMPTY, -1)
+        if kind[colour] == 1:  # noxious
+            last_noxious[a] = t
+            if patch != last_patch[a]:  # entering it: a collision event
+                collisions[a] += 1
+                by_colour[a, colour] += 1
+                bins[a] += 1
+                last_collision[a] = t
+                events[a, EV_COLLISION] = colour
+            if training:  # pushed on, so it cannot spin on the spot forever
+                h = math.radians(heading[a])
+                pos[a, 0] += fpar[PUSH] * math.sin(h)
+                pos[a, 1] += fpar[PUSH] * math.cos(h)
+                distance[a] += fpar[PUSH]
+        elif kind[colour] == 2:  # rewarding: eaten (in a shared arena, by the first insect on it)
+            grid[g, ix, iy] = EMPTY
+            eaten[a, 0], eaten[a, 1] = ix, iy
+            food[a] += 1
+            events[a, EV_ATE] = 1
+        last_patch[a] = patch
+        # learning time: the last tick on a noxious patch before the first W ticks off them (NetLogo
+        # resets its error_free_counter in every tick on one: staying on a wall is no progress)
+        if learned_at[a] < 0 and t - max(last_noxious[a], 0) >= fpar[LEARNED_AFTER]:
+            learned_at[a] = max(last_noxious[a], 0)
+            events[a, EV_LEARNED] = 1
 
 
 @njit(cache=True)
@@ -568,29 +582,29 @@ def touch_kernel(
     bins,
 ):
     """What touching the patch under each insect does in tick t: count, push, eat, learn."""
-    for a in range(pos.shape[0]):
-        _touch_one(
-            a,
-            grid,
-            arena_of,
-            pos,
-            heading,
-            fpar,
-            kind,
-            training,
-            t,
-            last_patch,
-            events,
-            eaten,
-            collisions,
-            by_colour,
-            food,
-            distance,
-            last_collision,
-            last_noxious,
-            learned_at,
-            bins,
-        )
+    _touch_range(
+        0,
+        pos.shape[0],
+        grid,
+        arena_of,
+        pos,
+        heading,
+        fpar,
+        kind,
+        training,
+        t,
+        last_patch,
+        events,
+        eaten,
+        collisions,
+        by_colour,
+        food,
+        distance,
+        last_collision,
+        last_noxious,
+        learned_at,
+        bins,
+    )
 
 
 @njit(cache=True, parallel=True)
@@ -616,9 +630,11 @@ def _touch_parallel(
     bins,
 ):
     """touch_kernel for agents each in an arena of its own (in a shared one, the first on a food patch eats it)."""
-    for a in prange(pos.shape[0]):
-        _touch_one(
-            a,
+    agents, blocks = pos.shape[0], get_num_threads()
+    for c in prange(blocks):
+        _touch_range(
+            c * agents // blocks,
+            (c + 1) * agents // blocks,
             grid,
             arena_of,
             pos,
@@ -642,32 +658,34 @@ def _touch_parallel(
 
 
 @njit(cache=True, inline="always")
-def _act_one(a, width, height, pos, heading, fpar, steps, actions, events, distance, resets):
-    if actions[a, ROTATE]:
-        heading[a] = (heading[a] + steps[a, 0]) % 360.0
-    if actions[a, MOVE]:
-        h = math.radians(heading[a])
-        pos[a, 0] += steps[a, 1] * math.sin(h)
-        pos[a, 1] += steps[a, 1] * math.cos(h)
-        distance[a] += steps[a, 1]
-    # boundary: leaving the arena (past the centre line of its border) puts the insect back
-    # at its start, as NetLogo's check-boundaries does
-    x = pos[a, 0] - fpar[X_MIN]
-    y = pos[a, 1] - fpar[Y_MIN]
-    if x < 0.0 or y < 0.0 or x > width - 1 or y > height - 1:
-        pos[a, 0] = fpar[START_X]
-        pos[a, 1] = fpar[START_Y]
-        resets[a] += 1
-        events[a, EV_RESET] = 1
+def _act_range(lo, hi, width, height, pos, heading, fpar, steps, actions, events, distance, resets):
+    for a in range(lo, hi):
+        if actions[a, ROTATE]:
+            heading[a] = (heading[a] + steps[a, 0]) % 360.0
+        if actions[a, MOVE]:
+            h = math.radians(heading[a])
+            pos[a, 0] += steps[a, 1] * math.sin(h)
+            pos[a, 1] += steps[a, 1] * math.cos(h)
+            distance[a] += steps[a, 1]
+        # boundary: leaving the arena (past the centre line of its border) puts the insect back
+        # at its start, as NetLogo's check-boundaries does
+        x = pos[a, 0] - fpar[X_MIN]
+        y = pos[a, 1] - fpar[Y_MIN]
+        if x < 0.0 or y < 0.0 or x > width - 1 or y > height - 1:
+            pos[a, 0] = fpar[START_X]
+            pos[a, 1] = fpar[START_Y]
+            resets[a] += 1
+            events[a, EV_RESET] = 1
 
 
 @njit(cache=True)
 def act_kernel(width, height, pos, heading, fpar, steps, actions, events, distance, resets):
-    for a in range(pos.shape[0]):
-        _act_one(a, width, height, pos, heading, fpar, steps, actions, events, distance, resets)
+    _act_range(0, pos.shape[0], width, height, pos, heading, fpar, steps, actions, events, distance, resets)
 
 
 @njit(cache=True, parallel=True)
 def _act_parallel(width, height, pos, heading, fpar, steps, actions, events, distance, resets):
-    for a in prange(pos.shape[0]):
-        _act_one(a, width, height, pos, heading, fpar, steps, actions, events, distance, resets)
+    agents, blocks = pos.shape[0], get_num_threads()
+    for c in prange(blocks):
+        lo, hi = c * agents // blocks, (c + 1) * agents // blocks
+        _act_range(lo, hi, width, height, pos, heading, fpar, steps, actions, events, distance, resets)
