@@ -6,6 +6,8 @@ single: ticks/s of one agent through Engine.step(feed), the per-tick call a clos
 batch:  agent-ticks/s of A = 1000 agents stepped together.
 Both for each semantics (phased, netlogo with its random order), on the same feeds.
 --calls: where one agent's phased step() goes, in ns per call (docs/tick.md, "Layout and speed").
+--evaluate: agent-ticks/s of `evaluate` (the closed loop, world and default engine) for --insects
+        insects of one setting (A+ = A- = 0.04) over --evaluate-ticks ticks, set-up included.
 The last line printed is JSON. Run: `spikinglab bench engine` or `python -m spikinglab.bench.engine`.
 """
 
@@ -100,17 +102,40 @@ def call_costs(circuit, calls: int, repeats: int) -> dict:
     return costs
 
 
+def evaluate_rate(insects: int, ticks: int) -> dict:
+    """Wall-clock agent-ticks/s of one `evaluate` call (its kernels loaded or compiled first)."""
+    from services.loop import evaluate
+
+    settings = {"a_plus": [0.04], "a_minus": [0.04]}
+    evaluate(settings, 10, range(insects))  # compile or load the kernels
+    t0 = time.perf_counter()
+    evaluate(settings, ticks, range(insects))
+    seconds = time.perf_counter() - t0
+    rate = insects * ticks / seconds
+    print(f"evaluate: {insects:,} insects x {ticks:,} ticks in {seconds:.2f} s: {rate:,.0f} agent-ticks/s")
+    return {f"evaluate{insects}_agent_ticks_per_s": round(rate)}
+
+
+def parser() -> Parser:
+    p = Parser(prog="spikinglab bench engine", description=(__doc__ or "").splitlines()[0])
+    p.add_argument("--ticks", type=at_least(1), default=200_000, help="ticks per pass for one agent")
+    p.add_argument("--agents", type=at_least(1), default=1000, help="agents in the batch case")
+    p.add_argument("--batch-ticks", type=at_least(1), default=500, help="ticks per pass in the batch case")
+    p.add_argument("--repeats", type=at_least(1), default=3)
+    p.add_argument("--rounds", type=at_least(1), default=20, help="rounds of the two batch engines in turns (ratio)")
+    p.add_argument("--calls", action="store_true", help="only where one agent's step() goes, per call")
+    p.add_argument("--evaluate", action="store_true", help="only evaluate()'s agent-ticks/s")
+    p.add_argument("--insects", type=at_least(1), default=1024, help="insects in the --evaluate case")
+    p.add_argument("--evaluate-ticks", type=at_least(1), default=20_000, help="ticks in the --evaluate case")
+    return p
+
+
 def main(argv=None) -> dict:
-    parser = Parser(prog="spikinglab bench engine", description=(__doc__ or "").splitlines()[0])
-    parser.add_argument("--ticks", type=at_least(1), default=200_000, help="ticks per pass for one agent")
-    parser.add_argument("--agents", type=at_least(1), default=1000, help="agents in the batch case")
-    parser.add_argument("--batch-ticks", type=at_least(1), default=500, help="ticks per pass in the batch case")
-    parser.add_argument("--repeats", type=at_least(1), default=3)
-    parser.add_argument(
-        "--rounds", type=at_least(1), default=20, help="rounds of the two batch engines in turns (ratio)"
-    )
-    parser.add_argument("--calls", action="store_true", help="only where one agent's step() goes, per call")
-    args = parser.parse_args(argv)
+    args = parser().parse_args(argv)
+    if args.evaluate:
+        result = evaluate_rate(args.insects, args.evaluate_ticks)
+        print(json.dumps(result))
+        return result
 
     circuit = load_circuit("insect").with_learning_rate(0.04)
     if args.calls:
