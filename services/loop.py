@@ -51,7 +51,8 @@ def brain_for(world: World, circuit: Circuit, params: Mapping | None = None, **e
 
 def closed_loop(world: World, brain: Brain, ticks: int, on_tick: Callable[[int], None] | None = None) -> None:
     """Run `ticks` ticks: sense -> brain -> act. `on_tick(t)` is called after each tick."""
-    if on_tick is None:
+    # a large shared arena keeps the per-tick kernels: its fused loop could not split the agents into blocks
+    if on_tick is None and (brain.agents < PARALLEL_FROM or not world.shared):
         fused_loop(world, brain, ticks)
         return
     names = brain.action_names
