@@ -7,7 +7,9 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
-from services.options import at_least
+import numpy as np
+
+from services.options import at_least, shard_slice
 from services.params import file_for_agents, side_of
 
 from .netlogo_setup import spikinglab_setup
@@ -68,13 +70,18 @@ class WorldOptions:
     netlogo_seed: int | None = None
 
 
-def world_from(options: WorldOptions, shards: int = 1) -> World:
+def world_from(options: WorldOptions, shards: int = 1, shard: tuple[int, int] = (1, 1)) -> World:
     """The World the options describe, for a brain in `shards` (MapError / ValueError on a bad map
-    or option)."""
+    or option); `shard` (I, N): only the agents shard_slice gives world shard I of N, each the same
+    insect (arena, heading, parameters) as in the world of the whole population."""
     if options.ticks < 1 or options.agents < 1:
         raise ValueError("--ticks and --agents must be >= 1")
     if shards > options.agents:
         raise ValueError(f"--shards {shards}: more brain shards than agents ({options.agents})")
+    if shard[1] > options.agents:
+        raise ValueError(f"--shard {shard[0]}/{shard[1]}: more world shards than agents ({options.agents})")
+    if shard[1] > 1 and options.shared:
+        raise ValueError("--shard: the insects of a --shared arena meet, so one world steps them all: drop --shard")
     params = params_for(options.preset, learned_after=options.learned_after)
     grid = None
     if options.map:
@@ -84,13 +91,15 @@ def world_from(options: WorldOptions, shards: int = 1) -> World:
             raise ValueError("--netlogo-seed and --map each give the arena: give one")
         setup = spikinglab_setup(options.netlogo_seed, params)
         params, grid = dataclasses.replace(params, start_heading=setup.heading), setup.grid
-    columns = file_for_agents(options.params, options.agents) if options.params else {}
+    columns = side_of(file_for_agents(options.params, options.agents) if options.params else {}, "world")
+    lo, hi = shard_slice(options.agents, shard)
     return World(
         params,
-        agents=options.agents,
+        agents=hi - lo,
         seed=options.seed,
         shared=options.shared,
         grid=grid,
         training=not options.no_training,
-        agent_params=side_of(columns, "world"),
+        numbers=np.arange(lo, hi) if shard[1] > 1 else None,
+        agent_params={name: column if len(column) == 1 else column[lo:hi] for name, column in columns.items()},
     )
