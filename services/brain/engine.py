@@ -371,8 +371,8 @@ def _netlogo_parallel(feed, net, st, chunks):
 
 @njit(cache=True, inline="always")
 def serial_tick(netlogo, feed, net, st):
-    """One tick of either semantics on one thread, for compiled loops of many ticks (Engine.run,
-    services.loop's fused loop); `net` and `st` are Engine.structs."""
+    """One tick of either semantics on one thread, for Engine.run's compiled loop of many ticks;
+    `net` and `st` are Engine.structs."""
     if netlogo:
         _netlogo_serial(feed, net, st)
     else:
