@@ -251,7 +251,7 @@ def _netlogo_range(lo, hi, t, feed, net, st):
 
     One function with no calls in its loops: numba counts references to each array handed to a
     helper, inlined or not, and in the turns those atomic counts cost more than the turns (a third
-    of the tick at A = 1,000)."""
+    of the one-thread tick at A = 1,000; the parallel kernel's outlined loop was spared)."""
     syn, npar, inpar, stdp, group, profile = net.syn, net.npar, net.inpar, net.stdp, net.group, net.profile
     out_start, out_syn, order_key, rules = net.out_start, net.out_syn, net.order_key, net.rules
     clock, v, w, counters, last_spike, hist = st.clock, st.v, st.w, st.counters, st.last_spike, st.hist
