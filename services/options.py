@@ -119,6 +119,15 @@ def shard_slice(agents: int, shard: tuple[int, int]) -> tuple[int, int]:
     return agents * (i - 1) // n, agents * i // n
 
 
+def shards_meet(agents: int, world_shard: tuple[int, int], brain_shard: tuple[int, int]) -> tuple[int, int]:
+    """The agents (first, last + 1) that world shard (I, N) steps and brain shard (J, M) serves:
+    where their slices meet (first == last + 1: none). World and brain slices need not align: a
+    brain shard serves a piece of every world shard's slice its own meets."""
+    w, b = shard_slice(agents, world_shard), shard_slice(agents, brain_shard)
+    lo = max(w[0], b[0])
+    return lo, max(lo, min(w[1], b[1]))
+
+
 def config_from(namespace: argparse.Namespace, cls: type[C], whole: bool = True) -> C:
     """The frozen dataclass `cls` made from parsed options, field by field; a field that is itself a
     dataclass (a group of options that several commands add: the bus's, the world's) is made from

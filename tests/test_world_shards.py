@@ -1,11 +1,16 @@
 """A sharded world: N world processes each step a slice of the population, as one world would."""
 
+import json
+
 import numpy as np
 import pytest
 
+from services.brain.checkpoint import load_weights
 from services.brain.circuit import load_circuit
 from services.loop import brain_for, closed_loop
 from services.world.options import WorldOptions, world_from
+
+from .processes import endpoint, finish, logged, start
 
 TICKS, SEED, AGENTS = 3000, 3, 7  # 7 agents: world slices 0-2 and 3-6, brain slices 0-1, 2-3 and 4-6
 
@@ -48,3 +53,58 @@ def test_a_shared_arena_is_not_sharded(tmp_path):
         world_from(options(tmp_path, shared=True), shard=(1, 2))
     with pytest.raises(ValueError, match="more world shards than agents"):
         world_from(options(tmp_path, agents=2), shard=(1, 3))
+
+
+@pytest.mark.parametrize("brains", [1, 3])
+def test_two_world_shards_and_brain_shards_run_bit_for_bit_as_one_process(tmp_path, brains):
+    """World slices 0-2 and 3-6; with 3 brain shards, shard 2/3 (agents 2-3) serves a piece of each."""
+    made = options(tmp_path)
+    bus = ("--group", "ws", "--connect", endpoint(tmp_path, "router"))
+    router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
+    world = ("--ticks", TICKS, "--seed", SEED, "--agents", AGENTS, "--params", made.params, "--shards", brains)
+    worlds = [
+        start("world", *bus, *world, "--shard", f"{i}/2", "--out", tmp_path, log=tmp_path / f"world{i}.log")
+        for i in (1, 2)
+    ]
+    shards = [
+        start(
+            "brain",
+            *bus,
+            "--shard",
+            f"{j}/{brains}",
+            "--world-shards",
+            2,
+            "--once",
+            "--a-plus",
+            0.04,
+            "--params",
+            made.params,
+            "--save",
+            tmp_path / f"weights{j}.npz",
+            log=tmp_path / f"brain{j}.log",
+        )
+        for j in range(1, brains + 1)
+    ]
+    try:
+        for i, process in enumerate(worlds, 1):
+            assert finish(process, 120, tmp_path / f"world{i}.log") == 0
+        for j, process in enumerate(shards, 1):
+            assert finish(process, 30, tmp_path / f"brain{j}.log") == 0
+    finally:
+        for process in (*worlds, *shards, router):
+            process.kill()
+    circuit = load_circuit("insect").with_learning_rate(0.04)
+    alone = world_from(made)
+    brain = brain_for(alone, circuit)
+    closed_loop(alone, brain, TICKS)
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["ticks"] == TICKS and metrics["agents"] == AGENTS and metrics["world_shards"] == 2
+    assert sum(metrics["collisions"]) > 0 and not metrics["partial"]
+    assert metrics["collisions"] == alone.metrics.collisions.tolist()
+    assert metrics["food"] == alone.metrics.food.tolist()
+    assert metrics["distance"] == np.round(alone.metrics.distance, 3).tolist()
+    assert metrics["learning_time"] == [int(t) if t >= 0 else None for t in alone.metrics.learned_at]
+    weights = np.concatenate([load_weights(tmp_path / f"weights{j}.npz", circuit) for j in range(1, brains + 1)])
+    np.testing.assert_array_equal(weights, brain.engine.get_weights())  # bit for bit
+    runs = {logged((tmp_path / f"world{i}.log").read_text(), r"run (\w+): \d+ ticks").group(1) for i in (1, 2)}
+    assert len(runs) == 1  # one run id

@@ -13,9 +13,11 @@ from .circuit import Circuit
 from .engine import Engine
 
 
-def save_weights(path: Path, engine: Engine, circuit: Circuit, tick: int = 0) -> None:
+def save_weights(path: Path, engine: Engine | np.ndarray, circuit: Circuit, tick: int = 0) -> None:
+    """An engine's weights, or weights [A, synapses] gathered from several (a brain serving a sharded world)."""
     labels = [circuit.synapse_label(k) for k in range(len(circuit.synapses))]
-    write_npz(path, weights=engine.get_weights(), synapses=np.array(labels), circuit=circuit.name, tick=tick)
+    weights = engine if isinstance(engine, np.ndarray) else engine.get_weights()
+    write_npz(path, weights=weights, synapses=np.array(labels), circuit=circuit.name, tick=tick)
 
 
 def load_weights(path: Path, circuit: Circuit) -> np.ndarray:

@@ -9,6 +9,8 @@ import logging
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from services.bus import keys
 from services.bus.schemas import BusError, Control, Sensors
 from services.bus.transport import Bus, wait_for_subscriber
@@ -23,12 +25,14 @@ log = logging.getLogger("spikinglab.brain")
 
 
 class LockStep:
-    """A brain serving worlds on `bus`, a fresh BrainNode (`new_node()`) for each run."""
+    """A brain serving worlds on `bus`, a fresh BrainNode (`new_node()`) for each run; for a sharded
+    world (world --shard I/N), one for the piece of its agents each world shard sends."""
 
     def __init__(self, config: BrainConfig, bus: Bus, new_node: Callable[[], BrainNode]):
         self.config, self.bus, self.new_node = config, bus, new_node
-        self.node = new_node()
-        self.kept: tuple | None = None  # (run, tick) whose learning was saved when the run stopped without its end
+        self.nodes: dict[int, BrainNode] = {}  # by the first agent of the piece each serves
+        self.idle = new_node()  # what `node` is before a run's first piece
+        self.kept: tuple | None = None  # (run, ticks) whose learning was saved when the run stopped without its end
         group = bus.group
         self.sensors = bus.inbox(keys.sensors(group, config.shard), Sensors)
         self.control = bus.inbox(keys.control(group), Control)
@@ -37,13 +41,39 @@ class LockStep:
         self.world = bus.presence("world")
         bus.watch_others(self.where)
 
+    @property
+    def node(self) -> BrainNode:
+        """The node of the first piece served (the only one unless the world is sharded)."""
+        return self.nodes[min(self.nodes)] if self.nodes else self.idle
+
     def where(self) -> str:
         """The tick this brain has reached, for the news of others joining or leaving."""
         return f" at tick {self.node.last_tick + 1} of run {self.node.run}" if self.node.run else ""
 
+    def progress(self) -> tuple:
+        """The run served and the last tick of each piece."""
+        return self.node.run, tuple(self.nodes[k].last_tick for k in sorted(self.nodes))
+
     def unsaved(self) -> bool:
         """Whether there is learning of a run that has not ended, not kept yet."""
-        return self.node.brain is not None and self.kept != (self.node.run, self.node.last_tick)
+        return self.node.brain is not None and self.kept != self.progress()
+
+    def node_for(self, message: Sensors) -> BrainNode:
+        """The node serving the piece `message` starts at. Sensors that start a new run (every
+        node's run gone quiet) start it with no node of the last; a piece of the run served gets
+        a node of its own (BusError for a second piece when publishing state: the recorder takes
+        one brain's)."""
+        if self.nodes and all(n.brain is not None and n.starts_run(message) for n in self.nodes.values()):
+            if self.unsaved():
+                self.keep_learning(f"run {message.run} starts before it ended")
+            self.nodes = {}
+        node = self.nodes.get(message.first)
+        if node is None and self.nodes and self.state is not None:
+            raise BusError(
+                f"another slice: agents from {message.first}, this brain serves agents from {min(self.nodes)} "
+                "and publishes its state (a sharded world's brain does not: drop --publish-state)"
+            )
+        return node or self.nodes.setdefault(message.first, self.new_node())
 
     def run(self) -> int:
         shard = self.config.shard
@@ -57,8 +87,6 @@ class LockStep:
             while True:
                 message = self.sensors.get(timeout=0.25)
                 if isinstance(message, Sensors):
-                    if self.unsaved() and self.node.starts_run(message):
-                        self.keep_learning(f"run {message.run} starts before it ended")
                     self.serve(message)
                 if self.take_orders():
                     return 0
@@ -71,14 +99,16 @@ class LockStep:
 
     def serve(self, message: Sensors) -> None:
         """Answer one Sensors message: the Motor first, then the recorder's share."""
-        node, state = self.node, self.state
-        if state is not None and node.last_tick < 0:
-            wait_for_subscriber(state, "a recorder")
-            state.put(layout(node.circuit, message.tick, message.run))
         try:
+            node, state = self.node_for(message), self.state
+            if state is not None and node.last_tick < 0:
+                wait_for_subscriber(state, "a recorder")
+                state.put(layout(node.circuit, message.tick, message.run))
             answer = node.answer(message)
         except BusError as e:
             self.sensors.refuse(e, f"(tick {message.tick})")
+            if message.first in self.nodes and self.nodes[message.first].brain is None:
+                del self.nodes[message.first]  # refused as it came: no node kept for it
             return
         if answer is not None:
             self.motor.put(answer)  # first: the world waits for it; the recorder does not
@@ -92,14 +122,15 @@ class LockStep:
         goes on); an "end" of the run served ends it. True when this brain is done (--once)."""
         while isinstance(order := self.control.get(timeout=0), Control):
             try:
-                self.node.ends(order)
+                for node in list(self.nodes.values()) or [self.node]:
+                    node.ends(order)
             except BusError as e:
                 self.control.refuse(e)
                 continue
             self.end_run(order)
             if self.config.once:
                 return True
-            self.node = self.new_node()
+            self.nodes = {}
         return False
 
     def end_run(self, order: Control) -> None:
@@ -113,14 +144,18 @@ class LockStep:
                 json.dumps({"ticks": node.last_tick + 1, "rejected_messages": self.bus.rejections()})
             )
         if config.save and node.brain is not None:
-            save_weights(config.save, node.brain.engine, node.circuit, tick=order.tick)
+            save_weights(config.save, self.weights(), node.circuit, tick=order.tick)
             log.info("weights saved to %s", config.save)
+
+    def weights(self) -> np.ndarray:
+        """The weights of every agent served, pieces in the population's order."""
+        return np.concatenate([self.nodes[k].running.engine.get_weights() for k in sorted(self.nodes)])
 
     def keep_learning(self, why: str) -> None:
         """A run stopped without its end (`why`): its weights so far are saved beside --save, never
         lost to the next run."""
         save, node = self.config.save, self.node
-        self.kept = node.run, node.last_tick
+        self.kept = self.progress()
         if not save:
             log.warning(
                 "run %s stopped at tick %d without its end (%s); its weights are not saved (no --save)",
@@ -130,7 +165,7 @@ class LockStep:
             )
             return
         path = save.with_name(f"{save.stem}-{node.run}-tick{node.last_tick + 1}.npz")
-        save_weights(path, node.running.engine, node.circuit, tick=node.last_tick + 1)
+        save_weights(path, self.weights(), node.circuit, tick=node.last_tick + 1)
         log.warning(
             "run %s stopped at tick %d without its end (%s): its weights so far saved to %s",
             node.run,

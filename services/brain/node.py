@@ -20,6 +20,7 @@ from services.bus import keys
 from services.bus.batching import TickBatch, state_batch
 from services.bus.schemas import Array, BrainLayout, BrainState, BusError, Control, Motor, Sensors
 from services.bus.transport import QUIET_S
+from services.options import shard_slice, shards_meet
 from services.params import side_of
 
 from .brain import Brain, check_sensors
@@ -41,6 +42,7 @@ class BrainNode:
         shard: tuple[int, int] = (1, 1),
         params: dict | None = None,
         free_running: bool = False,
+        world_shards: int = 1,
         **engine_options,
     ):
         """`params`: per-agent parameter columns of the whole population (services.params.read_params);
@@ -48,6 +50,7 @@ class BrainNode:
         self.circuit, self.training, self.initial_weights = circuit, training, weights
         self.params = side_of(params or {}, "brain")
         self.shard = shard  # (i, n): this brain serves the i-th of n slices of the population
+        self.world_shards = world_shards  # the world's shards: each sends this brain a piece of its slice
         self.first = 0  # the population's index of this brain's first agent (its sensors say it)
         self.checkpoints = checkpoints  # the folder of this brain's whole-state checkpoints (None: none kept)
         self.engine_options = engine_options  # semantics, order, seed
@@ -104,19 +107,25 @@ class BrainNode:
 
     def params_of(self, first: int, agents: int) -> dict:
         """The per-agent columns of agents first.. first + agents - 1: this shard's slice of the
-        population the columns give (BusError if the world sends other agents)."""
+        population the columns give, or a piece of it that one world shard steps (BusError if the
+        world sends other agents)."""
         rows = {len(column) for column in self.params.values()} - {1}
         if not rows:
             return self.params  # one value for every agent
         population = rows.pop()
-        i, n = self.shard
-        lo, hi = population * (i - 1) // n, population * i // n
-        if (first, first + agents) != (lo, hi):
+        lo, hi = shard_slice(population, self.shard)
+        worlds = self.world_shards
+        if (first, first + agents) not in [
+            shards_meet(population, (k, worlds), self.shard) for k in range(1, worlds + 1)
+        ]:
+            i, n = self.shard
             raise BusError(
                 f"does not fit the parameter file: its {population} agents make agents {lo}-{hi - 1} "
-                f"this brain's (shard {i}/{n}); the world sends agents {first}-{first + agents - 1}"
+                f"this brain's (shard {i}/{n}{f', in pieces of {worlds} world shards' if worlds > 1 else ''}); "
+                f"the world sends agents {first}-{first + agents - 1}"
             )
-        return {name: column if len(column) == 1 else column[lo:hi] for name, column in self.params.items()}
+        end = first + agents
+        return {name: column if len(column) == 1 else column[first:end] for name, column in self.params.items()}
 
     def starts_run(self, message: Sensors) -> bool:
         """Whether `message` starts a run this node does not serve: its tick 0, or a resumed run's

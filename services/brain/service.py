@@ -68,6 +68,14 @@ def parser() -> argparse.ArgumentParser:
         "slice of the agents; default 1/1: all of them)",
     )
     p.add_argument(
+        "--world-shards",
+        type=at_least(1),
+        default=1,
+        metavar="N",
+        help="the world runs as N shards (world --shard I/N): each sends this brain the piece of its "
+        "slice this brain serves (default 1); checks them against a --params file (docs/shards.md)",
+    )
+    p.add_argument(
         "--checkpoint",
         type=Path,
         metavar="DIR",
@@ -105,6 +113,7 @@ class BrainConfig:
     save: Path | None
     once: bool
     shard: tuple[int, int]
+    world_shards: int
     checkpoint: Path | None
     stats: Path | None
     publish_state: bool
@@ -133,6 +142,14 @@ def run(config: BrainConfig, session) -> int:
         )
         return 2
 
+    if config.world_shards > 1 and (config.checkpoint or config.clock):
+        log.error(
+            "--world-shards %d: a sharded world keeps no checkpoints and runs no robot: drop %s",
+            config.world_shards,
+            "--checkpoint" if config.checkpoint else "--clock",
+        )
+        return 2
+
     def new_node() -> BrainNode:  # one per run the brain serves
         return BrainNode(
             circuit,
@@ -140,6 +157,7 @@ def run(config: BrainConfig, session) -> int:
             weights=weights,
             checkpoints=config.checkpoint,
             shard=config.shard,
+            world_shards=config.world_shards,
             params=params,
             free_running=bool(config.clock),
             seed=config.seed,

@@ -52,6 +52,11 @@ def world_map(group: str) -> str:
     return f"{PREFIX}/{_check(group)}/state/map"
 
 
+def world_run(group: str) -> str:
+    """World shard 1 -> the other world shards (world --shard I/N): the run they step together."""
+    return f"{PREFIX}/{_check(group)}/world/run"
+
+
 def state(group: str) -> str:
     """Everything a recorder needs, and nothing of the lock-step traffic (sensors, motor)."""
     return f"{PREFIX}/{_check(group)}/state/**"

@@ -11,7 +11,7 @@ import numpy as np
 from services.bus import keys
 from services.bus.schemas import Array, BusError, Motor, Sensors
 from services.bus.transport import Bus, wait_for_subscriber
-from services.options import shard_slice
+from services.options import shard_slice, shards_meet
 
 from .world import SENSORS, World, world_actions
 
@@ -27,12 +27,24 @@ def actions_from(message: Motor, agents: int) -> np.ndarray | None:
 
 
 class Brains:
-    """The brain, or the N shards of a sharded brain, as the world sees them: shard i gets agents
-    slices[i] of the population on its own sensors key and answers on the one motor key."""
+    """The brain, or the N shards of a sharded brain, as the world (or world shard `world_shard` of
+    a population of `agents`) sees them: shard i gets agents slices[i] of the population (those of
+    its slice this world steps) on its own sensors key and answers on the one motor key."""
 
-    def __init__(self, bus: Bus, group: str, agents: int, shards: int):
-        self.shards = [(i + 1, shards) for i in range(shards)]
-        self.slices = [shard_slice(agents, s) for s in self.shards]
+    def __init__(self, bus: Bus, group: str, agents: int, shards: int, world_shard: tuple[int, int] = (1, 1)):
+        meets = [((j, shards), shards_meet(agents, world_shard, (j, shards))) for j in range(1, shards + 1)]
+        self.shards = [s for s, (lo, hi) in meets if lo < hi]
+        self.slices = [(lo, hi) for _, (lo, hi) in meets if lo < hi]
+        self.first = shard_slice(agents, world_shard)[0]  # the population's index of this world's agent 0
+        # the pieces other world shards step: their answers come on the motor key too, for them
+        others = [(i, world_shard[1]) for i in range(1, world_shard[1] + 1) if i != world_shard[0]]
+        self.others = {
+            lo
+            for w in others
+            for j in range(1, shards + 1)
+            for lo, hi in [shards_meet(agents, w, (j, shards))]
+            if lo < hi
+        }
         self.names = ["brain" if shards == 1 else f"brain shard {i}/{n}" for i, n in self.shards]
         self.waited_for = ["a brain" if shards == 1 else name for name in self.names]  # "waiting for ... to subscribe"
         self.sensors = [bus.outbox(keys.sensors(group, s)) for s in self.shards]
@@ -54,7 +66,7 @@ class Brains:
             Sensors(
                 tick=tick,
                 names=SENSORS,
-                values=Array.view(values[lo:hi]),
+                values=Array.view(values[lo - self.first : hi - self.first]),
                 run=run_id,
                 seed=world.seed,
                 checkpoint=checkpoint,
@@ -90,6 +102,8 @@ class Brains:
                 BusError(f"another run: motor for run {answer.run!r}, this is {request.run!r}"), f"(tick {answer.tick})"
             )
             return
+        if answer.first in self.others:
+            return  # another world shard's agents, from a brain shard both talk to
         k = self.index.get(answer.first)
         size = -1 if k is None else self.slices[k][1] - self.slices[k][0]
         if k is None or answer.actions.shape[0] != size:

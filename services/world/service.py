@@ -25,9 +25,10 @@ from services.bus.config import BusConfig, add_bus_args
 from services.bus.schemas import Control, Sensors, new_run_id
 from services.bus.transport import Bus, wait_for_subscriber
 from services.options import Parser, at_least
+from services.options import shard as shard_of_n
 from services.runtime import service_main
 
-from . import checkpoint
+from . import checkpoint, shards
 from .brains import Brains
 from .checkpoint import CHECKPOINT, PENDING, resume
 from .options import WorldOptions, add_world_args, world_from
@@ -51,6 +52,14 @@ def parser() -> argparse.ArgumentParser:
         metavar="N",
         help="the brain runs as N shards (brain --shard I/N): each is sent its slice of the agents and the "
         "world waits for all of them every tick (default 1)",
+    )
+    p.add_argument(
+        "--shard",
+        type=shard_of_n,
+        default=(1, 1),
+        metavar="I/N",
+        help="step shard I of N of the population (agents in arenas of their own): N worlds run it as one, "
+        "shard 1 naming and ending the run (docs/shards.md; default 1/1: all of them)",
     )
     p.add_argument(
         "--checkpoint",
@@ -79,14 +88,23 @@ class WorldConfig:
     publish_state: bool
     progress: bool
     shards: int
+    shard: tuple[int, int]
     checkpoint: Path | None
     checkpoint_every: int
     bus: BusConfig
 
 
 def run(config: WorldConfig, session) -> int:
+    sharded = config.shard[1] > 1
+    if sharded and (config.checkpoint or config.publish_state):
+        log.error(
+            "--shard %d/%d: a sharded world keeps no checkpoints and publishes no state (record one world): drop %s",
+            *config.shard,
+            "--checkpoint" if config.checkpoint else "--publish-state",
+        )
+        return 2
     try:
-        world = world_from(config.world, config.shards)
+        world = world_from(config.world, config.shards, config.shard)
         trajectory = Trajectory(world, config.world.ticks)
         resumed = resume(config.checkpoint, config.world, world, trajectory) if config.checkpoint else None
         if config.checkpoint:  # one the brain may not have answered: the run goes on from CHECKPOINT
@@ -94,23 +112,26 @@ def run(config: WorldConfig, session) -> int:
     except (MapError, ValueError) as e:
         log.error("%s", e)
         return 2
-    bus = Bus(session, config.bus.group, "world")
+    named = shards.follow(session, config.bus.group, config.shard) if config.shard[0] > 1 else None
+    bus = Bus(session, config.bus.group, shards.service_name(config.shard))
     bus.watch_others(lambda: f" at tick {world.tick}")
     try:
-        return run_on(bus, config, world, trajectory, resumed)
+        return run_on(bus, config, world, trajectory, resumed or named)
     finally:
         bus.close()
 
 
 def run_on(bus: Bus, config: WorldConfig, world: World, trajectory: Trajectory, resumed: str | None) -> int:
     """The run on the bus, from the tick `world` is at: 0 when it ran to its end, 130 when cut short."""
-    start, ticks, group = world.tick, config.world.ticks, bus.group
-    brains = Brains(bus, group, world.agents, config.shards)
+    start, ticks, group, shard = world.tick, config.world.ticks, bus.group, config.shard
+    brains = Brains(bus, group, config.world.agents, config.shards, shard)
     control = bus.outbox(keys.control(group))
     # lossy: a recorder that falls behind or freezes must not hold the run back (it counts the gap)
     state = bus.outbox(keys.world_state(group), lossy=True) if config.publish_state else None
-    brains.wait()
     run_id = resumed or new_run_id()  # the brain answers for this run only; an end names it
+    if shard[1] > 1 and shard[0] == 1:
+        shards.lead(bus, world, run_id, shard)
+    brains.wait()
     stream = None
     if state is not None:
         wait_for_subscriber(state, "a recorder")
@@ -118,7 +139,14 @@ def run_on(bus: Bus, config: WorldConfig, world: World, trajectory: Trajectory, 
         stream = StateStream(state, world, run_id)
     if resumed and config.checkpoint:
         log.info("run %s resumed at tick %d from %s", run_id, start, config.checkpoint / CHECKPOINT)
-    log.info("run %s: %d ticks, seed %d, %d agent(s)", run_id, ticks, world.seed, world.agents)
+    log.info(
+        "run %s: %d ticks, seed %d, %d agent(s)%s",
+        run_id,
+        ticks,
+        world.seed,
+        world.agents,
+        f" from agent {world.numbers[0]}, world shard {shard[0]} of {shard[1]}" if shard[1] > 1 else "",
+    )
     started = time.perf_counter()
     progress = Progress(world, ticks, config.progress)  # from here on, Ctrl-C ends the run with a result
     try:
@@ -130,7 +158,9 @@ def run_on(bus: Bus, config: WorldConfig, world: World, trajectory: Trajectory, 
             stream.send(final=True)
     elapsed = time.perf_counter() - started
     progress.close(world.tick)
-    control.put(Control(tick=world.tick, command="end", run=run_id))
+    if shard[0] == 1:  # the lead ends the run once every shard has
+        shards.wait_for_others(bus, shard)
+        control.put(Control(tick=world.tick, command="end", run=run_id))
     result = metrics_of(world, world.tick, elapsed, start)
     result.update(steady_rate(brains, start, world.tick, started, elapsed))
     result["rejected_messages"] = bus.rejections()
@@ -195,8 +225,14 @@ def finish(config: WorldConfig, result: dict, trajectory: Trajectory, done: int)
         log.info("the same command resumes this run from its last checkpoint (%s)", folder / CHECKPOINT)
     if out:
         out.mkdir(parents=True, exist_ok=True)
-        (out / "metrics.json").write_text(json.dumps(result))
-        if done:
+        shard = config.shard
+        if shard[1] > 1:
+            (out / f"metrics-{keys.shard_name(shard)}.json").write_text(json.dumps(result))
+            if shard[0] == 1:  # the others have finished and left: theirs are written
+                shards.merge_metrics(out, shard[1])
+        else:
+            (out / "metrics.json").write_text(json.dumps(result))
+        if done and shard[0] == 1:  # agent 0's path
             trajectory.save(out / "trajectory.npz", done)
 
 
