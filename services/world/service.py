@@ -167,6 +167,8 @@ def run_on(bus: Bus, config: WorldConfig, world: World, trajectory: Trajectory, 
     result["partial"] = world.tick < ticks
     log.info("%d ticks in %.1f s (%.0f ticks/s); %s", world.tick, elapsed, result["ticks_per_s"], outcome(result))
     finish(config, result, trajectory, world.tick)
+    if shard[0] > 1:  # its metrics written: the lead may end the run
+        shards.finished(bus, shard, run_id)
     return 0 if world.tick == ticks else 130
 
 

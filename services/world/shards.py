@@ -1,9 +1,10 @@
 """A sharded world (`world --shard I/N`): N world processes step one population, each its slice.
 
 Shard 1 leads: it names the run (its id, on keys.world_run, until every other shard is on the
-bus), and ends it (Control "end" to the brains) once every other shard has finished and left. Each
-shard writes metrics-<I>of<N>.json to its --out; the lead merges those it finds in its own --out
-into metrics.json (one summary where the shards share a folder). docs/shards.md.
+bus), and ends it (Control "end" to the brains and the other shards) once every other shard has
+finished its ticks (said by a liveliness token, world-<I>of<N>-done). Each shard writes
+metrics-<I>of<N>.json to its --out; the lead merges those it finds in its own --out into
+metrics.json (one summary where the shards share a folder). docs/shards.md.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import time
 from pathlib import Path
 
 from services.bus import keys
-from services.bus.schemas import Array, WorldMap
+from services.bus.schemas import Array, Control, WorldMap
 from services.bus.transport import Bus, Inbox
 
 from .world import World
@@ -39,9 +40,9 @@ def service_name(shard: tuple[int, int]) -> str:
     return "world" if shard[0] == 1 else f"world-{keys.shard_name(shard)}"
 
 
-def others(bus: Bus, shard: tuple[int, int]) -> list:
-    """The presences of the shards the lead waits for."""
-    return [bus.presence(service_name((i, shard[1]))) for i in range(2, shard[1] + 1)]
+def others(bus: Bus, shard: tuple[int, int], done: bool = False) -> list:
+    """The presences of the shards the lead waits for (`done`: their token of having finished)."""
+    return [bus.presence(service_name((i, shard[1])) + ("-done" if done else "")) for i in range(2, shard[1] + 1)]
 
 
 def lead(bus: Bus, world: World, run_id: str, shard: tuple[int, int]) -> None:
@@ -72,13 +73,30 @@ def follow(session, group: str, shard: tuple[int, int]) -> str:
 
 
 def wait_for_others(bus: Bus, shard: tuple[int, int]) -> None:
-    """The lead's end of the run: every other shard has finished its ticks and left the bus."""
-    waiting, said = others(bus, shard), time.monotonic()
-    while any(p.alive for p in waiting):
+    """The lead's end of the run: every other shard has finished its ticks (and written its
+    metrics), or left the bus."""
+    done, there, said = others(bus, shard, done=True), others(bus, shard), time.monotonic()
+    for t in there:  # known within a moment of subscribing, unless it has left
+        t.wait(timeout=1.0)
+    while not all(d.alive or not t.alive for d, t in zip(done, there)):
         if time.monotonic() - said > SAY_EVERY:
-            log.info("waiting for world shard(s) %s to finish", ", ".join(p.service for p in waiting if p.alive))
+            log.info("waiting for world shard(s) %s to finish", ", ".join(t.service for t in there if t.alive))
             said = time.monotonic()
         time.sleep(0.05)
+
+
+def finished(bus: Bus, shard: tuple[int, int], run_id: str) -> None:
+    """Another shard's end of the run: say it has finished, and wait for the lead to end the run
+    (or to leave the bus)."""
+    control, lead = bus.inbox(keys.control(bus.group), Control), bus.presence("world")
+    token = bus.session.liveliness().declare_token(keys.alive(bus.group, service_name(shard) + "-done"))
+    try:
+        while lead.wait(timeout=1.0):  # (its token known within a moment of subscribing)
+            order = control.get(timeout=0.25)
+            if isinstance(order, Control) and order.run == run_id:
+                return
+    finally:
+        token.undeclare()
 
 
 def merge_metrics(out: Path, shards: int) -> None:
