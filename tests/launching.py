@@ -14,6 +14,7 @@ from .processes import free_port
 READY = {  # lines that say a launch file's services are all up and at work
     "simulation": ("tick/s", "recording group"),
     "sharded-simulation": ("tick/s",),
+    "sharded-worlds": ("tick/s",),
     "secure-simulation": ("tick/s", "recording group"),
     "robot": ("first reading published", "brain is on the bus", "recording group"),
     "secure-robot": ("first reading published", "brain is on the bus", "recording group"),

@@ -108,3 +108,5 @@ def test_two_world_shards_and_brain_shards_run_bit_for_bit_as_one_process(tmp_pa
     np.testing.assert_array_equal(weights, brain.engine.get_weights())  # bit for bit
     runs = {logged((tmp_path / f"world{i}.log").read_text(), r"run (\w+): \d+ ticks").group(1) for i in (1, 2)}
     assert len(runs) == 1  # one run id
+    for j in range(1, brains + 1):
+        assert "keeps checkpoints" not in (tmp_path / f"brain{j}.log").read_text()  # no shard's first tick says so

@@ -17,6 +17,7 @@ import json
 import logging
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -116,21 +117,25 @@ def run(config: WorldConfig, session) -> int:
     bus = Bus(session, config.bus.group, shards.service_name(config.shard))
     bus.watch_others(lambda: f" at tick {world.tick}")
     try:
-        return run_on(bus, config, world, trajectory, resumed or named)
+        return run_on(bus, config, world, trajectory, resumed, named)
     finally:
         bus.close()
 
 
-def run_on(bus: Bus, config: WorldConfig, world: World, trajectory: Trajectory, resumed: str | None) -> int:
-    """The run on the bus, from the tick `world` is at: 0 when it ran to its end, 130 when cut short."""
+def run_on(
+    bus: Bus, config: WorldConfig, world: World, trajectory: Trajectory, resumed: str | None, named: str | None = None
+) -> int:
+    """The run on the bus, from the tick `world` is at: 0 when it ran to its end, 130 when cut short.
+    `resumed`: the run kept in the checkpoint; `named`: the run the lead world shard named."""
     start, ticks, group, shard = world.tick, config.world.ticks, bus.group, config.shard
     brains = Brains(bus, group, config.world.agents, config.shards, shard)
     control = bus.outbox(keys.control(group))
     # lossy: a recorder that falls behind or freezes must not hold the run back (it counts the gap)
     state = bus.outbox(keys.world_state(group), lossy=True) if config.publish_state else None
-    run_id = resumed or new_run_id()  # the brain answers for this run only; an end names it
+    run_id = resumed or named or new_run_id()  # the brain answers for this run only; an end names it
     if shard[1] > 1 and shard[0] == 1:
         shards.lead(bus, world, run_id, shard)
+    lead_ended = shards.LeadsEnd(bus, run_id) if shard[0] > 1 else None
     brains.wait()
     stream = None
     if state is not None:
@@ -149,26 +154,27 @@ def run_on(bus: Bus, config: WorldConfig, world: World, trajectory: Trajectory, 
     )
     started = time.perf_counter()
     progress = Progress(world, ticks, config.progress)  # from here on, Ctrl-C ends the run with a result
+    interrupted = False
     try:
         requests = brains.send(world, start, run_id, checkpoint=bool(resumed))  # the brain goes back to it too
-        tick_loop(config, world, brains, requests, progress, trajectory, stream)
+        tick_loop(config, world, brains, requests, progress, trajectory, stream, lead_ended)
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the ticks done are a result too, marked partial
         log.warning("interrupted at tick %d of %d: ending the run there", world.tick, ticks)
+        interrupted = True
         if stream is not None:
             stream.send(final=True)
     elapsed = time.perf_counter() - started
     progress.close(world.tick)
-    if shard[0] == 1:  # the lead ends the run once every shard has
-        shards.wait_for_others(bus, shard)
-        control.put(Control(tick=world.tick, command="end", run=run_id))
+    if lead_ended is None:  # a world, or the lead shard: it ends the run
+        shards.end_run(bus, control, shard, Control(tick=world.tick, command="end", run=run_id), interrupted)
     result = metrics_of(world, world.tick, elapsed, start)
     result.update(steady_rate(brains, start, world.tick, started, elapsed))
     result["rejected_messages"] = bus.rejections()
     result["partial"] = world.tick < ticks
     log.info("%d ticks in %.1f s (%.0f ticks/s); %s", world.tick, elapsed, result["ticks_per_s"], outcome(result))
     finish(config, result, trajectory, world.tick)
-    if shard[0] > 1:  # its metrics written: the lead may end the run
-        shards.finished(bus, shard, run_id)
+    if lead_ended is not None:  # its metrics written: the lead may end the run
+        shards.finished(bus, shard, lead_ended)
     return 0 if world.tick == ticks else 130
 
 
@@ -180,12 +186,17 @@ def tick_loop(
     progress: Progress,
     trajectory: Trajectory,
     stream: StateStream | None,
+    lead_ended: Callable[[], bool] | None = None,
 ) -> None:
     """The lock-step ticks: each waits for the brain's answer (every shard's) to the last sensors sent.
-    The recorder's share of tick t is kept after tick t + 1's sensors are sent, while the brain steps."""
+    The recorder's share of tick t is kept after tick t + 1's sensors are sent, while the brain steps.
+    `lead_ended`: a world shard's, whether the lead shard has ended the run (cut short there)."""
     spare = world.sensors.copy()  # the next tick's sensors go here while tick t's are kept
     ticks, folder = config.world.ticks, config.checkpoint
     for t in range(world.tick, ticks):
+        if lead_ended is not None and lead_ended():
+            log.warning("world shard 1 ended the run at tick %d: ending it here too", t)
+            return
         actions = brains.collect(world, requests)
         if requests[0].checkpoint and folder:
             checkpoint.confirm(folder)  # the brain has kept this tick too

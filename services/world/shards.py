@@ -16,12 +16,13 @@ from pathlib import Path
 
 from services.bus import keys
 from services.bus.schemas import Array, Control, WorldMap
-from services.bus.transport import Bus, Inbox
+from services.bus.transport import Bus, Inbox, Outbox
 
 from .world import World
 
 log = logging.getLogger("spikinglab.world")
 SAY_EVERY = 5.0  # seconds between "waiting for ..." lines
+INTERRUPTED_WAIT_S = 3.0  # a run cut short: how long the lead waits for the others to stop at its end
 
 # per-agent lists of metrics.json, in the population's order when the shards' are joined
 PER_AGENT = (
@@ -72,29 +73,52 @@ def follow(session, group: str, shard: tuple[int, int]) -> str:
         inbox.close()
 
 
-def wait_for_others(bus: Bus, shard: tuple[int, int]) -> None:
-    """The lead's end of the run: every other shard has finished its ticks (and written its
-    metrics), or left the bus."""
+def end_run(bus: Bus, control: Outbox, shard: tuple[int, int], order: Control, interrupted: bool) -> None:
+    """The lead's (or a whole world's) end of the run: Control "end" once every other shard has
+    finished its ticks; cut short, at once, then a moment for the others to stop at it too."""
+    if shard[1] > 1 and not interrupted:
+        wait_for_others(bus, shard)
+    control.put(order)
+    if shard[1] > 1 and interrupted:
+        wait_for_others(bus, shard, within=INTERRUPTED_WAIT_S)
+
+
+def wait_for_others(bus: Bus, shard: tuple[int, int], within: float | None = None) -> None:
+    """Until every other shard has finished its ticks (and written its metrics), or left the bus;
+    `within` seconds at most."""
     done, there, said = others(bus, shard, done=True), others(bus, shard), time.monotonic()
     for t in there:  # known within a moment of subscribing, unless it has left
         t.wait(timeout=1.0)
     while not all(d.alive or not t.alive for d, t in zip(done, there)):
-        if time.monotonic() - said > SAY_EVERY:
+        if within is not None and time.monotonic() - said > within:
+            return
+        if within is None and time.monotonic() - said > SAY_EVERY:
             log.info("waiting for world shard(s) %s to finish", ", ".join(t.service for t in there if t.alive))
             said = time.monotonic()
         time.sleep(0.05)
 
 
-def finished(bus: Bus, shard: tuple[int, int], run_id: str) -> None:
+class LeadsEnd:
+    """Another shard's view of the lead's Control "end" of the run (asked every tick: a run cut
+    short at the lead ends here too)."""
+
+    def __init__(self, bus: Bus, run_id: str):
+        self.control, self.run_id, self.came = bus.inbox(keys.control(bus.group), Control), run_id, False
+
+    def __call__(self) -> bool:
+        while not self.came and isinstance(order := self.control.get(timeout=0), Control):
+            self.came = order.run == self.run_id
+        return self.came
+
+
+def finished(bus: Bus, shard: tuple[int, int], lead_ended: LeadsEnd) -> None:
     """Another shard's end of the run: say it has finished, and wait for the lead to end the run
     (or to leave the bus)."""
-    control, lead = bus.inbox(keys.control(bus.group), Control), bus.presence("world")
+    lead = bus.presence("world")
     token = bus.session.liveliness().declare_token(keys.alive(bus.group, service_name(shard) + "-done"))
     try:
-        while lead.wait(timeout=1.0):  # (its token known within a moment of subscribing)
-            order = control.get(timeout=0.25)
-            if isinstance(order, Control) and order.run == run_id:
-                return
+        while not lead_ended() and lead.wait(timeout=1.0):  # (its token known within a moment of subscribing)
+            time.sleep(0.02)
     finally:
         token.undeclare()
 
