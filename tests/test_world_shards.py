@@ -1,6 +1,8 @@
 """A sharded world: N world processes each step a slice of the population, as one world would."""
 
 import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -110,3 +112,18 @@ def test_two_world_shards_and_brain_shards_run_bit_for_bit_as_one_process(tmp_pa
     assert len(runs) == 1  # one run id
     for j in range(1, brains + 1):
         assert "keeps checkpoints" not in (tmp_path / f"brain{j}.log").read_text()  # no shard's first tick says so
+
+
+def test_the_scale_benchmark_measures_world_shards():
+    done = subprocess.run(
+        [sys.executable, "-m", "spikinglab", "bench", "scale", "--agents", "40", "--ticks", "100"]
+        + ["--shards", "3", "--world-shards", "1", "2"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr
+    figures = json.loads(done.stdout.strip().splitlines()[-1])
+    assert figures["agents"] == 40 and figures["shards"].keys() == {"3"}
+    assert {w: set(rates) for w, rates in figures["world_shards"].items()} == {"1": {"3"}, "2": {"3"}}
+    assert all(rate > 0 for rates in figures["world_shards"].values() for rate in rates.values())
