@@ -13,6 +13,7 @@ from services.loop import brain_for, closed_loop
 from services.world.options import WorldOptions, world_from
 
 from .processes import endpoint, finish, logged, start
+from .recordings import read
 
 TICKS, SEED, AGENTS = 3000, 3, 7  # 7 agents: world slices 0-2 and 3-6, brain slices 0-1, 2-3 and 4-6
 
@@ -112,6 +113,36 @@ def test_two_world_shards_and_brain_shards_run_bit_for_bit_as_one_process(tmp_pa
     assert len(runs) == 1  # one run id
     for j in range(1, brains + 1):
         assert "keeps checkpoints" not in (tmp_path / f"brain{j}.log").read_text()  # no shard's first tick says so
+
+
+def test_the_lead_world_shard_is_recorded_and_the_others_do_not_publish_state(tmp_path):
+    bus = ("--group", "wr", "--connect", endpoint(tmp_path, "router"))
+    router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
+    refused = start("world", *bus, "--agents", 4, "--shard", "2/2", "--publish-state", log=tmp_path / "refused.log")
+    recorder = start("record", *bus, "--out", tmp_path / "rec.rrd", log=tmp_path / "recorder.log")
+    world = ("--ticks", 1500, "--agents", 4, "--shards", 3)
+    worlds = [
+        start("world", *bus, *world, "--shard", "1/2", "--publish-state", log=tmp_path / "world1.log"),
+        start("world", *bus, *world, "--shard", "2/2", log=tmp_path / "world2.log"),
+    ]
+    brains = [
+        start("brain", *bus, "--shard", f"{j}/3", "--world-shards", 2, "--once", log=tmp_path / f"brain{j}.log")
+        for j in (1, 2, 3)
+    ]
+    try:
+        assert finish(refused, 30, tmp_path / "refused.log") == 2
+        for i, process in enumerate(worlds, 1):
+            assert finish(process, 120, tmp_path / f"world{i}.log") == 0
+        for j, process in enumerate(brains, 1):
+            assert finish(process, 30, tmp_path / f"brain{j}.log") == 0
+        assert finish(recorder, 60, tmp_path / "recorder.log") == 0
+    finally:
+        for process in (refused, *worlds, *brains, recorder, router):
+            process.kill()
+    assert "only world shard 1 publishes its state" in (tmp_path / "refused.log").read_text()
+    assert "(ticks 0..1499)" in (tmp_path / "recorder.log").read_text()
+    data = read(tmp_path / "rec.rrd")
+    assert data["/world/insects"]["tick"] == list(range(1500))
 
 
 def test_the_scale_benchmark_measures_world_shards():

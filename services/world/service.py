@@ -96,12 +96,14 @@ class WorldConfig:
 
 
 def run(config: WorldConfig, session) -> int:
-    sharded = config.shard[1] > 1
-    if sharded and (config.checkpoint or config.publish_state):
+    if config.shard[1] > 1 and config.checkpoint:
+        log.error("--shard %d/%d: a sharded world keeps no checkpoints: drop --checkpoint", *config.shard)
+        return 2
+    if config.shard[0] > 1 and config.publish_state:
         log.error(
-            "--shard %d/%d: a sharded world keeps no checkpoints and publishes no state (record one world): drop %s",
+            "--shard %d/%d: only world shard 1 publishes its state, the population's first insects (the "
+            "recorder takes one world's): drop --publish-state",
             *config.shard,
-            "--checkpoint" if config.checkpoint else "--publish-state",
         )
         return 2
     try:
