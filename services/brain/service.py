@@ -30,6 +30,10 @@ from .lockstep import LockStep
 from .node import FREE_STATE_BATCH, BrainNode
 
 log = logging.getLogger("spikinglab.brain")
+WORLD_SHARDS_HELP = (
+    "the world runs as N shards (world --shard I/N): each sends this brain the piece of its slice this "
+    "brain serves, checked against a --params file (default 1; docs/shards.md)"
+)
 ALONE_AFTER_S = 1.0  # a brain of the same name not heard of within this long after joining the bus: none
 
 
@@ -67,14 +71,7 @@ def parser() -> argparse.ArgumentParser:
         help="serve shard I of N of the population (the world, started with --shards N, sends each its "
         "slice of the agents; default 1/1: all of them)",
     )
-    p.add_argument(
-        "--world-shards",
-        type=at_least(1),
-        default=1,
-        metavar="N",
-        help="the world runs as N shards (world --shard I/N): each sends this brain the piece of its "
-        "slice this brain serves (default 1); checks them against a --params file (docs/shards.md)",
-    )
+    p.add_argument("--world-shards", type=at_least(1), default=1, metavar="N", help=WORLD_SHARDS_HELP)
     p.add_argument(
         "--checkpoint",
         type=Path,
