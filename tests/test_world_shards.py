@@ -10,6 +10,7 @@ import pytest
 from services.brain.checkpoint import load_weights
 from services.brain.circuit import load_circuit
 from services.loop import brain_for, closed_loop
+from services.options import shard_slice, shards_meet
 from services.world.options import WorldOptions, world_from
 
 from .processes import endpoint, finish, logged, start
@@ -49,6 +50,19 @@ def test_a_sliced_world_steps_the_same_insects_as_the_whole(tmp_path):
             np.concatenate([getattr(w.metrics, name) for w in slices]), getattr(whole.metrics, name), err_msg=name
         )
     np.testing.assert_array_equal(np.concatenate([w.pos for w in slices]), whole.pos)
+
+
+@pytest.mark.parametrize("agents", [1, 2, 7, 10, 101])
+def test_world_and_brain_shards_meet_in_pieces_that_cover_each_slice_once(agents):
+    for n in range(1, min(agents, 5) + 1):
+        for m in range(1, min(agents, 5) + 1):
+            meets = {(i, j): shards_meet(agents, (i, n), (j, m)) for i in range(1, n + 1) for j in range(1, m + 1)}
+            for i in range(1, n + 1):  # a world shard's pieces, brain shard by brain shard, make its slice
+                pieces = [meets[i, j] for j in range(1, m + 1) if meets[i, j][0] < meets[i, j][1]]
+                assert [a for lo, hi in pieces for a in range(lo, hi)] == list(range(*shard_slice(agents, (i, n))))
+            for j in range(1, m + 1):  # and a brain shard's, world shard by world shard, its own
+                pieces = [meets[i, j] for i in range(1, n + 1) if meets[i, j][0] < meets[i, j][1]]
+                assert [a for lo, hi in pieces for a in range(lo, hi)] == list(range(*shard_slice(agents, (j, m))))
 
 
 def test_a_shared_arena_is_not_sharded(tmp_path):
