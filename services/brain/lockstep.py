@@ -60,20 +60,19 @@ class LockStep:
 
     def node_for(self, message: Sensors) -> BrainNode:
         """The node serving the piece `message` starts at. Sensors that start a new run (every
-        node's run gone quiet) start it with no node of the last; a piece of the run served gets
-        a node of its own (BusError for a second piece when publishing state: the recorder takes
-        one brain's)."""
+        node's run gone quiet) start it with no node of the last; another piece of the run served,
+        from another of --world-shards N world shards, gets a node of its own (N at most); any
+        other message goes to the node served, whose answer says why it does not fit."""
         if self.nodes and all(n.brain is not None and n.starts_run(message) for n in self.nodes.values()):
             if self.unsaved():
                 self.keep_learning(f"run {message.run} starts before it ended")
             self.nodes = {}
         node = self.nodes.get(message.first)
-        if node is None and self.nodes and self.state is not None:
-            raise BusError(
-                f"another slice: agents from {message.first}, this brain serves agents from {min(self.nodes)} "
-                "and publishes its state (a sharded world's brain does not: drop --publish-state)"
-            )
-        return node or self.nodes.setdefault(message.first, self.new_node())
+        if node is not None:
+            return node
+        if self.nodes and (message.run != self.node.run or len(self.nodes) >= self.config.world_shards):
+            return self.node
+        return self.nodes.setdefault(message.first, self.new_node())
 
     def run(self) -> int:
         shard = self.config.shard

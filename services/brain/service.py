@@ -139,12 +139,8 @@ def run(config: BrainConfig, session) -> int:
         )
         return 2
 
-    if config.world_shards > 1 and (config.checkpoint or config.clock):
-        log.error(
-            "--world-shards %d: a sharded world keeps no checkpoints and runs no robot: drop %s",
-            config.world_shards,
-            "--checkpoint" if config.checkpoint else "--clock",
-        )
+    if refusal := sharded_world_refusal(config):
+        log.error("%s", refusal)
         return 2
 
     def new_node() -> BrainNode:  # one per run the brain serves
@@ -178,6 +174,18 @@ def run(config: BrainConfig, session) -> int:
         return FreeRunning(config, bus, new_node()).run() if config.clock else LockStep(config, bus, new_node).run()
     finally:
         bus.close()
+
+
+def sharded_world_refusal(config: BrainConfig) -> str | None:
+    """Why a brain for a sharded world (--world-shards N) cannot run with these options, or None."""
+    given = (("--checkpoint", config.checkpoint), ("--clock", config.clock), ("--publish-state", config.publish_state))
+    dropped = [option for option, value in given if value]
+    if config.world_shards == 1 or not dropped:
+        return None
+    return (
+        f"--world-shards {config.world_shards}: a sharded world's brain keeps no checkpoints, runs no robot "
+        f"and publishes no state: drop {' and '.join(dropped)}"
+    )
 
 
 def another_serving(session, group: str, service: str, within: float = ALONE_AFTER_S) -> bool:
