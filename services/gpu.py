@@ -21,6 +21,7 @@ import numpy as np
 
 from services.brain.brain import Brain, bind
 from services.brain.build import TICK, TRAINING
+from services.loop import wiring
 from services.world.world import ACTIONS, BIN, RAY_STEP, VIEW, World
 
 DEVICES = ("cuda",)
@@ -98,10 +99,7 @@ def _arguments(world: World, brain: Brain, bins: np.ndarray) -> list[np.ndarray]
     m, net, st = world.metrics, brain.engine.network, brain.engine.state
     netlogo = brain.engine.semantics == "netlogo"
     steps_per_ray = int(round(world.fpar[VIEW] / world.fpar[RAY_STEP]))
-    # the brain's actuators -> the world's action columns, as services.loop.fused_loop binds them
-    bound = [(brain.action_names[c], int(n)) for c, n in zip(brain.action_cols, brain.actuator_neurons)]
-    world_cols = np.array([ACTIONS.index(name) for name, _ in bound if name in ACTIONS], np.int64)
-    actuators = np.array([n for name, n in bound if name in ACTIONS], np.int64)
+    world_cols, actuators = wiring(brain)  # as services.loop.fused_loop binds them
     consts = [
         np.array([steps_per_ray, world.training, st.clock[TRAINING], net.rules, netlogo], np.int64),
         world.fpar,

@@ -9,6 +9,7 @@ between ticks.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Iterable, Mapping
 
 import numpy as np
@@ -20,6 +21,7 @@ from services.brain.circuit import Circuit, load_circuit
 from services.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, range_tick
 from services.learning import quarter_collisions
 from services.params import AGENT_PARAMS, agent_columns, setting_count
+from services.world.netlogo_setup import spikinglab_setup
 from services.world.world import (
     ACTIONS,
     BIN,
@@ -66,6 +68,14 @@ def closed_loop(world: World, brain: Brain, ticks: int, on_tick: Callable[[int],
             on_tick(t)
 
 
+def wiring(brain: Brain) -> tuple[np.ndarray, np.ndarray]:
+    """The world's action columns and the brain's actuator neurons that drive them, pair by pair."""
+    bound = [(brain.action_names[c], int(n)) for c, n in zip(brain.action_cols, brain.actuator_neurons)]
+    world_cols = np.array([ACTIONS.index(name) for name, _ in bound if name in ACTIONS], np.int64)
+    actuators = np.array([n for name, n in bound if name in ACTIONS], np.int64)
+    return world_cols, actuators
+
+
 def fused_loop(
     world: World, brain: Brain, ticks: int, noxious: np.ndarray | None = None, blocks: int | None = None
 ) -> None:
@@ -81,10 +91,7 @@ def fused_loop(
     engine, m = brain.engine, world.metrics
     if noxious is None:
         noxious = np.zeros((0, world.agents), np.uint8)  # none kept
-    # the brain's sensor columns -> its input neurons; its actuators -> the world's action columns
-    bound = [(brain.action_names[c], int(n)) for c, n in zip(brain.action_cols, brain.actuator_neurons)]
-    world_cols = np.array([ACTIONS.index(name) for name, _ in bound if name in ACTIONS], np.int64)
-    actuators = np.array([n for name, n in bound if name in ACTIONS], np.int64)
+    world_cols, actuators = wiring(brain)
     actions = np.zeros((world.agents, len(ACTIONS)), np.uint8)
     done = 0
     while done < ticks:
@@ -238,17 +245,23 @@ def population(
     learned_after: int = 5000,
     semantics: str = DEFAULT_SEMANTICS,
     order: str = "random",
+    netlogo_seed: int | None = None,
 ) -> tuple[World, Brain]:
     """World and brain of every parameter setting on every seed, as one population: agent
     k * len(seeds) + j is setting k on seed j (`evaluate` has the arguments' meaning)."""
     seeds = np.asarray(list(seeds), np.int64)
+    params_world, grid = params_for(preset, learned_after=learned_after), None
+    if netlogo_seed is not None:  # the source's arena and heading for all; the seeds vary the order
+        setup = spikinglab_setup(netlogo_seed, params_world)
+        params_world, grid = dataclasses.replace(params_world, start_heading=setup.heading), setup.grid
     n = setting_count(params)
     per_agent = {k: np.repeat(v, len(seeds)) for k, v in agent_columns(n, params).items()}  # a setting's seeds together
     side = {s: {k: v for k, v in per_agent.items() if AGENT_PARAMS[k].side == s} for s in ("world", "brain")}
     world = World(
-        params_for(preset, learned_after=learned_after),
+        params_world,
         agents=n * len(seeds),
         seed=0,
+        grid=grid,
         numbers=np.tile(seeds, n),
         agent_params=side["world"],
     )
@@ -275,6 +288,7 @@ def evaluate(
     cluster: str | None = None,
     on_block: Callable[[int], object] | None = None,
     device: str = "cpu",
+    netlogo_seed: int | None = None,
 ) -> dict[str, np.ndarray]:
     """Train every parameter setting on every seed for `ticks` ticks, all as one population.
 
@@ -289,9 +303,20 @@ def evaluate(
     there in blocks, with the same result bit for bit, and `on_block(insects)` is called as each
     block finishes.
 
+    `netlogo_seed`: every insect in the arena and first heading of the SpikingLab source's setup
+    after `random-seed N` (docs/netlogo-random.md); the seeds then vary only the netlogo order.
+
     `device`: "cpu", or "cuda" for an NVIDIA GPU (services/gpu.py, docs/gpu.md): the same results;
     refused in one line (RuntimeError) where numba-cuda or the GPU is missing."""
     seeds = list(seeds)
+    options: dict = dict(
+        circuit=circuit,
+        preset=preset,
+        learned_after=learned_after,
+        semantics=semantics,
+        order=order,
+        netlogo_seed=netlogo_seed,
+    )
     if device != "cpu":
         from services.gpu import check_device  # numba.cuda only when the device is asked for
 
@@ -301,11 +326,8 @@ def evaluate(
     if cluster is not None:
         from services.cluster import evaluate_on  # the cluster's packages only when one is named
 
-        options = dict(circuit=circuit, preset=preset, learned_after=learned_after, semantics=semantics, order=order)
         return evaluate_on(cluster, params, ticks, seeds, on_block, **options)
-    world, brain = population(
-        params, seeds, circuit=circuit, preset=preset, learned_after=learned_after, semantics=semantics, order=order
-    )
+    world, brain = population(params, seeds, **options)
     if device == "cpu":
         closed_loop(world, brain, ticks)
     else:
