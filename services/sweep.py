@@ -22,7 +22,8 @@ from services.cluster import ClusterError, address_option
 from services.learning import PAPER, all_definitions, noxious_ticks, plot_table1, quarter_collisions, stats
 from services.loop import population
 from services.options import Parser, at_least, positive
-from services.world.world import BIN, PRESETS
+from services.world.netlogo_setup import spikinglab_setup
+from services.world.world import BIN, PRESETS, params_for
 
 
 def sweep(
@@ -35,17 +36,27 @@ def sweep(
     semantics: str = DEFAULT_SEMANTICS,
     order: str = "random",
     cluster: str | None = None,
+    netlogo_seed: int | None = None,
 ) -> list[dict]:
     """Every A+ = A- value on seeds 0..N-1 (agent = value-major, then seed); a row per value. In
     this process as one population (`progress.update(1)` per tick), or on the Dask scheduler at
-    `cluster` in blocks (`progress.update(insects)` per block), with the same rows."""
-    options: dict = dict(preset=preset, learned_after=learned_after, semantics=semantics, order=order)
+    `cluster` in blocks (`progress.update(insects)` per block), with the same rows. `netlogo_seed`:
+    every insect in the SpikingLab source's arena of `random-seed N`; the seeds vary its order."""
+    check_netlogo_seed(netlogo_seed, semantics, order)
+    options: dict = dict(
+        preset=preset, learned_after=learned_after, semantics=semantics, order=order, netlogo_seed=netlogo_seed
+    )
     if cluster is None:
         on_tick = (lambda t: progress.update(1)) if progress else None
         found = insects(a_values, list(range(seeds)), ticks, on_tick=on_tick, **options)
     else:
         found = on_cluster(cluster, a_values, seeds, ticks, progress, options)
-    return rows(a_values, seeds, ticks, preset, semantics, found)
+    out = rows(a_values, seeds, ticks, preset, semantics, found)
+    for r in out:
+        r["netlogo_seed"] = netlogo_seed  # None: each seed its own arena
+        if netlogo_seed is not None:
+            r["name"] += f", the source's arena of random-seed {netlogo_seed}"
+    return out
 
 
 def insects(
@@ -56,6 +67,7 @@ def insects(
     learned_after: int,
     semantics: str,
     order: str,
+    netlogo_seed: int | None = None,
     on_tick=None,
 ) -> dict:
     """Every value on every seed as one population: per insect (value-major, then seed) its ticks
@@ -67,6 +79,7 @@ def insects(
         learned_after=learned_after,
         semantics=semantics,
         order=order,
+        netlogo_seed=netlogo_seed,
     )
     noxious = noxious_ticks(world, brain, ticks, on_tick)
     return {
@@ -74,6 +87,17 @@ def insects(
         "bins": np.array(world.metrics.bins).T,  # [agents, ticks / 1000]
         "learned_at": world.metrics.learned_at.copy(),
     }
+
+
+def check_netlogo_seed(netlogo_seed: int | None, semantics: str, order: str) -> None:
+    """ValueError where the source's arena leaves the seeds nothing to vary: its arena and heading
+    are every insect's, so only the netlogo semantics' random order tells one seed from another."""
+    if netlogo_seed is not None and (semantics, order) != ("netlogo", "random"):
+        raise ValueError(
+            f"--netlogo-seed gives every seed the same arena and heading, so the seeds differ only by "
+            f"the netlogo semantics' random order; with --semantics {semantics} --order {order} they "
+            f"would be one run copied: drop --netlogo-seed or use --semantics netlogo --order random"
+        )
 
 
 def sweep_block(a_values: list[float], ticks: int, options: dict, chosen: range, at: range) -> dict:
@@ -202,6 +226,7 @@ def run_with_progress(args) -> list[dict]:
             args.semantics,
             args.order,
             args.cluster,
+            args.netlogo_seed,
         )
 
 
@@ -217,6 +242,13 @@ def main(argv=None) -> int:
     )
     p.add_argument("--preset", choices=sorted(PRESETS), default="paper")
     p.add_argument("--learned-after", type=at_least(1), default=5000)
+    p.add_argument(
+        "--netlogo-seed",
+        type=int,
+        metavar="N",
+        help="every insect in the arena and first heading of the SpikingLab source's setup after "
+        "`random-seed N` (its own: 7850); the seeds then vary the neurons' order (docs/netlogo-random.md)",
+    )
     add_engine_args(p)
     p.add_argument("--runs", type=Path, default=Path("runs"))
     p.add_argument("--id", help="folder name (default sweep-<date>)")
@@ -227,6 +259,12 @@ def main(argv=None) -> int:
         help="run on the Dask scheduler at tcp://HOST:PORT, in blocks of insects (docs/cluster.md)",
     )
     args = p.parse_args(argv)
+    try:
+        check_netlogo_seed(args.netlogo_seed, args.semantics, args.order)
+        if args.netlogo_seed is not None:
+            spikinglab_setup(args.netlogo_seed, params_for(args.preset))  # its range and arena, before any run
+    except ValueError as e:
+        p.error(str(e))
     folder = args.runs / (args.id or f"sweep-{datetime.datetime.now():%Y%m%d-%H%M%S}")
     created = not folder.exists()
     folder.mkdir(parents=True, exist_ok=True)
