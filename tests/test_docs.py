@@ -274,6 +274,7 @@ def bus_keys() -> set[str]:
     group, shard = "<group>", (2, 3)
     made = [keys.sensors(group), keys.sensors(group, shard), keys.motor(group), keys.control(group)]
     made += [keys.brain_state(group), keys.world_state(group), keys.world_map(group), keys.state(group)]
+    made += [keys.world_run(group)]
     made += [keys.alive(group, s) for s in ("*", "<service>", *PUTS, keys.brain_service(shard))]
     prefix, shard_name = f"{keys.PREFIX}/{group}/", keys.shard_name(shard)
     return {key.removeprefix(prefix).replace(shard_name, "<i>of<n>") for key in made} | {""}
@@ -295,6 +296,7 @@ KEY_FUNCTION = {  # a key a service README says its service reads -> the functio
     "state/brain": "brain_state",
     "state/world": "world_state",
     "state/map": "world_map",
+    "world/run": "world_run",
     "state/**": "state",
 }
 
