@@ -11,7 +11,7 @@ Cost of a candidate (learning time "free 5,000", the project's default): the med
 search seeds of the learning time (a seed that never learned counts as twice the run), plus the run's
 length times the share of seeds that never learned, plus 100 per collision in the last quarter
 (mean over seeds). Search seeds default to 1000-1015, validation
-seeds (which pick among the generations' bests) 2000-2015; report on others (docs/fast-learner.md).
+seeds (which pick among the generations' bests) 2000-2015; report on others (docs/results.md, "A learner searched for speed").
 Run: `pip install -e '.[optimise]'`, then
 `python examples/search_fast_learner.py [--generations 20] [--population 16] [--ticks 40000]`.
 """
@@ -160,7 +160,7 @@ def search_variant(name: str, args) -> tuple[float, dict[str, float]]:
     return float(c[k]), {n: float(v[k]) for n, v in params.items()}
 
 
-# --- the report: held-out seeds the search never saw (docs/fast-learner.md)
+# --- the report: held-out seeds the search never saw (docs/results.md, "A learner searched for speed")
 
 
 HEADER = "| reverted | median | quartiles | learned | last-quarter collisions | seeds with none |\n" + "|---" * 6 + "|"

@@ -1,4 +1,4 @@
-"""The searched circuit (services/brain/circuits/fast_learner.toml, docs/fast-learner.md) loads and
+"""The searched circuit (services/brain/circuits/fast_learner.toml, docs/results.md) loads and
 learns on a held-out seed that the search never saw, where the default insect circuit does not."""
 
 from services.brain.circuit import load_circuit
