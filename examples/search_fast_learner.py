@@ -10,8 +10,8 @@ The world's steps stay the paper's: a circuit file cannot carry them.
 Cost of a candidate (learning time "free 5,000", the project's default): the median over the
 search seeds of the learning time (a seed that never learned counts as twice the run), plus the run's
 length times the share of seeds that never learned, plus 100 per collision in the last quarter
-(mean over seeds). Search seeds default to 1000-1015, validation
-seeds (which pick among the generations' bests) 2000-2015; report on others (docs/results.md, "A learner searched for speed").
+(mean over seeds). Search seeds default to 1000-1015, validation seeds (which pick among the
+generations' bests) 2000-2015; report on others (docs/results.md, "A learner searched for speed").
 Run: `pip install -e '.[optimise]'`, then
 `python examples/search_fast_learner.py [--generations 20] [--population 16] [--ticks 40000]`.
 """
