@@ -6,7 +6,7 @@ each role, <role>.json5 a Zenoh config for that role's process (--zenoh-config),
 router's, with mutual TLS and the access-control rules below. Every process connects to the router
 as a client over tls/ (never to another directly), and the router lets a process put only its own
 keys: the world and the gateway sensors and control, the brain motor, each its own state and its
-own liveliness token; a viewer (or a recorder) may subscribe to everything and put nothing. No
+own liveliness tokens (a shard's too; a sharded world's lead also the run id); a viewer (or a recorder) may subscribe to everything and put nothing. No
 role may query the router's admin space (@/...), which is off as well.
 """
 
@@ -33,11 +33,19 @@ log = logging.getLogger("spikinglab.certs")
 # role -> the keys (below spikinglab/<group>/) its process may put
 PUTS = {
     "router": (),
-    "world": ("sensors", "sensors/*", "control", "state/world", "state/map"),  # sensors/*: a sharded brain's slices
+    # sensors/*: a sharded brain's slices; world/run: a sharded world's lead names the run to the others
+    "world": ("sensors", "sensors/*", "control", "state/world", "state/map", "world/run"),
     "gateway": ("sensors", "control"),
     "brain": ("motor", "state/brain"),
     "recorder": (),
     "viewer": (),
+}
+# role -> the liveliness tokens (below spikinglab/<group>/alive/) its process may hold; a role not
+# named holds the one of its name. $* is any text within a chunk: the shards' tokens, "world-2of3"
+# (and "world-2of3-done" once it has run its ticks), "brain-2of3"
+TOKENS = {
+    "world": ("world", "world-$*of$*", "world-$*of$*-done"),
+    "brain": ("brain", "brain-$*of$*"),
 }
 EVERY_GROUP = f"{keys.PREFIX}/*"
 READ = {  # what every role may do: subscribe to any key of any group and be sent what is put there
@@ -180,7 +188,7 @@ def access_control() -> dict:
                 "permission": "allow",
                 "flows": ["ingress"],
                 "messages": ["liveliness_token"],
-                "key_exprs": [f"{EVERY_GROUP}/alive/{role}"],
+                "key_exprs": [f"{EVERY_GROUP}/alive/{token}" for token in TOKENS.get(role, (role,))],
             }
         )
         role_rules.append(f"{role} alive")
