@@ -6,8 +6,9 @@ each role, <role>.json5 a Zenoh config for that role's process (--zenoh-config),
 router's, with mutual TLS and the access-control rules below. Every process connects to the router
 as a client over tls/ (never to another directly), and the router lets a process put only its own
 keys: the world and the gateway sensors and control, the brain motor, each its own state and its
-own liveliness tokens (a shard's too; a sharded world's lead also the run id); a viewer (or a recorder) may subscribe to everything and put nothing. No
-role may query the router's admin space (@/...), which is off as well.
+own liveliness tokens (its shards' too), a sharded world's lead the run id; a viewer (or a
+recorder) may subscribe to everything and put nothing. No role may query the router's admin space
+(@/...), which is off as well.
 """
 
 from __future__ import annotations
