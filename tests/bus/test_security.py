@@ -4,7 +4,9 @@ of another role reads the run but cannot steer it, end it or move the robot."""
 
 import contextlib
 import json
+import re
 import stat
+import threading
 import time
 
 import json5
@@ -18,12 +20,12 @@ from services.brain.checkpoint import load_weights
 from services.brain.circuit import load_circuit
 from services.bus import keys
 from services.bus.config import make_config, zenoh_config_file
-from services.bus.schemas import Array, Control, Motor, Sensors, decode, encode
+from services.bus.schemas import Array, Control, Motor, Sensors, WorldMap, decode, encode
 from services.ev3_gateway.fake_brick import FakeBrick
 from services.loop import brain_for, closed_loop
 from services.world.world import World
 
-from ..processes import bound_port, finish, start, wait_for
+from ..processes import bound_port, finish, logged, start, wait_for
 
 
 @contextlib.contextmanager
@@ -257,3 +259,134 @@ def test_only_the_brain_role_moves_the_robot(secure_bus, tmp_path):
         finally:
             gateway.terminate()
             finish(gateway, 30, tmp_path / "gateway.log")
+
+
+# what each role's puts and liveliness tokens reach another process through the router (below
+# spikinglab/<group>/): written out here, not read from certs.PUTS, so that a rule that is wrong fails
+TRIED_KEYS = ("sensors", "sensors/2of3", "motor", "control", "state/world", "state/map", "state/brain", "world/run")
+TRIED_TOKENS = (
+    "world",
+    "world-2of3",
+    "world-2of3-done",
+    "world-x",
+    "brain",
+    "brain-2of3",
+    "gateway",
+    "viewer",
+    "recorder",
+)
+ARRIVES = {
+    "world": (
+        {"sensors", "sensors/2of3", "control", "state/world", "state/map", "world/run"},
+        {"world", "world-2of3", "world-2of3-done"},
+    ),
+    "brain": ({"motor", "state/brain"}, {"brain", "brain-2of3"}),
+    "gateway": ({"sensors", "control"}, {"gateway"}),
+    "viewer": (set(), {"viewer"}),
+    "recorder": (set(), {"recorder"}),
+}
+
+
+def arriving(role: str, folder, endpoint: str, listener: zenoh.Session) -> tuple[set[str], set[str]]:
+    """The keys and liveliness tokens of TRIED_KEYS and TRIED_TOKENS that reach `listener` when a
+    session of `role` puts on each (again and again) and declares each (in a group of its own)."""
+    group, puts, tokens = f"as-{role}", set(), set()
+    prefix = f"{keys.PREFIX}/{group}/"
+    sub = listener.declare_subscriber(f"{prefix}**", lambda s: puts.add(str(s.key_expr).removeprefix(prefix)))
+    alive = listener.liveliness().declare_subscriber(
+        keys.alive(group, "*"), lambda s: tokens.add(str(s.key_expr).rsplit("/", 1)[-1]), history=True
+    )
+    expected_keys, expected_tokens = ARRIVES[role]
+    with session_as(role, folder, endpoint) as session:
+        declared = [session.liveliness().declare_token(keys.alive(group, t)) for t in TRIED_TOKENS]
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and not (puts >= expected_keys and tokens >= expected_tokens):
+            for key in TRIED_KEYS:
+                session.put(prefix + key, b"forged")
+            time.sleep(0.05)
+        time.sleep(0.5)  # what would arrive besides the expected had the same time and more
+        for token in declared:
+            token.undeclare()
+    sub.undeclare()
+    alive.undeclare()
+    return puts, tokens
+
+
+def test_each_role_puts_only_its_own_keys_and_holds_only_its_own_tokens(secure_bus):
+    endpoint, folder = secure_bus
+    with session_as("recorder", folder, endpoint) as listener:
+        for role, (expected_keys, expected_tokens) in ARRIVES.items():
+            assert arriving(role, folder, endpoint, listener) == (expected_keys, expected_tokens), role
+
+
+FORGED_RUN = "0123456789abcdef"
+
+
+@contextlib.contextmanager
+def naming_a_run(role: str, folder, endpoint: str):
+    """A session of `role` that puts FORGED_RUN on the world run key every 20 ms while the block
+    lasts, as a sharded world's lead names its run: the count of puts (a list of one int)."""
+    named = encode(WorldMap(tick=0, run=FORGED_RUN, grid=Array.of(np.zeros((1, 4, 4), np.uint8)), x_min=0, y_min=0))
+    assert isinstance(decode(named, WorldMap), WorldMap)  # a shard would take it, were it let through
+    session, stop, count = session_as(role, folder, endpoint), threading.Event(), [0]
+    publisher = session.declare_publisher(keys.world_run(keys.DEFAULT_GROUP))
+
+    def name() -> None:
+        while not stop.wait(0.02):
+            publisher.put(named, attachment=b"world@1")
+            count[0] += 1
+
+    thread = threading.Thread(target=name, daemon=True)
+    thread.start()
+    try:
+        yield count
+    finally:
+        stop.set()
+        thread.join()
+        session.close()
+
+
+def test_world_and_brain_shards_run_on_the_secured_bus_and_no_other_role_names_their_run(secure_bus, tmp_path):
+    endpoint, folder = secure_bus
+    ticks, agents = 600, 4
+
+    def secured(role: str) -> tuple:
+        return ("--connect", endpoint, "--zenoh-config", folder / f"{role}.json5")
+
+    world = (*secured("world"), "--ticks", ticks, "--agents", agents, "--shards", 2, "--out", tmp_path)
+    with naming_a_run("viewer", folder, endpoint) as forged:
+        follower = start("world", *world, "--shard", "2/2", log=tmp_path / "world2.log")
+        processes = [follower]
+        try:  # shard 2 listens for the run's name (while the viewer forges one) before the lead names it
+            heard = re.compile(r"to name the run|world shard 2/2: run")
+            wait_for(lambda: heard.search((tmp_path / "world2.log").read_text()), 60, "shard 2 to listen")
+            assert FORGED_RUN not in (tmp_path / "world2.log").read_text()  # it has not taken the forged name
+            processes.append(start("world", *world, "--shard", "1/2", log=tmp_path / "world1.log"))
+            processes += [
+                start(
+                    "brain",
+                    *secured("brain"),
+                    "--shard",
+                    f"{j}/2",
+                    "--world-shards",
+                    2,
+                    "--once",
+                    log=tmp_path / f"brain{j}.log",
+                )
+                for j in (1, 2)
+            ]
+            logs = ["world2.log", "world1.log", "brain1.log", "brain2.log"]
+            for process, log in zip(processes, logs):
+                assert finish(process, 120, tmp_path / log) == 0
+        finally:
+            for process in processes:
+                process.kill()
+    assert forged[0] > 100
+    runs = [logged((tmp_path / f"world{i}.log").read_text(), r"run (\w+): \d+ ticks").group(1) for i in (1, 2)]
+    assert runs[0] == runs[1] != FORGED_RUN  # shard 2 followed the lead, not the viewer's forgery
+    alone = World(seed=0, agents=agents)
+    closed_loop(alone, brain_for(alone, load_circuit("insect")), ticks)
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["world_shards"] == 2 and metrics["agents"] == agents and metrics["ticks"] == ticks
+    assert not metrics["partial"] and metrics["rejected_messages"] == {}
+    assert metrics["collisions"] == alone.metrics.collisions.tolist() and sum(metrics["collisions"]) > 0
