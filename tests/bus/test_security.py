@@ -355,8 +355,7 @@ def test_world_and_brain_shards_run_on_the_secured_bus_and_no_other_role_names_t
 
     world = (*secured("world"), "--ticks", ticks, "--agents", agents, "--shards", 2, "--out", tmp_path)
     with naming_a_run("viewer", folder, endpoint) as forged:
-        follower = start("world", *world, "--shard", "2/2", log=tmp_path / "world2.log")
-        processes = [follower]
+        processes = [start("world", *world, "--shard", "2/2", log=tmp_path / "world2.log")]
         try:  # shard 2 listens for the run's name (while the viewer forges one) before the lead names it
             heard = re.compile(r"to name the run|world shard 2/2: run")
             wait_for(lambda: heard.search((tmp_path / "world2.log").read_text()), 60, "shard 2 to listen")
