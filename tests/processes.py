@@ -6,6 +6,7 @@ import os
 import re
 import socket
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -63,6 +64,11 @@ def start(service: str, *args, log: Path | None = None) -> subprocess.Popen:
     """A service (launch.SERVICES: world, brain, record, gateway, ...) with `args`, its output into
     `log` (read it when a test fails)."""
     return spawn(service, list(args), log or subprocess.DEVNULL, cwd=ROOT)
+
+
+def connecting(*endpoints: str) -> list[str]:
+    """A service's options to connect to each of `endpoints`."""
+    return [word for e in endpoints for word in ("--connect", e)]
 
 
 def finish(process: subprocess.Popen, timeout: float, log: Path | None = None) -> int:
@@ -124,6 +130,28 @@ def wait_for_ticks(folder: Path, timeout: float = 60) -> None:
     log = folder / "brain.log"
     wait_for(lambda: log.exists() and " brain for " in log.read_text(), timeout, "the run to start")
     time.sleep(2)
+
+
+def live_run(runs: Path, run_id: str, env: dict) -> tuple[subprocess.Popen, str]:
+    """`spikinglab run --view` into runs/run_id, and what it said on stderr up to its live view's line."""
+    run = subprocess.Popen(
+        [sys.executable, "-m", "spikinglab", "run", "--view", "--ticks", "400000", "--quiet"]
+        + ["--runs", str(runs), "--id", run_id],
+        cwd=ROOT,
+        env=env,
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+    )
+    assert run.stderr is not None  # stderr=PIPE
+    said = ""
+    while "live view" not in said:
+        line = run.stderr.readline()
+        if not line:
+            run.kill()
+            raise AssertionError(f"the run ended without a live view:\n{said}")
+        said += line
+    return run, said
 
 
 def running_with(marker: str) -> dict[int, str]:

@@ -286,16 +286,7 @@ def test_a_brain_that_refuses_every_reading_is_named_by_the_world(files, tmp_pat
     every sensors message and says why; the world waits for it (a brain may be fixed and
     restarted) and says, within 10 s, that it is on the bus but does not answer."""
     world_ep = endpoint(tmp_path, "world")
-    world = start(
-        "world",
-        "--listen",
-        world_ep,
-        "--agents",
-        2,
-        "--group",
-        tmp_path.name,
-        log=tmp_path / "world.log",
-    )
+    world = start("world", "--listen", world_ep, "--agents", 2, "--group", tmp_path.name, log=tmp_path / "world.log")
     brain = start(
         "brain",
         "--connect",

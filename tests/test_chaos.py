@@ -22,7 +22,7 @@ from services.world.checkpoint import CHECKPOINT
 from services.world.results import metrics_of
 from services.world.world import World
 
-from .processes import endpoint, finish, logged, running_with, start, wait_for, wait_for_ticks
+from .processes import connecting, endpoint, finish, logged, running_with, start, wait_for, wait_for_ticks
 
 
 def left_at(log_text: str, service: str) -> tuple[str, int]:
@@ -302,10 +302,7 @@ def test_a_frozen_recorder_never_holds_the_run_back(tmp_path):
     )
     recorder = start(
         "record",
-        "--connect",
-        world_ep,
-        "--connect",
-        brain_ep,
+        *connecting(world_ep, brain_ep),
         "--out",
         tmp_path / "run.rrd",
         "--backlog-mb",

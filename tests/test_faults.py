@@ -17,7 +17,7 @@ from services.recorder.screenshot import last_tick
 from services.world.world import World
 
 from .messages import GOOD
-from .processes import Watcher, endpoint, finish, logged, start, ticks_in, wait_for
+from .processes import Watcher, connecting, endpoint, finish, logged, start, ticks_in, wait_for
 
 
 def test_brain_killed_mid_run_world_waits_then_continues(tmp_path):
@@ -144,14 +144,7 @@ def test_malformed_messages_on_every_topic_are_rejected_and_the_run_goes_on(tmp_
         log=tmp_path / "brain.log",
     )
     p_recorder = start(
-        "record",
-        "--connect",
-        world_ep,
-        "--connect",
-        brain_ep,
-        "--out",
-        tmp_path / "run.rrd",
-        log=tmp_path / "recorder.log",
+        "record", *connecting(world_ep, brain_ep), "--out", tmp_path / "run.rrd", log=tmp_path / "recorder.log"
     )
     injector = Watcher([world_ep, brain_ep], [])
     stop = threading.Event()

@@ -352,7 +352,6 @@ class World:
         if actions.shape != self._actions.shape:
             raise ValueError(f"actions of shape {actions.shape}, expected {self._actions.shape} (agents, actions)")
         self._actions[:] = actions
-        m = self.metrics
         self._touch(
             self.grid,
             self.arena_of,
@@ -362,17 +361,7 @@ class World:
             self.kind,
             self.training,
             self.tick,
-            self.last_patch,
-            self.events,
-            self.eaten,
-            m.collisions,
-            m.collisions_by_colour,
-            m.food,
-            m.distance,
-            m.last_collision,
-            m.last_noxious,
-            m.learned_at,
-            self._bin,
+            *self.touch_arrays,
         )
         self._act(
             self.grid.shape[1],
@@ -387,6 +376,24 @@ class World:
             self.metrics.resets,
         )
         self.advance(1)
+
+    @property
+    def touch_arrays(self) -> tuple[np.ndarray, ...]:
+        """What touching a patch writes, per agent: touch_kernel's arguments after `t`, in its order."""
+        m = self.metrics
+        return (
+            self.last_patch,
+            self.events,
+            self.eaten,
+            m.collisions,
+            m.collisions_by_colour,
+            m.food,
+            m.distance,
+            m.last_collision,
+            m.last_noxious,
+            m.learned_at,
+            self._bin,
+        )
 
     @property
     def bin_collisions(self) -> np.ndarray:

@@ -12,7 +12,7 @@ from services.bus.schemas import Array, Motor, encode
 from services.ev3_gateway.fake_brick import BEACON_PORT, FakeBrick
 from services.vocabulary import INSECT_ACTIONS
 
-from ..processes import Watcher, endpoint, finish, start, wait_for
+from ..processes import Watcher, connecting, endpoint, finish, start, wait_for
 from ..recordings import read
 from ..sockets import listeners
 
@@ -21,14 +21,7 @@ def test_robot_chain_senses_moves_survives_a_lost_link_and_stops_without_a_brain
     gateway_ep, brain_ep = endpoint(tmp_path, "gateway"), endpoint(tmp_path, "brain")
     with FakeBrick() as brick:
         recorder = start(
-            "record",
-            "--connect",
-            gateway_ep,
-            "--connect",
-            brain_ep,
-            "--out",
-            tmp_path / "robot.rrd",
-            log=tmp_path / "recorder.log",
+            "record", *connecting(gateway_ep, brain_ep), "--out", tmp_path / "robot.rrd", log=tmp_path / "recorder.log"
         )
         gateway = start(
             "gateway", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json", log=tmp_path / "gateway.log"

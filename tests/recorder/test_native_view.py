@@ -10,12 +10,11 @@ import os
 import shutil
 import signal
 import subprocess
-import sys
 import time
 
 import psutil
 
-from ..processes import ROOT, running_with, wait_for_ticks
+from ..processes import live_run, running_with, wait_for_ticks
 
 
 def free_display() -> int:
@@ -51,33 +50,8 @@ def test_run_view_opens_the_rerun_viewer_on_a_display(tmp_path):
             assert screen.poll() is None, "Xvfb did not start"
             time.sleep(0.1)
         env = {**os.environ, "DISPLAY": f":{display}"}
-        run = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "spikinglab",
-                "run",
-                "--view",
-                "--ticks",
-                "400000",
-                "--quiet",
-                "--runs",
-                str(tmp_path),
-                "--id",
-                "native",
-            ],
-            cwd=ROOT,
-            env=env,
-            stderr=subprocess.PIPE,
-            stdout=subprocess.DEVNULL,
-            text=True,
-        )
-        assert run.stderr is not None  # stderr=PIPE
+        run, said = live_run(tmp_path, "native", env)
         try:
-            while "live view" not in said:
-                line = run.stderr.readline()
-                assert line, f"the run ended without a live view:\n{said}"
-                said += line
             assert "the Rerun viewer shows rerun+http://127.0.0.1:" in said, said
             source = said.split("viewer shows ", 1)[1].split()[0]
             port = int(source.split(":")[2].split("/")[0])

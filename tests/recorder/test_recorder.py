@@ -17,7 +17,7 @@ from services.bus.batching import state_batch
 from services.loop import brain_for, closed_loop
 from services.world.world import SENSORS, World, generate_map, params_for
 
-from ..processes import ROOT, Watcher, endpoint, finish, start, ticks_in, wait_for
+from ..processes import ROOT, Watcher, connecting, endpoint, finish, start, ticks_in, wait_for
 from ..recordings import read
 
 TICKS, SEED = 3000, 3
@@ -148,10 +148,7 @@ def test_a_killed_recorder_leaves_a_readable_file(tmp_path):
     world_ep, brain_ep = endpoint(tmp_path, "world"), endpoint(tmp_path, "brain")
     recorder = start(
         "record",
-        "--connect",
-        world_ep,
-        "--connect",
-        brain_ep,
+        *connecting(world_ep, brain_ep),
         "--out",
         tmp_path / "rec.rrd",
         "--flush-every",
@@ -191,14 +188,7 @@ def test_a_late_recorder_says_from_which_tick_it_has_data(tmp_path):
     try:
         wait_for(lambda: len(ticks_in(early.messages[keys.world_state("insect")])) > 1500, 60, "the run to get going")
         recorder = start(
-            "record",
-            "--connect",
-            world_ep,
-            "--connect",
-            brain_ep,
-            "--out",
-            tmp_path / "late.rrd",
-            log=tmp_path / "recorder.log",
+            "record", *connecting(world_ep, brain_ep), "--out", tmp_path / "late.rrd", log=tmp_path / "recorder.log"
         )
         assert finish(world, 120, tmp_path / "world.log") == 0
         assert finish(recorder, 60, tmp_path / "recorder.log") == 0
@@ -224,10 +214,7 @@ def test_each_run_gets_its_own_recording(tmp_path):
     world_ep, brain_ep = endpoint(tmp_path, "world"), endpoint(tmp_path, "brain")
     recorder = start(
         "record",
-        "--connect",
-        world_ep,
-        "--connect",
-        brain_ep,
+        *connecting(world_ep, brain_ep),
         "--out",
         tmp_path / "rec.rrd",
         "--forever",

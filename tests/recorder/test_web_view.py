@@ -7,8 +7,6 @@ import io
 import os
 import shutil
 import signal
-import subprocess
-import sys
 import time
 
 import numpy as np
@@ -17,7 +15,7 @@ from playwright.sync_api import sync_playwright
 
 from services.recorder.recorder import PATCH_COLOURS
 
-from ..processes import ROOT, running_with
+from ..processes import live_run, running_with
 
 CHROMIUM_ARGS = ["--no-sandbox", "--enable-unsafe-swiftshader", "--use-angle=swiftshader"]  # software WebGL
 
@@ -31,34 +29,8 @@ def test_run_view_serves_a_web_viewer_that_renders_the_run(tmp_path):
     chromium = shutil.which("chromium")
     assert chromium, "Debian's chromium is needed (scripts/test.sh installs it: apt-get install chromium)"
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    run = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "spikinglab",
-            "run",
-            "--view",
-            "--ticks",
-            "400000",
-            "--quiet",
-            "--runs",
-            str(tmp_path),
-            "--id",
-            "live",
-        ],
-        cwd=ROOT,
-        env=env,
-        stderr=subprocess.PIPE,
-        stdout=subprocess.DEVNULL,
-        text=True,
-    )
-    assert run.stderr is not None  # stderr=PIPE
+    run, said = live_run(tmp_path, "live", env)
     try:
-        said = ""
-        while "live view" not in said:
-            line = run.stderr.readline()
-            assert line, f"the run ended without a live view:\n{said}"
-            said += line
         url = said.split("open ", 1)[1].split()[0]
         assert url.startswith("http://127.0.0.1:")
         colours = {name: rgb for _, name, rgb in PATCH_COLOURS if name in ("wall", "predator", "food")}
