@@ -11,6 +11,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+# services.launch.spawn sets it in a process it starts: the starter's pid (services.runtime.end_with_parent)
+PARENT = "SPIKINGLAB_PARENT"
+
 
 @dataclass(frozen=True)
 class Command:

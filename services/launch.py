@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
-from services.commands import ENDLESS, SERVICES
+from services.commands import ENDLESS, PARENT, SERVICES
 from services.options import Parser, UsageError
 from services.params import file_for_agents
 
@@ -115,10 +115,11 @@ def spawn(
 ) -> subprocess.Popen:
     """`python -m <service's module> argv` in a session of its own: Ctrl-C in the terminal reaches
     only the launcher, which ends the services in order (the world first, so that it writes the
-    ticks done). Output (stdout and stderr) goes to the file `output`, to the terminal as it is
-    (None), or to subprocess.PIPE / DEVNULL. `env`: variables set for this process only."""
+    ticks done). It ends when this process dies (services.runtime.end_with_parent). Output (stdout
+    and stderr) goes to the file `output`, to the terminal as it is (None), or to subprocess.PIPE /
+    DEVNULL. `env`: variables set for this process only."""
     command = [sys.executable, "-m", SERVICES.get(service, service), *map(str, argv)]
-    env = dict(os.environ, PYTHONUNBUFFERED="1", **(env or {}))
+    env = dict(os.environ, PYTHONUNBUFFERED="1", **{PARENT: str(os.getpid())}, **(env or {}))
     if isinstance(output, Path):
         with open(output, "a") as out:  # closed here once started: the child has its own copy
             return subprocess.Popen(

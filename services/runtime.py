@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import _thread
 import argparse
+import ctypes
 import logging
 import os
 import signal
@@ -12,6 +13,7 @@ import sys
 import threading
 
 from services.bus.config import BusConfigError, open_session
+from services.commands import PARENT
 from services.options import config_from
 
 log = logging.getLogger("spikinglab")
@@ -45,6 +47,21 @@ def thread_died() -> bool:
     return _thread_died.is_set()
 
 
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def end_with_parent() -> None:
+    """A process that spawn() started ends, as on SIGTERM, when the one that started it dies, even
+    by SIGKILL: no service runs on without its launcher, run or test (Linux's parent-death signal;
+    elsewhere nothing changes). Its own children are watched by it, not by its parent."""
+    parent = os.environ.pop(PARENT, None)
+    if parent is None or not sys.platform.startswith("linux"):
+        return
+    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    if os.getppid() != int(parent):  # it died before the signal was asked for
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
 def process_main(name: str, parser: argparse.ArgumentParser, run, argv=None, interrupted: int = 130) -> int:
     """The common start of a process: logging, its options, SIGTERM handled like Ctrl-C (the
     process saves, flushes or reports on its way out), a dead thread ends it; then run(args).
@@ -62,6 +79,7 @@ def process_main(name: str, parser: argparse.ArgumentParser, run, argv=None, int
     signal.signal(signal.SIGTERM, signal.default_int_handler)
     guard_threads()
     try:
+        end_with_parent()
         code = run(args)
     except KeyboardInterrupt:
         code = interrupted

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import subprocess
@@ -117,6 +118,34 @@ def test_a_service_that_dies_ends_the_launch_and_is_named(tmp_path):
     assert not running_with(str(tmp_path))
 
 
+def test_a_service_ends_when_what_started_it_is_killed(tmp_path):
+    """kill -9 of a launcher (or of a run, or a test) leaves no service running on without it."""
+    (router_ep,), folder = local_endpoints("router")
+    starter = subprocess.Popen(
+        [sys.executable, "-c", STARTER, router_ep, str(tmp_path / "router.log")], stdout=subprocess.PIPE, text=True
+    )
+    started = [psutil.Process(starter.pid)]
+    try:
+        assert starter.stdout is not None  # stdout=PIPE
+        started.append(router := psutil.Process(int(starter.stdout.readline())))
+        wait_for(lambda: "router" in (tmp_path / "router.log").read_text(), 60, "the router to start")
+        starter.kill()
+        starter.wait()
+        router.wait(timeout=10)  # raises psutil.TimeoutExpired while it runs on
+    finally:
+        for process in started:
+            with contextlib.suppress(psutil.NoSuchProcess):
+                process.kill()
+        folder.cleanup()
+
+
+STARTER = """import sys, time
+from pathlib import Path
+from services.launch import spawn
+print(spawn("router", ["--listen", sys.argv[1]], Path(sys.argv[2])).pid, flush=True)
+time.sleep(600)
+"""
+
 CTRL_C_S = 10  # every launch ends within 3 s of Ctrl-C; this bound leaves room for a loaded
 # machine and still catches a service that the launcher has to kill after its 30 s
 
@@ -143,7 +172,9 @@ def test_ctrl_c_ends_every_service_of_a_launch_file_at_once(tmp_path, name):
             _, err = run.communicate(timeout=60)
             ended_s = time.monotonic() - interrupted_at
         finally:
-            run.kill()
+            for process in reversed(process_tree(run.pid)):  # on a failure too: nothing left running
+                with contextlib.suppress(psutil.NoSuchProcess):
+                    process.kill()
     print(f"{name}: {len(services)} services ended {ended_s:.2f} s after Ctrl-C")
     assert run.returncode == 130, log.read_text() + err
     assert ended_s < CTRL_C_S, log.read_text() + err
