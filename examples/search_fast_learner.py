@@ -80,20 +80,20 @@ START = INSECT | {
 # the search's result (docs/results.md has its command), which services/brain/circuits/fast_learner.toml
 # holds (tests/test_fast_learner.py checks); the report's ablation reverts each change alone
 FOUND = {
-    "a_plus": 0.2881,
-    "a_minus": 0.2072,
-    "tau_plus": 4.172,
-    "tau_minus": 16.67,
-    "w_max": 21.6,
-    "threshold": -55.71,
-    "initial_weight": 4.917,
+    "a_plus": 0.3682,
+    "a_minus": 0.5188,
+    "tau_plus": 3.677,
+    "tau_minus": 7.135,
+    "w_max": 20.45,
+    "threshold": -58.48,
+    "initial_weight": 6.681,
     "plastic_delay": 3.0,
-    "input_weight": 18.83,
-    "pain_rotate": 9.362,
-    "reward_move": 16.62,
-    "pain_inhibits_reward": 29.07,
-    "reward_inhibits_pain": 12.4,
-    "h1_reward": 3.36,
+    "input_weight": 17.28,
+    "pain_rotate": 19.02,
+    "reward_move": 16.75,
+    "pain_inhibits_reward": 15.95,
+    "reward_inhibits_pain": 5.476,
+    "h1_reward": 3.344,
 }
 
 

@@ -11,7 +11,7 @@ import numpy as np
 from services.brain.circuit import load_circuit
 from spikinglab import evaluate
 
-SEED = 30  # a held-out seed (0-31; the search used 1000-1047 and 2000-2047): fast_learner learns at 2,777
+SEED = 2  # a held-out seed (0-31; the search used 1000-1047 and 2000-2047): fast_learner learns at 2,095
 TICKS = 10_000  # room for the learning time and the 5,000 collision-free ticks after it
 
 
