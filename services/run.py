@@ -34,7 +34,7 @@ from services.brain.engine_options import add_engine_args, brain_params
 from services.launch import STOP_S, Launcher, Process, local_endpoints, options_for
 from services.options import Parser, agent_list, at_least, config_from, positive
 from services.run_folder import KEPT_PARAMS, RunFolderError, failed, started_with, take
-from services.run_report import learning_rate, plot, plot_trajectory, recording_status, report, summarise
+from services.run_report import learning_rate, plot, plot_trajectory, rates_text, recording_status, report, summarise
 from services.world.options import WorldOptions, add_world_args, world_from
 from services.world.world import BIN, SENSORS, MapError
 
@@ -243,12 +243,12 @@ class RunProcesses:
 
 def announce(args: argparse.Namespace, circuit: Circuit, columns: dict, run_id: str, resume_at: int | None) -> None:
     log.info(
-        "run %s: %d ticks, seed %d, %d agent(s), A+ = A- = %s, world %s%s%s, %s semantics%s",
+        "run %s: %d ticks, seed %d, %d agent(s), %s, world %s%s%s, %s semantics%s",
         run_id,
         args.ticks,
         args.seed,
         args.agents,
-        learning_rate(circuit),
+        rates_text({which: learning_rate(circuit, which) for which in ("a_plus", "a_minus")}),
         args.preset,
         f", map {args.map}" if args.map else "",
         f", per-agent parameters {', '.join(columns)} from {args.params}" if columns else "",

@@ -124,10 +124,16 @@ def recording_status(code: int | None, path: Path) -> dict:
     return status
 
 
+def rates_text(parameters: dict) -> str:
+    """The learning rates as a title says them: "A+ = A- = 0.02", or each where they differ."""
+    a_plus, a_minus = parameters["a_plus"], parameters["a_minus"]
+    return f"A+ = A- = {a_plus}" if a_plus == a_minus else f"A+ = {a_plus}, A- = {a_minus}"
+
+
 def paper_time(parameters: dict) -> int | None:
     """The paper's Table 1 learning time for the run's A (none when the learning neurons' rates differ)."""
     a_plus = parameters["a_plus"]
-    return PAPER.get(a_plus) if isinstance(a_plus, float) else None
+    return PAPER.get(a_plus) if isinstance(a_plus, float) and a_plus == parameters["a_minus"] else None
 
 
 def plot(folder: Path, summary: dict) -> None:
@@ -163,7 +169,7 @@ def plot(folder: Path, summary: dict) -> None:
     ax.set(
         xlabel="tick",
         ylabel="collision events per 1,000 ticks",
-        title=f"Insect learning to avoid walls and predators (A+ = A- = {p['a_plus']}, seed {p['seed']})",
+        title=f"Insect learning to avoid walls and predators ({rates_text(p)}, seed {p['seed']})",
     )
     ax.grid(alpha=0.3)
     ax.legend(loc="upper right")
@@ -207,7 +213,7 @@ def plot_trajectory(folder: Path, summary: dict) -> None:
             ax.plot(piece[:, 0], piece[:, 1], color="tab:blue", lw=1)
         ax.set(title=title, xticks=[], yticks=[])
     p = summary["parameters"]
-    fig.suptitle(f"The insect's path (seed {p['seed']}, A+ = A- = {p['a_plus']}, {p['semantics']} semantics)")
+    fig.suptitle(f"The insect's path (seed {p['seed']}, {rates_text(p)}, {p['semantics']} semantics)")
     fig.tight_layout()
     fig.savefig(folder / "trajectory.png")
     plt.close(fig)
@@ -248,7 +254,7 @@ def report(folder: Path, summary: dict) -> None:
         f"learned: {head['learned']}"
         f" (criterion: {p['learned_after']:,} ticks off noxious patches); learning time: "
         + ", ".join("not reached" if t is None else f"tick {t:,}" for t in times[:8])
-        + (f" (paper, A+ = A- = {p['a_plus']}: {paper:,}; docs/results.md compares)" if paper else "")
+        + (f" (paper, {rates_text(p)}: {paper:,}; docs/results.md compares)" if paper else "")
     )
     print("weights:", ", ".join(f"{k} {v:.2f}" for k, v in mean.items()))
     # the first part first: recording.rrd, then recording-from-tickN.rrd by N

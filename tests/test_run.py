@@ -12,6 +12,7 @@ import numpy as np
 from services.brain.checkpoint import load_weights
 from services.brain.circuit import load_circuit
 from services.bus.batching import state_batch
+from services.run_report import learning_rate, paper_time, rates_text
 
 from .processes import ROOT, running_with, wait_for_ticks
 
@@ -249,3 +250,12 @@ def test_the_replay_line_names_a_viewer_that_exists_from_any_folder(tmp_path, mo
     monkeypatch.chdir(tmp_path)  # a user who runs spikinglab outside the checkout (it printed .venv/bin/rerun)
     shown = viewer_shown()
     assert os.path.isfile(shown) and os.access(shown, os.X_OK), shown
+
+
+def test_a_circuit_whose_rates_differ_is_named_with_both_and_not_given_the_papers_time():
+    circuit = load_circuit("fast_learner")  # a searched circuit: A+ and A- differ
+    rates = {which: learning_rate(circuit, which) for which in ("a_plus", "a_minus")}
+    assert rates_text(rates) == f"A+ = {rates['a_plus']}, A- = {rates['a_minus']}" != "A+ = A- = 0.02"
+    assert rates_text({"a_plus": 0.02, "a_minus": 0.02}) == "A+ = A- = 0.02"
+    assert paper_time({"a_plus": 0.04, "a_minus": 0.04}) == 7_000
+    assert paper_time({"a_plus": 0.04, "a_minus": 0.05}) is None  # Table 1 sets both to one A
