@@ -61,6 +61,7 @@ def fused_loop_cuda(world: World, brain: Brain, ticks: int, stretch: int = STRET
     """`ticks` ticks of services.loop.fused_loop on the device: world and brain end as the CPU
     path leaves them (state, metrics, collision bins). Either semantics; an arena per insect."""
     from numba import cuda
+    from numba.core import config
 
     from services.gpu_kernels import fused_kernel
 
@@ -72,7 +73,10 @@ def fused_loop_cuda(world: World, brain: Brain, ticks: int, stretch: int = STRET
     bins[0] = world.bin_collisions
     host = _arguments(world, brain, bins)
     dev = [cuda.to_device(x) for x in host]
-    threads = min(THREADS, agents)
+    # numba's simulator runs a block's threads as Python threads that swap each device function's
+    # module globals unlocked ("dictionary changed size during iteration", seen in a test run;
+    # NVIDIA/numba-cuda#690): there, one thread a block, the blocks in turn. Same result.
+    threads = 1 if config.ENABLE_CUDASIM else min(THREADS, agents)  # pyright: ignore[reportAttributeAccessIssue]
     tb0, blocks = int(brain.engine.state.clock[TICK]), (agents + threads - 1) // threads
     with warnings.catch_warnings():  # the simulator's numpy scalars warn where the order's uint64 hash wraps
         warnings.filterwarnings("ignore", "overflow encountered", RuntimeWarning)

@@ -109,6 +109,9 @@ def service_main(
             session = open_session(args, mode)
         except BusConfigError as e:
             raise SystemExit(str(e)) from None
-        return run(settings, session)
+        try:
+            return run(settings, session)
+        finally:  # on every way out (a refusal too): Zenoh's threads still calling into Python as
+            session.close()  # it finalises make glibc abort the process ("exception not rethrown")
 
     return process_main(name, parser, on_the_bus, argv, interrupted)

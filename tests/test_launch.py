@@ -161,7 +161,7 @@ def test_ctrl_c_ends_every_service_of_a_launch_file_at_once(tmp_path, name):
             [sys.executable, "-m", "spikinglab", "certs", "certs"], cwd=tmp_path, capture_output=True, text=True
         )
         assert made.returncode == 0, made.stderr
-    log = tmp_path / "launch.log"
+    log, services = tmp_path / "launch.log", []
     with open(log, "w") as out:
         run = launch(tmp_path, launch_file(name, tmp_path, **{"ticks = 20000": "ticks = 5000000"}), stdout=out)
         try:
@@ -171,14 +171,14 @@ def test_ctrl_c_ends_every_service_of_a_launch_file_at_once(tmp_path, name):
             run.send_signal(signal.SIGINT)
             _, err = run.communicate(timeout=60)
             ended_s = time.monotonic() - interrupted_at
+            left = [p.cmdline() for p in services if p.is_running() and p.status() != psutil.STATUS_ZOMBIE]
         finally:
-            for process in reversed(process_tree(run.pid)):  # on a failure too: nothing left running
+            for process in [*process_tree(run.pid), *services]:  # on a failure too: nothing left running
                 with contextlib.suppress(psutil.NoSuchProcess):
                     process.kill()
     print(f"{name}: {len(services)} services ended {ended_s:.2f} s after Ctrl-C")
     assert run.returncode == 130, log.read_text() + err
     assert ended_s < CTRL_C_S, log.read_text() + err
-    left = [p.cmdline() for p in services if p.is_running() and p.status() != psutil.STATUS_ZOMBIE]
     assert len(services) == len(tomllib.loads(shipped()[name].read_text()).keys() - {"launch"}) and not left, left
     if name == "simulation":
         metrics = json.loads((tmp_path / "runs" / "launch-simulation" / "metrics.json").read_text())

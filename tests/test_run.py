@@ -202,7 +202,7 @@ def test_a_run_stopped_in_its_first_thousand_ticks_still_plots(tmp_path):
     summary = {
         "collisions_per_1000_ticks": [[]],
         "learning_time": [None],
-        "parameters": {"a_plus": 0.02, "seed": 0, "learned_after": 5000},
+        "parameters": {"a_plus": 0.02, "a_minus": 0.02, "seed": 0, "learned_after": 5000},
     }
     plot(tmp_path, summary)  # no finished bin yet: an empty plot, not a traceback after Ctrl-C
     assert (tmp_path / "collisions.png").stat().st_size > 0
