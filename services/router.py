@@ -34,11 +34,8 @@ def listen_by_default(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace, session: zenoh.Session) -> int:
     """Route until Ctrl-C or SIGTERM."""
     log.info("router %s listening on %s", session.zid(), ", ".join(args.listen))
-    try:
-        while True:
-            time.sleep(1)
-    finally:
-        session.close()
+    while True:  # service_main closes the session on the way out
+        time.sleep(1)
 
 
 def main(argv=None) -> int:

@@ -13,6 +13,7 @@ import sys
 import threading
 
 from services.bus.config import BusConfigError, open_session
+from services.bus.transport import close_session
 from services.commands import PARENT
 from services.options import config_from
 
@@ -112,6 +113,6 @@ def service_main(
         try:
             return run(settings, session)
         finally:  # on every way out (a refusal too): Zenoh's threads still calling into Python as
-            session.close()  # it finalises make glibc abort the process ("exception not rethrown")
+            close_session(session)  # it finalises make glibc abort the process ("exception not rethrown")
 
     return process_main(name, parser, on_the_bus, argv, interrupted)

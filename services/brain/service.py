@@ -167,7 +167,6 @@ def run(config: BrainConfig, session) -> int:
             f", shard {config.shard[0]} of {config.shard[1]}" if config.shard[1] > 1 else "",
             keys.alive(group, service),
         )
-        session.close()
         return 1
     bus = Bus(session, group, service)
     try:

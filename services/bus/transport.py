@@ -253,6 +253,17 @@ class Presence:
         self._sub.undeclare()
 
 
+def close_session(session: zenoh.Session) -> None:
+    """Close a session, once. A peer that no longer answers (a frozen process) is said, not raised:
+    the work is done."""
+    if session.is_closed():
+        return
+    try:
+        session.close()
+    except zenoh.ZError as e:
+        log.warning("the bus session did not close cleanly (%s): a peer does not answer", str(e).split(" at /")[0])
+
+
 class Bus:
     """One service's place on the bus: its session, its liveliness token, its inboxes and outboxes."""
 
@@ -308,10 +319,7 @@ class Bus:
             except Exception:  # already gone with the session: nothing left to release
                 pass
         self._token.undeclare()
-        try:
-            self.session.close()
-        except zenoh.ZError as e:  # a peer that no longer answers (a frozen process): the work is done, say so
-            log.warning("the bus session did not close cleanly (%s): a peer does not answer", str(e).split(" at /")[0])
+        close_session(self.session)
 
 
 def wait_for_subscriber(outbox: Outbox, what: str, presence: Presence | None = None, every: float = 5.0) -> None:
