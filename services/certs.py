@@ -208,47 +208,34 @@ def access_control() -> dict:
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
-def router_config(folder: Path) -> dict:
-    return {
-        "mode": "router",
+def zenoh_config(folder: Path, role: str) -> dict:
+    """`role`'s Zenoh config: the router listens, every other role connects to it as a client,
+    each with its own certificate over mutual TLS; the router holds the access-control rules."""
+    side = "listen" if role == "router" else "connect"
+    config = {
+        "mode": "router" if role == "router" else "client",
         "scouting": {"multicast": {"enabled": False}},
         "transport": {
             "link": {
                 "tls": {
                     "root_ca_certificate": str(folder / "ca.pem"),
-                    "listen_certificate": str(folder / "router.pem"),
-                    "listen_private_key": str(folder / "router.key"),
-                    "enable_mtls": True,
-                }
-            }
-        },
-        "adminspace": {"enabled": False},  # and the rules deny it to every role, should it be turned on
-        "access_control": access_control(),
-    }
-
-
-def client_config(folder: Path, role: str) -> dict:
-    return {
-        "mode": "client",
-        "scouting": {"multicast": {"enabled": False}},
-        "transport": {
-            "link": {
-                "tls": {
-                    "root_ca_certificate": str(folder / "ca.pem"),
-                    "connect_certificate": str(folder / f"{role}.pem"),
-                    "connect_private_key": str(folder / f"{role}.key"),
+                    f"{side}_certificate": str(folder / f"{role}.pem"),
+                    f"{side}_private_key": str(folder / f"{role}.key"),
                     "enable_mtls": True,
                 }
             }
         },
     }
+    if role == "router":
+        config["adminspace"] = {"enabled": False}  # and the rules deny it to every role, should it be turned on
+        config["access_control"] = access_control()
+    return config
 
 
 def write_configs(folder: Path) -> None:
     header = "// written by `spikinglab certs`; docs/security.md says what it allows\n"
     for role in PUTS:
-        config = router_config(folder) if role == "router" else client_config(folder, role)
-        (folder / f"{role}.json5").write_text(header + json.dumps(config, indent=2) + "\n")
+        (folder / f"{role}.json5").write_text(header + json.dumps(zenoh_config(folder, role), indent=2) + "\n")
 
 
 def parser() -> Parser:
