@@ -24,6 +24,21 @@ def chain(order, delay, weight=20):
     )
 
 
+def converging(a_plus):
+    """U and C onto M, delay 1 each: U's pulse (weight 20) makes M fire, C's (weight 5) is plastic,
+    learning at `a_plus` (NetLogo's dt = 0 case when both fire at once)."""
+    return build_circuit(
+        {
+            "neurons": {"U": "regular", "M": "regular", "C": "regular"},
+            "inputs": {"u_in": {"target": "U"}, "c_in": {"target": "C"}},
+            "synapses": [
+                {"from": "U", "to": "M", "weight": 20, "delay": 1},
+                {"from": "C", "to": "M", "weight": 5, "delay": 1, "plastic": True},
+            ],
+        }
+    ).with_learning_rate(a_plus)
+
+
 @pytest.mark.parametrize("delay", [1, 2, 3, 5])
 def test_a_pulse_arrives_after_d_minus_1_or_d_ticks_by_the_order(delay):
     # A fires at tick 0; its pulse is counted down from d in that tick and delivered at 0, in A's
@@ -76,15 +91,7 @@ def test_an_arrival_just_after_the_post_spike_potentiates_at_every_later_arrival
     # that arrival in M's history and applies the rule to it again at C's next arrival (tick 10),
     # which itself depresses once: w = 5 + A+ + A+ - A- exp(-10 / tau-).
     a = 0.05
-    doc = {
-        "neurons": {"U": "regular", "M": "regular", "C": "regular"},
-        "inputs": {"u_in": {"target": "U"}, "c_in": {"target": "C"}},
-        "synapses": [
-            {"from": "U", "to": "M", "weight": 20, "delay": 1},
-            {"from": "C", "to": "M", "weight": 5, "delay": 1, "plastic": True},
-        ],
-    }
-    c = build_circuit(doc).with_learning_rate(a)
+    c = converging(a)
     e = Engine(c, semantics="netlogo", order="file")
     spikes = run_with_events(e, 11, {0: {"u_in": 0, "c_in": 0}, 10: {"c_in": 0}})
     assert spikes["M"] == [0] and spikes["C"] == [0, 10]
@@ -137,15 +144,7 @@ def test_each_rule_switched_off_alone():
     e = Engine(build_circuit(doc), semantics="netlogo", order="file", without=("reopen",))
     assert run_with_events(e, 10, {0: {"b_in": 0}, 2: {"c_in": 0}})["B"] == [0]
     # dt = 0: the arrival potentiates once, at its own arrival
-    doc = {
-        "neurons": {"U": "regular", "M": "regular", "C": "regular"},
-        "inputs": {"u_in": {"target": "U"}, "c_in": {"target": "C"}},
-        "synapses": [
-            {"from": "U", "to": "M", "weight": 20, "delay": 1},
-            {"from": "C", "to": "M", "weight": 5, "delay": 1, "plastic": True},
-        ],
-    }
-    c = build_circuit(doc).with_learning_rate(0.05)
+    c = converging(0.05)
     e = Engine(c, semantics="netlogo", order="file", without=("dt0",))
     run_with_events(e, 11, {0: {"u_in": 0, "c_in": 0}, 10: {"c_in": 0}})
     assert e.w[0, c.synapse_index("C", "M")] == pytest.approx(5 + 0.05 - 0.05 * math.exp(-10 / 18), abs=1e-12)
