@@ -21,9 +21,10 @@ import numpy as np
 
 from services.vocabulary import EVENT_COLUMNS
 
-VERSION = 6  # 2: brain and world states come in batches of consecutive ticks; 3: no training switch on the bus;
+VERSION = 7  # 2: brain and world states come in batches of consecutive ticks; 3: no training switch on the bus;
 # 4: sensors, motor and control name the run they belong to; 5: motor names the reading it answers, the states
-# name their run; 6: sensors say when the world keeps a checkpoint
+# name their run; 6: sensors say when the world keeps a checkpoint; 7: a world shard's state and map say which
+# slice of the population they hold
 _MAX_ELEMENTS = 1 << 26
 _ITEMSIZE = {"<f8": 8, "<f4": 4, "<i8": 8, "|u1": 1}  # the dtypes messages carry
 
@@ -85,6 +86,7 @@ def new_run_id() -> str:
 Tick = Annotated[int, msgspec.Meta(ge=0, lt=2**62)]  # a run's ticks; rerun and numpy take them as int64
 Coordinate = Annotated[int, msgspec.Meta(ge=-(2**31), lt=2**31)]
 AgentIndex = Annotated[int, msgspec.Meta(ge=0, lt=2**31)]
+Population = Annotated[int, msgspec.Meta(ge=0, lt=2**31)]  # a world shard's population; 0: the world is whole
 SENSED_MAX = 2.0**31  # a sensor value is a number of ticks for the input neuron to wait (int32 counters)
 
 
@@ -206,10 +208,13 @@ class WorldState(Message, tag="world_state", frozen=True, kw_only=True):
     food: Array
     changes: Array
     final: bool = False
+    first: AgentIndex = 0  # a world shard's: the population's index of its first agent (its arena 0)
+    population: Population = 0  # a world shard's: the agents of the whole population; 0: this world is whole
 
     def check(self):
         self.changes.numpy("changes", "<i8", 2)
         shape = self.pos.numpy("pos", "<f8", 3).shape[:2]
+        check_slice(self.first, shape[1], self.population, "agents")
         if self.sensors.numpy("sensors", "<f8", 3).shape != (*shape, len(self.sensor_names)):
             raise BusError(
                 f"sensors have shape {list(self.sensors.shape)} for {list(shape)} ticks x agents and "
@@ -240,10 +245,21 @@ class WorldMap(Message, tag="world_map", frozen=True, kw_only=True):
     grid: Array
     x_min: Coordinate
     y_min: Coordinate
+    first: AgentIndex = 0  # a world shard's: the population's index of its first agent, whose arena is its 0
+    population: Population = 0  # a world shard's: the agents (and arenas) of the whole population; 0: whole
 
     def check(self):
         if 0 in self.grid.numpy("grid", "|u1", 3).shape:
             raise BusError(f"grid of shape {list(self.grid.shape)}: no arena")
+        check_slice(self.first, self.grid.shape[0], self.population, "arenas")
+
+
+def check_slice(first: int, agents: int, population: int, what: str) -> None:
+    """BusError unless a world shard's `agents` from `first` lie in its population (a whole world: first 0)."""
+    if population == 0 and first != 0:
+        raise BusError(f"first agent {first} in a whole world (population 0)")
+    if population and first + agents > population:
+        raise BusError(f"{what} {first}..{first + agents - 1} outside the population of {population}")
 
 
 KINDS = (Sensors, Motor, Control, BrainState, BrainLayout, WorldState, WorldMap)

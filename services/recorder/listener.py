@@ -92,7 +92,9 @@ class Listener:
         try:
             self.recorder.on(message)
             self.heard_at = time.monotonic()
-            if getattr(message, "final", False) and not self.forever and self.ending is None:
+            # a world shard's final batch is not the world's: the recorder's join of them says when that came
+            done = self.recorder.world_done or self.recorder.brain_done
+            if done and not self.forever and self.ending is None:
                 self.ending = time.monotonic() + END_GRACE
         except BusError as e:  # it does not fit the recording: refused whole, counted
             if (

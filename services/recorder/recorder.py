@@ -29,6 +29,8 @@ from services.bus.schemas import RUN_ID, BrainLayout, BrainState, BusError, Worl
 from services.vocabulary import BLACK, EMPTY, EV_LEARNED, GREEN, RED
 from services.world.world import BIN, COLOURS, JUMP, WorldParams
 
+from .shards import ShardJoin
+
 PATCH_COLOURS = [
     (EMPTY, "floor", (24, 24, 28)),
     (BLACK, "wall", (215, 215, 215)),
@@ -103,6 +105,7 @@ class Recorder:
         self._last_pose = None  # (tick, pos [A, 2], heading [A]) after the last tick of the world's last batch
         self.missing: dict[str, int] = {}  # "world" / "brain" -> ticks of its state that never came
         self._next_tick: dict[str, int] = {}  # the tick each state stream's next batch should start at
+        self.shards = ShardJoin()  # a sharded world's slices, joined into the population's state and map
         self._reset_buffers()
         rec.log("/world/map", rr.AnnotationContext([(c, name, rgb) for c, name, rgb in PATCH_COLOURS]), static=True)
         rec.log(
@@ -136,10 +139,7 @@ class Recorder:
         def refuse(why):
             raise BusError(f"does not fit the recording: {why}")
 
-        if self.run is None and not isinstance(message, (WorldMap, BrainLayout)) and not RUN_ID.fullmatch(message.run):
-            refuse(f"a {type(message).__name__} of no run the services name, before the run's map or brain layout")
-        if self.run is not None and message.run != self.run:
-            raise BusError(f"another run: {message.run!r}, the recording's is {self.run!r}")
+        self.fits_run(message)
         if isinstance(message, WorldState):
             agents, changes = message.pos.shape[1], message.changes.numpy("changes", "<i8", 2)
             if self.agents and agents != self.agents:
@@ -181,7 +181,24 @@ class Recorder:
             if message != self.first_map:
                 refuse("a second map during the run, not the one it began on")
 
+    def fits_run(self, message) -> None:
+        """BusError unless `message` is of the run recorded (or may start it)."""
+        if self.run is None and not isinstance(message, (WorldMap, BrainLayout)) and not RUN_ID.fullmatch(message.run):
+            raise BusError(
+                f"does not fit the recording: a {type(message).__name__} of no run the services name, before "
+                "the run's map or brain layout"
+            )
+        if self.run is not None and message.run != self.run:
+            raise BusError(f"another run: {message.run!r}, the recording's is {self.run!r}")
+
     def on(self, message) -> None:
+        if isinstance(message, (WorldMap, WorldState)) and message.population:  # a world shard's slice
+            self.fits_run(message)
+            joined = self.shards.take(message)  # the population's, once every shard's has come
+            self.run = message.run
+            for whole in joined:
+                self.on(whole)
+            return
         self.fits(message)
         if self.run is None:  # the run of the first map or layout: the services send those first
             self.run = message.run

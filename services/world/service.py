@@ -99,13 +99,6 @@ def run(config: WorldConfig, session) -> int:
     if config.shard[1] > 1 and config.checkpoint:
         log.error("--shard %d/%d: a sharded world keeps no checkpoints: drop --checkpoint", *config.shard)
         return 2
-    if config.shard[0] > 1 and config.publish_state:
-        log.error(
-            "--shard %d/%d: only world shard 1 publishes its state, the population's first insects (the "
-            "recorder takes one world's): drop --publish-state",
-            *config.shard,
-        )
-        return 2
     try:
         world = world_from(config.world, config.shards, config.shard)
         trajectory = Trajectory(world, config.world.ticks)
@@ -140,10 +133,11 @@ def run_on(
     lead_ended = shards.LeadsEnd(bus, run_id) if shard[0] > 1 else None
     brains.wait()
     stream = None
-    if state is not None:
+    if state is not None:  # a shard's: its slice of the population, which the recorder joins to the others'
+        population = config.world.agents if shard[1] > 1 else 0
         wait_for_subscriber(state, "a recorder")
-        bus.outbox(keys.world_map(group)).put(world_map(world, run_id))
-        stream = StateStream(state, world, run_id)
+        bus.outbox(keys.world_map(group)).put(world_map(world, run_id, population))
+        stream = StateStream(state, world, run_id, population)
     if resumed and config.checkpoint:
         log.info("run %s resumed at tick %d from %s", run_id, start, config.checkpoint / CHECKPOINT)
     log.info(

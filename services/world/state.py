@@ -1,5 +1,7 @@
 """What the world publishes for the recorder: its ticks in WorldState batches (sensors, poses,
-events, counters and the patches that changed), and the map the run starts on."""
+events, counters and the patches that changed), and the map the run starts on. A world shard's
+say which slice of the population they hold (`first`, `population`: 0 for a whole world), so a
+recorder joins the shards' into the population's."""
 
 from __future__ import annotations
 
@@ -13,10 +15,19 @@ from services.vocabulary import EVENT_COLUMNS
 from .world import SENSORS, World
 
 
-def world_map(world: World, run: str) -> WorldMap:
-    """The arenas as they are now, the first message a recorder gets of a run."""
+def world_map(world: World, run: str, population: int = 0) -> WorldMap:
+    """The arenas as they are now, the first message a recorder gets of a run (`population`: a
+    world shard's, the whole population's size)."""
     p = world.params
-    return WorldMap(tick=world.tick, run=run, grid=Array.of(world.grid), x_min=p.x_min, y_min=p.y_min)
+    return WorldMap(
+        tick=world.tick,
+        run=run,
+        grid=Array.of(world.grid),
+        x_min=p.x_min,
+        y_min=p.y_min,
+        first=int(world.numbers[0]) if population else 0,
+        population=population,
+    )
 
 
 def keep_state(batch: TickBatch, changes: list, world: World, t: int, sensors: np.ndarray) -> None:
@@ -35,7 +46,9 @@ def keep_state(batch: TickBatch, changes: list, world: World, t: int, sensors: n
         changes.append((t, *row))
 
 
-def state_message(batch: TickBatch, changes: list, final: bool, world: World, run: str) -> WorldState:
+def state_message(
+    batch: TickBatch, changes: list, final: bool, world: World, run: str, population: int = 0
+) -> WorldState:
     """The ticks kept since the last message (none, when a run ends before its first tick)."""
     first, a = batch.take()
     if first is None:
@@ -65,14 +78,17 @@ def state_message(batch: TickBatch, changes: list, final: bool, world: World, ru
         food=Array.of(a["food"]),
         changes=Array.of(rows),
         final=final,
+        first=int(world.numbers[0]) if population else 0,
+        population=population,
     )
 
 
 class StateStream:
-    """One run's ticks on their way to the recorder: kept tick by tick, sent a batch at a time."""
+    """One run's ticks on their way to the recorder: kept tick by tick, sent a batch at a time
+    (`population`: a world shard's, the whole population's size)."""
 
-    def __init__(self, outbox: Outbox, world: World, run: str):
-        self.outbox, self.world, self.run = outbox, world, run
+    def __init__(self, outbox: Outbox, world: World, run: str, population: int = 0):
+        self.outbox, self.world, self.run, self.population = outbox, world, run, population
         self.batch, self.changes = TickBatch(state_batch(world.agents)), []
 
     def keep(self, t: int, sensors: np.ndarray) -> None:
@@ -83,4 +99,4 @@ class StateStream:
         return self.batch.full
 
     def send(self, final: bool = False) -> None:
-        self.outbox.put(state_message(self.batch, self.changes, final, self.world, self.run))
+        self.outbox.put(state_message(self.batch, self.changes, final, self.world, self.run, self.population))
