@@ -15,8 +15,8 @@ from services.bus.schemas import VERSION, Array, BusError, Control, Motor, Senso
 from services.loop import brain_for, closed_loop
 from services.recorder.screenshot import last_tick
 from services.world.world import World
+from spikinglab.bench.fuzz import EXAMPLES
 
-from .messages import GOOD
 from .processes import Watcher, connecting, endpoint, finish, logged, start, ticks_in, wait_for
 
 
@@ -93,7 +93,7 @@ def garbage(tick: int) -> list[bytes]:
         b"\x81\xa4kind\xa2\xff\xfe",
     ]
     rng = np.random.default_rng(tick)
-    for message in GOOD:
+    for message in EXAMPLES:
         payload = bytearray(encode(message))
         for where in rng.integers(0, len(payload), 3):
             payload[where] = rng.integers(0, 256)

@@ -13,7 +13,8 @@ not fitting its run), taken, or an escape (any other exception: a crash in a ser
 tests/bus/test_fuzz.py runs the same generators briefly; this prints, per key, how many payloads
 were tried and how each ended. The generators are spikinglab/bench/mutants.py's, which need
 hypothesis (the fuzz extra); the real messages they start from are here, without it (the soak bench
-uses them too). The last line printed is JSON. Run: `spikinglab bench fuzz [--examples N]`.
+and the schema and fault tests use them too). The last line printed is JSON.
+Run: `spikinglab bench fuzz [--examples N]`.
 """
 
 from __future__ import annotations

@@ -16,8 +16,7 @@ from services.bus.schemas import (
     decode,
     encode,
 )
-
-from ..messages import GOOD
+from spikinglab.bench.fuzz import EXAMPLES as GOOD
 
 
 @pytest.mark.parametrize("message", GOOD, ids=lambda m: type(m).__name__)
