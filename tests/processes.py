@@ -15,6 +15,7 @@ import zenoh
 from services.bus.config import make_config
 from services.bus.schemas import BusError, decode
 from services.launch import spawn
+from spikinglab.bench.gateway import gateway_and_brain as robot_chain
 
 from .sockets import listeners
 
@@ -64,6 +65,13 @@ def start(service: str, *args, log: Path | None = None) -> subprocess.Popen:
     """A service (launch.SERVICES: world, brain, record, gateway, ...) with `args`, its output into
     `log` (read it when a test fails)."""
     return spawn(service, list(args), log or subprocess.DEVNULL, cwd=ROOT)
+
+
+def gateway_and_brain(folder: Path, gateway=(), brain=()) -> tuple[subprocess.Popen, subprocess.Popen]:
+    """The gateway (by default its ev3 backend: the fake brick) and a free-running brain at 1,000 Hz
+    driving it, with their further options, listening on gateway.sock and brain.sock in `folder`
+    and logging into gateway.log and brain.log there."""
+    return robot_chain(endpoint(folder, "gateway"), endpoint(folder, "brain"), 1000, gateway, brain, folder, ROOT)
 
 
 def connecting(*endpoints: str) -> list[str]:

@@ -22,7 +22,17 @@ from services.world.checkpoint import CHECKPOINT
 from services.world.results import metrics_of
 from services.world.world import World
 
-from .processes import connecting, endpoint, finish, logged, running_with, start, wait_for, wait_for_ticks
+from .processes import (
+    connecting,
+    endpoint,
+    finish,
+    gateway_and_brain,
+    logged,
+    running_with,
+    start,
+    wait_for,
+    wait_for_ticks,
+)
 
 
 def left_at(log_text: str, service: str) -> tuple[str, int]:
@@ -140,21 +150,8 @@ def test_kill_9_of_the_world_or_brain_ends_the_run_saying_where_it_stopped(tmp_p
 
 
 def test_kill_9_of_the_gateway_the_brain_says_so_and_goes_on(tmp_path):
-    gateway_ep, brain_ep = endpoint(tmp_path, "gateway"), endpoint(tmp_path, "brain")
     with FakeBrick() as brick:
-        gateway = start("gateway", "--listen", gateway_ep, log=tmp_path / "gateway.log")
-        brain = start(
-            "brain",
-            "--listen",
-            brain_ep,
-            "--connect",
-            gateway_ep,
-            "--clock",
-            1000,
-            "--save",
-            tmp_path / "w.npz",
-            log=tmp_path / "brain.log",
-        )
+        gateway, brain = gateway_and_brain(tmp_path, brain=["--save", tmp_path / "w.npz"])
         try:
             wait_for(lambda: len(brick.commands) > 5, 60, "the robot to move")
             gateway.kill()

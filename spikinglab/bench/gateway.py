@@ -37,6 +37,28 @@ def polls_per_s(seconds: float) -> float:
         return json.loads((Path(tmp) / "g.json").read_text())["polls"] / seconds
 
 
+def gateway_and_brain(
+    gateway_ep: str,
+    brain_ep: str,
+    hz: float,
+    gateway: list | tuple = (),
+    brain: list | tuple = (),
+    logs: Path | None = None,
+    cwd: Path | None = None,
+) -> tuple[subprocess.Popen, subprocess.Popen]:
+    """The robot chain's processes: the gateway listening on `gateway_ep` and a free-running brain
+    at `hz` Hz on `brain_ep` driving it, each with its further options; their output into
+    logs/gateway.log and logs/brain.log (no `logs`: discarded)."""
+
+    def output(name: str) -> Path | int:
+        return logs / f"{name}.log" if logs else subprocess.DEVNULL
+
+    return (
+        spawn("gateway", ["--listen", gateway_ep, *gateway], output("gateway"), cwd),
+        spawn("brain", ["--listen", brain_ep, "--connect", gateway_ep, "--clock", hz, *brain], output("brain"), cwd),
+    )
+
+
 def chain(trials: int, hz: float, max_polls: float = 0) -> tuple[list[float], dict]:
     # the brain gets a core of its own; the gateway polls flat out against a brick that answers at
     # once, so it and the brick (threads of this process) share the other
@@ -44,24 +66,12 @@ def chain(trials: int, hz: float, max_polls: float = 0) -> tuple[list[float], di
     with FakeBrick() as brick, tempfile.TemporaryDirectory() as tmp:
         (gateway_ep, brain_ep), sockets = local_endpoints("gateway", "brain")
         with sockets:
-            gateway = spawn(
-                "gateway", ["--listen", gateway_ep, "--cpu", 0, "--max-polls", max_polls], subprocess.DEVNULL
-            )
-            brain = spawn(
-                "brain",
-                [
-                    "--listen",
-                    brain_ep,
-                    "--connect",
-                    gateway_ep,
-                    "--clock",
-                    hz,
-                    "--stats",
-                    Path(tmp) / "b.json",
-                    "--cpu",
-                    1,
-                ],
-                subprocess.DEVNULL,
+            gateway, brain = gateway_and_brain(
+                gateway_ep,
+                brain_ep,
+                hz,
+                ["--cpu", 0, "--max-polls", max_polls],
+                ["--stats", Path(tmp) / "b.json", "--cpu", 1],
             )
             latencies = []
             try:

@@ -27,6 +27,7 @@ from services.launch import local_endpoints, spawn
 from services.options import Parser, at_least, positive
 
 from .fuzz import EXAMPLES, KEY_OF
+from .gateway import gateway_and_brain
 
 
 def rss_mb(pid: int) -> float:
@@ -133,25 +134,13 @@ def robot_soak(args, out: Path) -> dict:
     group = ["--group", "soak"]
     with sockets:
         processes = {"fake-brick": spawn("fake-brick", [], out / "fake-brick.log")}
-        processes["gateway"] = spawn(
-            "gateway",
-            ["--listen", gateway_ep, "--duration", args.seconds, "--stats", out / "gateway.json", *group],
-            out / "gateway.log",
-        )
-        processes["brain"] = spawn(
-            "brain",
-            [
-                "--listen",
-                brain_ep,
-                "--connect",
-                gateway_ep,
-                "--clock",
-                args.clock,
-                "--stats",
-                out / "brain.json",
-                *group,
-            ],
-            out / "brain.log",
+        processes["gateway"], processes["brain"] = gateway_and_brain(
+            gateway_ep,
+            brain_ep,
+            args.clock,
+            ["--duration", args.seconds, "--stats", out / "gateway.json", *group],
+            ["--stats", out / "brain.json", *group],
+            logs=out,
         )
         try:
             samples, wall = sample_until(processes, processes["gateway"], args.sample_s)

@@ -12,7 +12,7 @@ from services.bus.schemas import Array, Motor, encode
 from services.ev3_gateway.fake_brick import BEACON_PORT, FakeBrick
 from services.vocabulary import INSECT_ACTIONS
 
-from ..processes import Watcher, connecting, endpoint, finish, start, wait_for
+from ..processes import Watcher, connecting, endpoint, finish, gateway_and_brain, start, wait_for
 from ..recordings import read
 from ..sockets import listeners
 
@@ -23,21 +23,8 @@ def test_robot_chain_senses_moves_survives_a_lost_link_and_stops_without_a_brain
         recorder = start(
             "record", *connecting(gateway_ep, brain_ep), "--out", tmp_path / "robot.rrd", log=tmp_path / "recorder.log"
         )
-        gateway = start(
-            "gateway", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json", log=tmp_path / "gateway.log"
-        )
-        brain = start(
-            "brain",
-            "--listen",
-            brain_ep,
-            "--connect",
-            gateway_ep,
-            "--clock",
-            1000,
-            "--publish-state",
-            "--stats",
-            tmp_path / "brain.json",
-            log=tmp_path / "brain.log",
+        gateway, brain = gateway_and_brain(
+            tmp_path, ["--stats", tmp_path / "gateway.json"], ["--publish-state", "--stats", tmp_path / "brain.json"]
         )
         processes = [recorder, gateway, brain]
         try:
@@ -88,19 +75,9 @@ def test_robot_chain_senses_moves_survives_a_lost_link_and_stops_without_a_brain
     assert spikes["RED"] > 50 and spikes["BLACK"] == spikes["GREEN"] == 0  # red reached the RED afferent
 
 
-def gateway_and_brain(tmp_path):
-    """The gateway (ev3 backend: the fake brick) and a free-running brain driving it, as processes."""
-    gateway_ep, brain_ep = endpoint(tmp_path, "gateway"), endpoint(tmp_path, "brain")
-    gateway = start(
-        "gateway", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json", log=tmp_path / "gateway.log"
-    )
-    brain = start("brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", 1000, log=tmp_path / "brain.log")
-    return gateway, brain
-
-
 def test_a_stalled_brain_stops_the_robot_and_sends_no_backlog_when_it_resumes(tmp_path):
     with FakeBrick() as brick:
-        gateway, brain = gateway_and_brain(tmp_path)
+        gateway, brain = gateway_and_brain(tmp_path, ["--stats", tmp_path / "gateway.json"])
         try:
             wait_for(lambda: sum(c.kind == "time_sync" for c in brick.commands) > 10, 60, "the insect walking")
             time.sleep(1.0)
@@ -141,7 +118,7 @@ def test_a_link_gone_silent_is_noticed_the_robot_stops_by_itself_and_nothing_arr
     itself at the end of its last timed command, and nothing sent into the dead link is executed
     late when the radio comes back (the gateway resets it); then the gateway links again."""
     with FakeBrick() as brick:
-        gateway, brain = gateway_and_brain(tmp_path)
+        gateway, brain = gateway_and_brain(tmp_path, ["--stats", tmp_path / "gateway.json"])
         log = tmp_path / "gateway.log"
         try:
             wait_for(lambda: sum(c.kind == "time_sync" for c in brick.commands) > 10, 60, "the insect walking")
@@ -227,12 +204,8 @@ def test_commands_answering_old_or_unpublished_readings_are_dropped(tmp_path):
 
 
 def test_the_brain_drives_a_simulated_ev3(tmp_path):
-    gateway_ep, brain_ep = endpoint(tmp_path, "gateway"), endpoint(tmp_path, "brain")
     log = tmp_path / "gateway.log"
-    gateway = start(
-        "gateway", "--backend", "sim", "--listen", gateway_ep, "--stats", tmp_path / "gateway.json", log=log
-    )
-    brain = start("brain", "--listen", brain_ep, "--connect", gateway_ep, "--clock", 1000, log=tmp_path / "brain.log")
+    gateway, brain = gateway_and_brain(tmp_path, ["--backend", "sim", "--stats", tmp_path / "gateway.json"])
     try:
         # the brain compiles its kernels at its first reading (a minute on a cold cache and a busy machine)
         wait_for(lambda: "a brain drives the robot" in log.read_text(), 180, "the brain to drive")
