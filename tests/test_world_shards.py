@@ -1,19 +1,24 @@
 """A sharded world: N world processes each step a slice of the population, as one world would."""
 
 import json
+import re
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
 
 from services.brain.checkpoint import load_weights
 from services.brain.circuit import load_circuit
+from services.bus import keys
+from services.bus.schemas import Array, WorldState, encode
 from services.loop import brain_for, closed_loop
 from services.options import shard_slice, shards_meet
 from services.world.options import WorldOptions, world_from
+from services.world.world import SENSORS
 
-from .processes import endpoint, finish, logged, start
+from .processes import Watcher, endpoint, finish, logged, start, wait_for
 from .recordings import read
 
 TICKS, SEED, AGENTS = 3000, 3, 7  # 7 agents: world slices 0-2 and 3-6, brain slices 0-1, 2-3 and 4-6
@@ -129,34 +134,112 @@ def test_two_world_shards_and_brain_shards_run_bit_for_bit_as_one_process(tmp_pa
         assert "keeps checkpoints" not in (tmp_path / f"brain{j}.log").read_text()  # no shard's first tick says so
 
 
-def test_the_lead_world_shard_is_recorded_and_the_others_do_not_publish_state(tmp_path):
-    bus = ("--group", "wr", "--connect", endpoint(tmp_path, "router"))
-    router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
-    refused = start("world", *bus, "--agents", 4, "--shard", "2/2", "--publish-state", log=tmp_path / "refused.log")
-    recorder = start("record", *bus, "--out", tmp_path / "rec.rrd", log=tmp_path / "recorder.log")
-    world = ("--ticks", 1500, "--agents", 4, "--shards", 3)
+def test_every_world_shard_is_recorded_as_one_population(tmp_path):
+    """2 world shards publish their slices' state, the recorder makes one recording of the 7 insects:
+    every tick's poses are the one-process closed loop's, agent 4 (world shard 2's) the detail agent
+    and its arena the map shown; forged shard states (a slice overlapping a shard's, one outside the
+    population, one of another population) are refused in a line each and the recording goes on."""
+    made, router_at = options(tmp_path), endpoint(tmp_path, "router")
+    bus = ("--group", "wr", "--connect", router_at)
+    router = start("router", "--listen", router_at, log=tmp_path / "router.log")
+    recorder = start("record", *bus, "--out", tmp_path / "rec.rrd", "--detail", 4, log=tmp_path / "recorder.log")
+    world = ("--ticks", TICKS, "--seed", SEED, "--agents", AGENTS, "--params", made.params, "--shards", 3)
     worlds = [
-        start("world", *bus, *world, "--shard", "1/2", "--publish-state", log=tmp_path / "world1.log"),
-        start("world", *bus, *world, "--shard", "2/2", log=tmp_path / "world2.log"),
+        start(
+            "world",
+            *bus,
+            *world,
+            "--shard",
+            f"{i}/2",
+            "--publish-state",
+            "--out",
+            tmp_path,
+            log=tmp_path / f"world{i}.log",
+        )
+        for i in (1, 2)
     ]
     brains = [
-        start("brain", *bus, "--shard", f"{j}/3", "--world-shards", 2, "--once", log=tmp_path / f"brain{j}.log")
+        start(
+            "brain",
+            *bus,
+            "--shard",
+            f"{j}/3",
+            "--world-shards",
+            2,
+            "--once",
+            "--a-plus",
+            0.04,
+            "--params",
+            made.params,
+            log=tmp_path / f"brain{j}.log",
+        )
         for j in (1, 2, 3)
     ]
+    forger = Watcher([router_at], [])
     try:
-        assert finish(refused, 30, tmp_path / "refused.log") == 2
+        log1 = tmp_path / "world1.log"
+        wait_for(lambda: log1.exists() and re.search(r"run \w+: \d+ ticks", log1.read_text()), 60, "the run")
+        run = logged(log1.read_text(), r"run (\w+): \d+ ticks").group(1)
+        time.sleep(1)  # the shards' maps and first states are in before the forgeries
+        for first, agents, population in ((4, 3, 7), (5, 3, 7), (3, 4, 8)):
+            forger.session.put(keys.world_state("wr"), encode(forged_state(run, first, agents, population)))
         for i, process in enumerate(worlds, 1):
             assert finish(process, 120, tmp_path / f"world{i}.log") == 0
         for j, process in enumerate(brains, 1):
             assert finish(process, 30, tmp_path / f"brain{j}.log") == 0
         assert finish(recorder, 60, tmp_path / "recorder.log") == 0
     finally:
-        for process in (refused, *worlds, *brains, recorder, router):
+        forger.close()
+        for process in (*worlds, *brains, recorder, router):
             process.kill()
-    assert "only world shard 1 publishes its state" in (tmp_path / "refused.log").read_text()
-    assert "(ticks 0..1499)" in (tmp_path / "recorder.log").read_text()
+    said = (tmp_path / "recorder.log").read_text()
+    assert "(ticks 0..2999)" in said and "ticks missing: none" in said
+    for why in (
+        "world shard of agents 4..6 overlaps the shard of agents 3..6",
+        "agents 5..7 outside the population of 7",
+        "world shard of agents 3..6: a population of 8, the recording's shards say 7",
+    ):
+        assert len([line for line in said.splitlines() if "WARNING rejected message" in line and why in line]) == 1
+    alone = world_from(made)
+    start_grid, pos = alone.grid[4].copy(), []
+    closed_loop(
+        alone,
+        brain_for(alone, load_circuit("insect").with_learning_rate(0.04)),
+        TICKS,
+        lambda t: pos.append(alone.pos.copy()),
+    )
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["collisions"] == alone.metrics.collisions.tolist()  # the run recorded is the run
     data = read(tmp_path / "rec.rrd")
-    assert data["/world/insects"]["tick"] == list(range(1500))
+    insects = data["/world/insects"]
+    assert insects["tick"] == list(range(TICKS))
+    p = alone.params
+    shown = [np.column_stack([at[:, 0] - p.x_min + 0.5, (p.height - 1) - (at[:, 1] - p.y_min) + 0.5]) for at in pos]
+    np.testing.assert_allclose(np.array(insects["Points2D:positions"]), np.array(shown), atol=1e-4)  # float32
+    frames = data["/world/map"]["SegmentationImage:buffer"]
+    for frame, grid in ((frames[0], start_grid), (frames[-1], alone.grid[4])):  # agent 4's arena, food eaten
+        image = np.frombuffer(bytes(frame[0]), np.uint8).reshape(grid.shape[1], grid.shape[0])
+        np.testing.assert_array_equal(image, grid[:, ::-1].T)
+    assert len(frames) == alone.metrics.food[4] + 1
+    assert data["/world/heading/agent4"]["tick"] == list(range(TICKS))
+
+
+def forged_state(run: str, first: int, agents: int, population: int) -> WorldState:
+    """A world shard's state of agents first.. first + agents - 1 of `population`, for a tick of the run."""
+    return WorldState(
+        tick=10,
+        run=run,
+        sensor_names=SENSORS,
+        sensors=Array.of(np.zeros((1, agents, len(SENSORS)))),
+        pos=Array.of(np.zeros((1, agents, 2))),
+        heading=Array.of(np.zeros((1, agents))),
+        events=Array.of(np.zeros((1, agents, 4), np.int64)),
+        collisions=Array.of(np.zeros((1, agents), np.int64)),
+        food=Array.of(np.zeros((1, agents), np.int64)),
+        changes=Array.of(np.zeros((0, 5), np.int64)),
+        first=first,
+        population=population,
+    )
 
 
 def test_the_scale_benchmark_measures_world_shards():

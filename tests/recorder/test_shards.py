@@ -33,14 +33,21 @@ def population_state(seed=0) -> dict[str, np.ndarray]:
 
 def shard_state(whole, lo, hi, tick, end, changes=(), final=False, **slice_) -> WorldState:
     """Ticks tick..end-1 of agents lo..hi-1, as world shard lo..hi-1 sends them (changes: its arenas)."""
+    part = {n: Array.of(a[tick:end, lo:hi]) for n, a in whole.items()}
     return WorldState(
         tick=tick,
         run=RUN,
         sensor_names=SENSORS,
+        sensors=part["sensors"],
+        pos=part["pos"],
+        heading=part["heading"],
+        events=part["events"],
+        collisions=part["collisions"],
+        food=part["food"],
         changes=Array.of(np.array(changes, np.int64).reshape(-1, 5)),
         final=final,
-        **{"first": lo, "population": AGENTS, **slice_},
-        **{n: Array.of(a[tick:end, lo:hi]) for n, a in whole.items()},
+        first=slice_.get("first", lo),
+        population=slice_.get("population", AGENTS),
     )
 
 
@@ -54,7 +61,7 @@ def shard_map(lo, hi, population=AGENTS) -> WorldMap:
 def joined(messages) -> tuple[list, dict[str, np.ndarray]]:
     join, out = ShardJoin(), []
     for m in messages:
-        out += join.take(decode(encode(m)))
+        out += join.take(m)
     states = [m for m in out if isinstance(m, WorldState)]
     return out, {n: np.concatenate([getattr(m, n).numpy(n, *d) for m in states]) for n, d in ARRAYS.items()}
 
