@@ -133,6 +133,28 @@ def wait_for(predicate, timeout: float, what: str) -> None:
         time.sleep(0.02)
 
 
+def kill_mid_run(victim: subprocess.Popen, states: list, world_log: Path, who: str) -> None:
+    """kill -9 of `victim` (a brain, a brain shard) once the run has passed tick 1000 (`states`: the
+    world's WorldState messages as they come): the world's log says `who` is lost within 10 s, and
+    no tick comes for 1.5 s after."""
+    wait_for(lambda: len(ticks_in(states)) > 1000, 60, "the run to pass tick 1000")
+    victim.kill()
+    victim.wait()
+    wait_for(lambda: f"{who} lost at tick" in world_log.read_text(), 10, f"the world to say the {who} is lost")
+    stalled_at = len(ticks_in(states))
+    time.sleep(1.5)
+    assert len(ticks_in(states)) == stalled_at  # the world waits: no tick without every brain
+
+
+def continued_where_lost(world_log: Path, who: str, states: list, ticks: int) -> None:
+    """After kill_mid_run and a new `who`: the world's log says at which tick it lost `who` and that it
+    continued there, and the run published every one of its `ticks` once, none skipped."""
+    log = world_log.read_text()
+    lost = int(logged(log, rf"{re.escape(who)} lost at tick (\d+)").group(1))
+    assert 1000 <= lost < ticks and f"{who} back: continuing at tick {lost}" in log
+    assert ticks_in(states) == list(range(ticks))
+
+
 def wait_for_ticks(folder: Path, timeout: float = 60) -> None:
     """Until the run in `folder` is under way: its brain has answered (it logs its first sensors)."""
     log = folder / "brain.log"
