@@ -74,6 +74,18 @@ def gateway_and_brain(folder: Path, gateway=(), brain=()) -> tuple[subprocess.Po
     return robot_chain(endpoint(folder, "gateway"), endpoint(folder, "brain"), 1000, gateway, brain, folder, ROOT)
 
 
+def world_and_brain(folder: Path, world=(), brain=()) -> tuple[subprocess.Popen, subprocess.Popen]:
+    """A world and a brain that serves its one run, lock-step, both publishing their state, with
+    their further options, listening on world.sock and brain.sock in `folder` and logging into
+    world.log and brain.log there."""
+    world_ep, brain_ep = endpoint(folder, "world"), endpoint(folder, "brain")
+    brain_args = ["--listen", brain_ep, "--connect", world_ep, "--once", "--publish-state", *brain]
+    return (
+        start("world", "--listen", world_ep, "--publish-state", *world, log=folder / "world.log"),
+        start("brain", *brain_args, log=folder / "brain.log"),
+    )
+
+
 def connecting(*endpoints: str) -> list[str]:
     """A service's options to connect to each of `endpoints`."""
     return [word for e in endpoints for word in ("--connect", e)]

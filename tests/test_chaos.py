@@ -32,6 +32,7 @@ from .processes import (
     start,
     wait_for,
     wait_for_ticks,
+    world_and_brain,
 )
 
 
@@ -281,22 +282,7 @@ def test_a_frozen_recorder_never_holds_the_run_back(tmp_path):
     drop rather than wait; before, the world stalled); on SIGCONT the recorder says the run's end
     never came and writes a file that opens, up to where it got."""
     world_ep, brain_ep = endpoint(tmp_path, "world"), endpoint(tmp_path, "brain")
-    world = start(
-        "world",
-        "--listen",
-        world_ep,
-        "--ticks",
-        20000,
-        "--agents",
-        20,
-        "--publish-state",
-        "--out",
-        tmp_path,
-        log=tmp_path / "world.log",
-    )
-    brain = start(
-        "brain", "--listen", brain_ep, "--connect", world_ep, "--once", "--publish-state", log=tmp_path / "brain.log"
-    )
+    world, brain = world_and_brain(tmp_path, ["--ticks", 20000, "--agents", 20, "--out", tmp_path])
     recorder = start(
         "record",
         *connecting(world_ep, brain_ep),

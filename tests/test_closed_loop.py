@@ -10,7 +10,7 @@ from services.bus.schemas import BrainLayout
 from services.loop import brain_for, closed_loop
 from services.world.world import World, params_for
 
-from .processes import Watcher, endpoint, finish, start
+from .processes import Watcher, endpoint, finish, world_and_brain
 
 TICKS, SEED, AGENTS = 3000, 5, 2
 
@@ -34,40 +34,11 @@ def bus_run(tmp_path, semantics):
     world_ep, brain_ep = endpoint(tmp_path, "world"), endpoint(tmp_path, "brain")
     watcher = Watcher([world_ep, brain_ep], [keys.world_state("det"), keys.brain_state("det")])
     try:
-        world = start(
-            "world",
-            "--group",
-            "det",
-            "--listen",
-            world_ep,
-            "--ticks",
-            TICKS,
-            "--seed",
-            SEED,
-            "--agents",
-            AGENTS,
-            "--publish-state",
-            "--out",
+        world, brain = world_and_brain(
             tmp_path,
-            log=tmp_path / "world.log",
-        )
-        brain = start(
-            "brain",
-            "--group",
-            "det",
-            "--listen",
-            brain_ep,
-            "--connect",
-            world_ep,
-            "--a-plus",
-            0.04,
-            "--publish-state",
-            "--once",
-            "--save",
-            tmp_path / "weights.npz",
-            "--semantics",
-            semantics,  # the order's seed comes from the world's messages
-            log=tmp_path / "brain.log",
+            ["--group", "det", "--ticks", TICKS, "--seed", SEED, "--agents", AGENTS, "--out", tmp_path],
+            # the netlogo order's seed comes from the world's messages
+            ["--group", "det", "--a-plus", 0.04, "--save", tmp_path / "weights.npz", "--semantics", semantics],
         )
         assert finish(world, 120, tmp_path / "world.log") == 0
         assert finish(brain, 30, tmp_path / "brain.log") == 0

@@ -17,7 +17,16 @@ from services.recorder.screenshot import last_tick
 from services.world.world import World
 from spikinglab.bench.fuzz import EXAMPLES
 
-from .processes import Watcher, connecting, continued_where_lost, endpoint, finish, kill_mid_run, start
+from .processes import (
+    Watcher,
+    connecting,
+    continued_where_lost,
+    endpoint,
+    finish,
+    kill_mid_run,
+    start,
+    world_and_brain,
+)
 
 
 def test_brain_killed_mid_run_world_waits_then_continues(tmp_path):
@@ -107,32 +116,10 @@ def test_malformed_messages_on_every_topic_are_rejected_and_the_run_goes_on(tmp_
     closed_loop(world, brain, ticks)  # the run as it must come out, undisturbed
 
     world_ep, brain_ep = endpoint(tmp_path, "world"), endpoint(tmp_path, "brain")
-    p_world = start(
-        "world",
-        "--listen",
-        world_ep,
-        "--ticks",
-        ticks,
-        "--seed",
-        seed,
-        "--out",
+    p_world, p_brain = world_and_brain(
         tmp_path,
-        "--publish-state",
-        log=tmp_path / "world.log",
-    )
-    p_brain = start(
-        "brain",
-        "--listen",
-        brain_ep,
-        "--connect",
-        world_ep,
-        "--once",
-        "--save",
-        tmp_path / "weights.npz",
-        "--stats",
-        tmp_path / "brain.json",
-        "--publish-state",
-        log=tmp_path / "brain.log",
+        ["--ticks", ticks, "--seed", seed, "--out", tmp_path],
+        ["--save", tmp_path / "weights.npz", "--stats", tmp_path / "brain.json"],
     )
     p_recorder = start(
         "record", *connecting(world_ep, brain_ep), "--out", tmp_path / "run.rrd", log=tmp_path / "recorder.log"

@@ -17,7 +17,7 @@ from services.bus.batching import state_batch
 from services.loop import brain_for, closed_loop
 from services.world.world import SENSORS, World, generate_map, params_for
 
-from ..processes import ROOT, Watcher, connecting, endpoint, finish, start, ticks_in, wait_for
+from ..processes import ROOT, Watcher, connecting, endpoint, finish, start, ticks_in, wait_for, world_and_brain
 from ..recordings import read
 
 TICKS, SEED = 3000, 3
@@ -155,10 +155,7 @@ def test_a_killed_recorder_leaves_a_readable_file(tmp_path):
         500,
         log=tmp_path / "recorder.log",
     )
-    world = start("world", "--listen", world_ep, "--ticks", 20000, "--publish-state", log=tmp_path / "world.log")
-    brain = start(
-        "brain", "--listen", brain_ep, "--connect", world_ep, "--once", "--publish-state", log=tmp_path / "brain.log"
-    )
+    world, brain = world_and_brain(tmp_path, ["--ticks", 20000])
     try:
         wait_for(
             lambda: (tmp_path / "rec.rrd").exists() and (tmp_path / "rec.rrd").stat().st_size > 200_000,
@@ -181,10 +178,7 @@ def test_a_late_recorder_says_from_which_tick_it_has_data(tmp_path):
     world_ep, brain_ep = endpoint(tmp_path, "world"), endpoint(tmp_path, "brain")
     early = Watcher([world_ep, brain_ep], [keys.world_state("insect"), keys.brain_state("insect")])
     # long enough (several seconds) for the late recorder to start up before the run ends
-    world = start("world", "--listen", world_ep, "--ticks", 30000, "--publish-state", log=tmp_path / "world.log")
-    brain = start(
-        "brain", "--listen", brain_ep, "--connect", world_ep, "--once", "--publish-state", log=tmp_path / "brain.log"
-    )
+    world, brain = world_and_brain(tmp_path, ["--ticks", 30000])
     try:
         wait_for(lambda: len(ticks_in(early.messages[keys.world_state("insect")])) > 1500, 60, "the run to get going")
         recorder = start(
