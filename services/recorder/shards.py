@@ -104,29 +104,33 @@ class ShardJoin:
         return self.joined_states()
 
     def check(self, message: WorldMap | WorldState) -> None:
-        """BusError unless `message` is of a slice that fits the shards so far (a new one is kept)."""
+        """BusError unless `message` is of a slice that fits the shards so far; a new one is kept."""
         first, population = message.first, message.population
         agents = message.grid.shape[0] if isinstance(message, WorldMap) else message.pos.shape[1]
         where = f"world shard of agents {first}..{first + agents - 1}"
         if self.population and population != self.population:
             raise BusError(f"{where}: a population of {population}, the recording's shards say {self.population}")
-        if self.slices.get(first) != agents:
-            overlap = [f for f, n in self.slices.items() if f < first + agents and first < f + n]
-            if overlap:
-                f = overlap[0]
-                raise BusError(f"{where} overlaps the shard of agents {f}..{f + self.slices[f] - 1}")
-            counts = shard_counts(population, first, agents)
-            if self.counts is not None:
-                counts &= self.counts
-            if not counts:
-                raise BusError(f"{where}: not a slice of {population} agents in N world shards, as the others are")
-            self.population, self.counts, self.slices[first] = population, counts, agents
+        counts = self.counts if self.slices.get(first) == agents else self.check_slice(first, agents, population, where)
         if isinstance(message, WorldMap):
             self.check_map(message, where)
         elif first in self.finals:
             raise BusError(f"{where}: a state after its final batch")
         else:
             self.check_changes(message, agents, where)
+        self.population, self.counts, self.slices[first] = population, counts, agents
+
+    def check_slice(self, first: int, agents: int, population: int, where: str) -> set[int]:
+        """The numbers of shards N a new slice agrees with, as the others do; BusError if none."""
+        overlap = [f for f, n in self.slices.items() if f < first + agents and first < f + n]
+        if overlap:
+            f = overlap[0]
+            raise BusError(f"{where} overlaps the shard of agents {f}..{f + self.slices[f] - 1}")
+        counts = shard_counts(population, first, agents)
+        if self.counts is not None:
+            counts &= self.counts
+        if not counts:
+            raise BusError(f"{where}: not a slice of {population} agents in N world shards, as the others are")
+        return counts
 
     def check_map(self, message: WorldMap, where: str) -> None:
         kept = self.maps.get(message.first)

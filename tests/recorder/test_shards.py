@@ -150,3 +150,13 @@ def test_a_shard_message_of_another_map_size_or_a_second_map_is_refused():
         join.take(msgspec.structs.replace(shard_map(0, 3), x_min=PARAMS.x_min + 1))
     with pytest.raises(BusError, match="another shard's is of"):
         join.take(msgspec.structs.replace(shard_map(3, 7), y_min=PARAMS.y_min - 1))
+
+
+def test_a_refused_shard_message_leaves_nothing_behind():
+    """A slice of 3 shards (agents 4..6) with a change outside its arenas: refused, and the slices of
+    2 shards that come after it are not held to its number of shards."""
+    whole, join = population_state(), ShardJoin()
+    with pytest.raises(BusError, match="a map change outside its arenas"):
+        join.take(shard_state(whole, 4, 7, 0, 10, [(3, 3, 0, 0, 1)]))
+    join.take(shard_state(whole, 0, 3, 0, 10))
+    assert len(join.take(shard_state(whole, 3, 7, 0, 10))) == 1
