@@ -5,7 +5,6 @@ import os
 import socket
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -15,7 +14,7 @@ from services.brain.circuit import load_circuit
 from services.brain.engine import Engine
 from spikinglab import cli
 
-from .processes import endpoint, running_with, start
+from .processes import endpoint, running_with, start, wait_for
 
 
 @pytest.fixture(scope="module")
@@ -224,6 +223,17 @@ def arguments(command: str, tmp_path, **places) -> list[str]:
     return argv
 
 
+def ended_saying(exit_code, out: str, err: str, code: int, says: str, tmp_path) -> None:
+    """A command ended as a user must meet bad input: exit code `code`, its last line on stderr
+    saying `says`, no traceback, no result in tmp_path and nothing of it left running."""
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert exit_code == code, err
+    assert lines and says in lines[-1], err
+    assert "Traceback" not in err + out
+    assert not list(tmp_path.rglob("summary.json")) and not list(tmp_path.rglob("*.png"))
+    assert not running_with(str(tmp_path))
+
+
 @pytest.fixture
 def same_environment():
     """The commands' start sets variables for their process (OpenMP's); this process gets its own back."""
@@ -240,12 +250,7 @@ def test_bad_arguments(case, command, code, says, files, tmp_path, monkeypatch, 
     with pytest.raises(SystemExit) as ended:
         cli.main(arguments(command, tmp_path, f=files))
     out, err = capsys.readouterr()
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert ended.value.code == code, err
-    assert lines and says.format(f=files) in lines[-1], err
-    assert "Traceback" not in err + out
-    assert not list(tmp_path.rglob("summary.json")) and not list(tmp_path.rglob("*.png"))
-    assert not running_with(str(tmp_path))
+    ended_saying(ended.value.code, out, err, code, says.format(f=files), tmp_path)
 
 
 @pytest.mark.parametrize("case, command, code, says", CASES, ids=[c[0] for c in CASES])
@@ -258,23 +263,15 @@ def test_bad_input(case, command, code, says, files, busy_port, closed_port, tmp
         text=True,
         timeout=120,
     )
-    lines = [line for line in done.stderr.splitlines() if line.strip()]
-    assert done.returncode == code, done.stderr
-    assert lines and says.format(**places) in lines[-1], done.stderr
-    assert "Traceback" not in done.stderr + done.stdout
-    assert not list(tmp_path.rglob("summary.json")) and not list(tmp_path.rglob("*.png"))
-    assert not running_with(str(tmp_path))
+    ended_saying(done.returncode, done.stdout, done.stderr, code, says.format(**places), tmp_path)
 
 
 def test_connecting_where_nothing_answers_is_reported_within_10_s(closed_port, tmp_path):
     log = tmp_path / "brain.log"
     brain = start("brain", "--connect", f"tcp/127.0.0.1:{closed_port}", "--group", tmp_path.name, log=log)
     try:
-        started, said = time.monotonic(), ""
-        while "nothing answers" not in said and time.monotonic() - started < 15:
-            time.sleep(0.2)
-            said = log.read_text()
-        assert f"nothing answers at tcp/127.0.0.1:{closed_port} after 10 s" in said
+        wait_for(lambda: "nothing answers" in log.read_text(), 15, "the brain to say so")
+        assert f"nothing answers at tcp/127.0.0.1:{closed_port} after 10 s" in log.read_text()
         assert brain.poll() is None  # it goes on trying: the other side may start later
     finally:
         brain.terminate()
@@ -298,11 +295,9 @@ def test_a_brain_that_refuses_every_reading_is_named_by_the_world(files, tmp_pat
         log=tmp_path / "brain.log",
     )
     try:
-        started, said = time.monotonic(), ""
-        while "on the bus but no answer" not in said and time.monotonic() - started < 25:
-            time.sleep(0.2)
-            said = (tmp_path / "world.log").read_text()
-        assert "brain on the bus but no answer to tick 0 for 10 s: its log says why" in said
+        world_log = tmp_path / "world.log"
+        wait_for(lambda: "on the bus but no answer" in world_log.read_text(), 25, "the world to say so")
+        assert "brain on the bus but no answer to tick 0 for 10 s: its log says why" in world_log.read_text()
         assert "does not fit the parameter file" in (tmp_path / "brain.log").read_text()
         assert world.poll() is None and brain.poll() is None  # neither gives up
     finally:
