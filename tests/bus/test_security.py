@@ -54,6 +54,11 @@ def session_as(role: str, folder, endpoint: str) -> zenoh.Session:
     return zenoh.open(make_config(connect=[endpoint], config_file=zenoh_config_file(str(folder / f"{role}.json5"))))
 
 
+def secured(role: str, folder, endpoint: str) -> tuple:
+    """A service's options to join the secured bus as `role`: the router's endpoint, the role's config."""
+    return ("--connect", endpoint, "--zenoh-config", folder / f"{role}.json5")
+
+
 def test_certs_makes_a_ca_and_a_certificate_and_config_per_role(tmp_path):
     folder = tmp_path / "certs"
     assert certs.main([str(folder), "--host", "192.168.1.10", "--host", "lab-pc.local"]) == 0
@@ -188,31 +193,10 @@ def test_another_role_reads_the_run_but_cannot_steer_or_end_it(secure_bus, tmp_p
     closed_loop(world, brain, ticks)  # the run as it must come out, undisturbed
 
     forger = Forger(role, folder, endpoint)
-    p_world = start(
-        "world",
-        "--connect",
-        endpoint,
-        "--zenoh-config",
-        folder / "world.json5",
-        "--ticks",
-        ticks,
-        "--seed",
-        seed,
-        "--out",
-        tmp_path,
-        log=tmp_path / "world.log",
-    )
-    p_brain = start(
-        "brain",
-        "--connect",
-        endpoint,
-        "--zenoh-config",
-        folder / "brain.json5",
-        "--once",
-        "--save",
-        tmp_path / "weights.npz",
-        log=tmp_path / "brain.log",
-    )
+    world_args = (*secured("world", folder, endpoint), "--ticks", ticks, "--seed", seed, "--out", tmp_path)
+    p_world = start("world", *world_args, log=tmp_path / "world.log")
+    brain_args = (*secured("brain", folder, endpoint), "--once", "--save", tmp_path / "weights.npz")
+    p_brain = start("brain", *brain_args, log=tmp_path / "brain.log")
     try:
         assert finish(p_world, 120, tmp_path / "world.log") == 0
         assert finish(p_brain, 30, tmp_path / "brain.log") == 0
@@ -231,14 +215,7 @@ def test_only_the_brain_role_moves_the_robot(secure_bus, tmp_path):
     endpoint, folder = secure_bus
     with FakeBrick() as brick:
         gateway = start(
-            "gateway",
-            "--backend",
-            "ev3",
-            "--connect",
-            endpoint,
-            "--zenoh-config",
-            folder / "gateway.json5",
-            log=tmp_path / "gateway.log",
+            "gateway", "--backend", "ev3", *secured("gateway", folder, endpoint), log=tmp_path / "gateway.log"
         )
         try:
             wait_for(lambda: brick.reads > 200, 60, "the gateway to poll the brick")
@@ -349,11 +326,8 @@ def naming_a_run(role: str, folder, endpoint: str):
 def test_world_and_brain_shards_run_on_the_secured_bus_and_no_other_role_names_their_run(secure_bus, tmp_path):
     endpoint, folder = secure_bus
     ticks, agents = 600, 4
-
-    def secured(role: str) -> tuple:
-        return ("--connect", endpoint, "--zenoh-config", folder / f"{role}.json5")
-
-    world = (*secured("world"), "--ticks", ticks, "--agents", agents, "--shards", 2, "--out", tmp_path)
+    run = ("--ticks", ticks, "--agents", agents, "--shards", 2, "--out", tmp_path)
+    world = (*secured("world", folder, endpoint), *run)
     with naming_a_run("viewer", folder, endpoint) as forged:
         processes = [start("world", *world, "--shard", "2/2", log=tmp_path / "world2.log")]
         try:  # shard 2 listens for the run's name (while the viewer forges one) before the lead names it
@@ -364,7 +338,7 @@ def test_world_and_brain_shards_run_on_the_secured_bus_and_no_other_role_names_t
             processes += [
                 start(
                     "brain",
-                    *secured("brain"),
+                    *secured("brain", folder, endpoint),
                     "--shard",
                     f"{j}/2",
                     "--world-shards",
