@@ -12,6 +12,7 @@ from pathlib import Path
 
 import zenoh
 
+from services.bus import keys
 from services.bus.config import make_config
 from services.bus.schemas import BusError, decode
 from services.launch import spawn
@@ -143,6 +144,18 @@ def wait_for(predicate, timeout: float, what: str) -> None:
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout} s waiting for {what}")
         time.sleep(0.02)
+
+
+def watched_world(folder: Path, group: str, *options) -> tuple[subprocess.Popen, Watcher, list]:
+    """A world of `group` with `options`, publishing its state, listening on world.sock in `folder`
+    and logging into world.log there; a Watcher of it that the caller closes, connected first (it
+    sees every tick); and the list its WorldState messages come into."""
+    world_ep = endpoint(folder, "world")
+    watcher = Watcher([world_ep], [keys.world_state(group)])
+    world = start(
+        "world", "--group", group, "--listen", world_ep, "--publish-state", *options, log=folder / "world.log"
+    )
+    return world, watcher, watcher.messages[keys.world_state(group)]
 
 
 def kill_mid_run(victim: subprocess.Popen, states: list, world_log: Path, who: str) -> None:

@@ -25,30 +25,17 @@ from .processes import (
     finish,
     kill_mid_run,
     start,
+    watched_world,
     world_and_brain,
 )
 
 
 def test_brain_killed_mid_run_world_waits_then_continues(tmp_path):
+    world, watcher, states = watched_world(tmp_path, "k", "--ticks", 6000, "--out", tmp_path)
     world_ep, brain_ep = endpoint(tmp_path, "world"), endpoint(tmp_path, "brain")
-    watcher = Watcher([world_ep], [keys.world_state("k")])
-    world = start(
-        "world",
-        "--group",
-        "k",
-        "--listen",
-        world_ep,
-        "--ticks",
-        6000,
-        "--publish-state",
-        "--out",
-        tmp_path,
-        log=tmp_path / "world.log",
-    )
     brain_args = ("--group", "k", "--listen", brain_ep, "--connect", world_ep, "--once")
     brain = start("brain", *brain_args, log=tmp_path / "brain1.log")
     try:
-        states = watcher.messages[keys.world_state("k")]
         kill_mid_run(brain, states, tmp_path / "world.log", "brain")
         brain = start("brain", *brain_args, log=tmp_path / "brain2.log")
         assert finish(world, 120, tmp_path / "world.log") == 0

@@ -8,11 +8,10 @@ import numpy as np
 
 from services.brain.checkpoint import load_weights
 from services.brain.circuit import load_circuit
-from services.bus import keys
 from services.loop import brain_for, closed_loop
 from services.world.world import World, params_for
 
-from .processes import Watcher, continued_where_lost, endpoint, finish, kill_mid_run, start
+from .processes import continued_where_lost, endpoint, finish, kill_mid_run, start, watched_world
 
 TICKS, SEED, AGENTS = 3000, 3, 7  # 7 agents in 3 shards: slices of 2, 2 and 3
 
@@ -95,30 +94,13 @@ def test_three_shards_run_bit_for_bit_as_one_brain(tmp_path):
 
 
 def test_a_dead_shard_is_named_and_waited_for(tmp_path):
-    world_ep = endpoint(tmp_path, "world")
-    watcher = Watcher([world_ep], [keys.world_state("sd")])
-    world = start(
-        "world",
-        "--group",
-        "sd",
-        "--listen",
-        world_ep,
-        "--ticks",
-        6000,
-        "--agents",
-        4,
-        "--shards",
-        2,
-        "--publish-state",
-        "--out",
-        tmp_path,
-        log=tmp_path / "world.log",
+    world, watcher, states = watched_world(
+        tmp_path, "sd", "--ticks", 6000, "--agents", 4, "--shards", 2, "--out", tmp_path
     )
-    shard = ("--group", "sd", "--connect", world_ep, "--once")
+    shard = ("--group", "sd", "--connect", endpoint(tmp_path, "world"), "--once")
     first = start("brain", *shard, "--shard", "1/2", log=tmp_path / "brain1.log")
     second = start("brain", *shard, "--shard", "2/2", log=tmp_path / "brain2.log")
     try:
-        states = watcher.messages[keys.world_state("sd")]
         kill_mid_run(second, states, tmp_path / "world.log", "brain shard 2/2")
         assert first.poll() is None  # the live shard waits with the world
         second = start("brain", *shard, "--shard", "2/2", log=tmp_path / "brain2-again.log")
