@@ -44,7 +44,11 @@ def parser() -> argparse.ArgumentParser:
     p = Parser(prog="spikinglab world", description="The insect's world, on the bus.")
     add_world_args(p)
     p.add_argument("--out", type=Path, help="write metrics.json (collisions over time, learning time, ...) here")
-    p.add_argument("--publish-state", action="store_true", help="publish poses and events every tick (recorder)")
+    p.add_argument(
+        "--publish-state",
+        action="store_true",
+        help="publish poses and events every tick (recorder; a world shard: its slice's, which the recorder joins)",
+    )
     p.add_argument("--progress", action="store_true", help="show a progress bar")
     p.add_argument(
         "--shards",
