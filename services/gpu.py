@@ -22,7 +22,7 @@ import numpy as np
 from services.brain.brain import Brain, bind
 from services.brain.build import TICK, TRAINING
 from services.loop import wiring
-from services.world.world import ACTIONS, BIN, RAY_STEP, VIEW, World
+from services.world.world import BIN, RAY_STEP, VIEW, World
 
 DEVICES = ("cuda",)
 STRETCH = 1000  # ticks per kernel launch: long enough that a launch's cost is nothing beside it
@@ -72,7 +72,7 @@ def fused_loop_cuda(world: World, brain: Brain, ticks: int, stretch: int = STRET
     bins = np.zeros(((t0 + ticks) // BIN - t0 // BIN + 1, agents), np.int64)  # by bin from t0's
     bins[0] = world.bin_collisions
     host = _arguments(world, brain, bins)
-    dev = [cuda.to_device(x) for x in host]
+    dev = [_each(x, cuda.to_device) for x in host]
     # numba's simulator runs a block's threads as Python threads that swap each device function's
     # module globals unlocked ("dictionary changed size during iteration", seen in a test run;
     # NVIDIA/numba-cuda#690): there, one thread a block, the blocks in turn. Same result.
@@ -82,7 +82,7 @@ def fused_loop_cuda(world: World, brain: Brain, ticks: int, stretch: int = STRET
         warnings.filterwarnings("ignore", "overflow encountered", RuntimeWarning)
         for done in range(0, ticks, stretch):
             kernel[blocks, threads](min(stretch, ticks - done), t0 + done, tb0 + done, t0 // BIN, *dev)
-    for d, x in zip(dev, host):
+    for d, x in zip(_flat(dev), _flat(host)):
         if x.flags.writeable:
             d.copy_to_host(x)
     _close_bins(world, bins, ticks)
@@ -98,52 +98,37 @@ def _close_bins(world: World, bins: np.ndarray, ticks: int) -> None:
         world.advance(min(end - world.tick, BIN - world.tick % BIN))  # closes the bin at its end
 
 
-def _arguments(world: World, brain: Brain, bins: np.ndarray) -> list[np.ndarray]:
-    """The kernel's arrays after its four numbers, in its order. Read-only ones are not copied back."""
-    m, net, st = world.metrics, brain.engine.network, brain.engine.state
+def _arguments(world: World, brain: Brain, bins: np.ndarray) -> list:
+    """The kernel's arguments after its four numbers: arrays and named tuples of arrays. Read-only
+    ones are not copied back."""
+    from services.gpu_kernels import DeviceBrain, DeviceNet, DeviceWorld  # numba.cuda: only for a device run
+
+    net, st = brain.engine.network, brain.engine.state
     netlogo = brain.engine.semantics == "netlogo"
-    steps_per_ray = int(round(world.fpar[VIEW] / world.fpar[RAY_STEP]))
+    ray_steps = int(round(world.fpar[VIEW] / world.fpar[RAY_STEP]))
     world_cols, actuators = wiring(brain)  # as services.loop.fused_loop binds them
-    consts = [
-        np.array([steps_per_ray, world.training, st.clock[TRAINING], net.rules, netlogo], np.int64),
-        world.fpar,
-        world.kind,
-        world.arena_of,
-        world.steps,
-        brain.sensor_cols,
-        brain.input_cols,
-        world_cols,
-        actuators,
-        net.syn,
-        net.npar,
-        net.inpar,
-        net.stdp,
-        net.group,
-        net.profile,
-        net.out_start,
-        net.out_syn,
-        net.order_key,
-    ]
-    state = [
-        world.grid,
-        world.pos,
-        world.heading,
+    flags = np.array([ray_steps, world.training, st.clock[TRAINING], net.rules, netlogo], np.int64)
+    senses, drives = np.stack([brain.sensor_cols, brain.input_cols]), np.stack([actuators, world_cols])
+    arrays = world.kernel_arrays() | {"bin": bins}  # the device counts bins by tick
+    arrays.update({name: _read_only(arrays[name]) for name in ("arena_of", "fpar", "kind", "steps")})
+    order = np.zeros(st.v.shape, np.uint64)  # each insect's netlogo order, scratch
+    return [
+        *(_read_only(x) for x in (flags, senses, drives)),
+        DeviceWorld(**arrays),
         world.sensors,
-        *world.touch_arrays[:-1],  # all but the current bin: the device counts bins by tick, in `bins`
-        m.resets,
-        bins,
-        np.zeros((world.agents, len(ACTIONS)), np.uint8),
         brain.feed,
-        st.v,
-        st.w,
-        st.counters,
-        st.last_spike,
-        st.hist,
-        st.ring,
-        st.spiked,
-        np.zeros(st.v.shape, np.uint64),  # each insect's netlogo order, scratch
+        DeviceNet(*(_read_only(getattr(net, name)) for name in DeviceNet._fields)),
+        DeviceBrain._make([*(getattr(st, name) for name in DeviceBrain._fields[:-1]), order]),
     ]
-    return [_read_only(x) for x in consts] + state
+
+
+def _each(x: Any, f):
+    """f of an array, or of each array of a named tuple (a named tuple of the results)."""
+    return x._make(f(y) for y in x) if hasattr(x, "_make") else f(x)
+
+
+def _flat(xs: list) -> list:
+    return [y for x in xs for y in (x if isinstance(x, tuple) else (x,))]
 
 
 def _read_only(x: np.ndarray) -> np.ndarray:

@@ -11,6 +11,7 @@ NUMBA_ENABLE_CUDASIM=1).
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import cuda
@@ -50,9 +51,10 @@ from services.brain.build import (
     TABLE,
     THRESHOLD,
 )
-from services.vocabulary import BLACK, EMPTY, EV_ATE, EV_COLLISION, EV_LEARNED, EV_RESET, GREEN, RED
+from services.vocabulary import EMPTY, EV_ATE, EV_COLLISION, EV_LEARNED, EV_RESET
 from services.world.world import (
     BIN,
+    KERNEL_ARRAYS,
     LEARNED_AFTER,
     MOVE,
     PAIN,
@@ -62,11 +64,21 @@ from services.world.world import (
     REWARD,
     REWARD_VALUE,
     ROTATE,
+    SMELL,
     START_X,
     START_Y,
     X_MIN,
     Y_MIN,
 )
+
+# The kernel's arrays in three named tuples: the world's (services.world.world.KERNEL_ARRAYS, but
+# for `bin`: the collisions by bin from the launch's first, [bins, A]), the Network's and the
+# State's (services/brain/build.py), with a scratch array for each insect's netlogo order.
+DeviceWorld = namedtuple("DeviceWorld", KERNEL_ARRAYS)
+DeviceNet = namedtuple(
+    "DeviceNet", ["syn", "npar", "inpar", "stdp", "group", "profile", "out_start", "out_syn", "order_key"]
+)
+DeviceBrain = namedtuple("DeviceBrain", ["v", "w", "counters", "last_spike", "hist", "ring", "spiked", "order"])
 
 device = cuda.jit(device=True)
 
@@ -90,23 +102,19 @@ def colour_at(grid, g, x, y, fpar):
 
 
 @device
-def sense_one(a, grid, arena_of, pos, heading, fpar, kind, sensors, steps):
-    g = arena_of[a]
+def sense_one(a, world, sensors, ray_steps):
+    grid, pos, fpar, kind = world.grid, world.pos, world.fpar, world.kind
+    g = world.arena_of[a]
     for k in range(sensors.shape[1]):
         sensors[a, k] = math.nan
-    h = math.radians(heading[a])
+    h = math.radians(world.heading[a])
     dx, dy = math.sin(h), math.cos(h)
     d = 0.0  # a running sum, as the CPU's and NetLogo's
-    for _ in range(steps):
+    for _ in range(ray_steps):
         d += fpar[RAY_STEP]
         colour, _patch = colour_at(grid, g, pos[a, 0] + mul(d, dx), pos[a, 1] + mul(d, dy), fpar)
         if colour != EMPTY:
-            if colour == BLACK:
-                sensors[a, 0] = d
-            elif colour == RED:
-                sensors[a, 1] = d
-            elif colour == GREEN:
-                sensors[a, 2] = d
+            sensors[a, SMELL[colour]] = d
             break
     colour, _patch = colour_at(grid, g, pos[a, 0], pos[a, 1], fpar)
     if kind[colour] == 1:
@@ -116,56 +124,65 @@ def sense_one(a, grid, arena_of, pos, heading, fpar, kind, sensors, steps):
 
 
 @device
-def touch_one(a, t, training, grid, arena_of, pos, heading, fpar, kind, last_patch, events, eaten, metrics, bin_row):
-    collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins = metrics
-    g = arena_of[a]
+def touch_one(a, t, training, world, bin_row):
+    """The CPU's touch_range for insect a; world.bin holds the collisions by bin row, not the current bin's."""
+    grid, pos, fpar, events, eaten, last_noxious = (
+        world.grid,
+        world.pos,
+        world.fpar,
+        world.events,
+        world.eaten,
+        world.last_noxious,
+    )
+    g = world.arena_of[a]
     for k in range(events.shape[1]):
         events[a, k] = 0
     eaten[a, 0] = -1
     eaten[a, 1] = -1
     colour, patch = colour_at(grid, g, pos[a, 0], pos[a, 1], fpar)
-    if kind[colour] == 1:
+    if world.kind[colour] == 1:
         last_noxious[a] = t
-        if patch != last_patch[a]:
-            collisions[a] += 1
-            by_colour[a, colour] += 1
-            bins[bin_row, a] += 1
-            last_collision[a] = t
+        if patch != world.last_patch[a]:
+            world.collisions[a] += 1
+            world.collisions_by_colour[a, colour] += 1
+            world.bin[bin_row, a] += 1
+            world.last_collision[a] = t
             events[a, EV_COLLISION] = colour
         if training:
-            h = math.radians(heading[a])
+            h = math.radians(world.heading[a])
             pos[a, 0] += mul(fpar[PUSH], math.sin(h))
             pos[a, 1] += mul(fpar[PUSH], math.cos(h))
-            distance[a] += fpar[PUSH]
-    elif kind[colour] == 2:
+            world.distance[a] += fpar[PUSH]
+    elif world.kind[colour] == 2:
         ix, iy = patch // grid.shape[2], patch % grid.shape[2]
         grid[g, ix, iy] = EMPTY
         eaten[a, 0] = ix
         eaten[a, 1] = iy
-        food[a] += 1
+        world.food[a] += 1
         events[a, EV_ATE] = 1
-    last_patch[a] = patch
-    if learned_at[a] < 0 and t - max(last_noxious[a], 0) >= fpar[LEARNED_AFTER]:
-        learned_at[a] = max(last_noxious[a], 0)
+    world.last_patch[a] = patch
+    if world.learned_at[a] < 0 and t - max(last_noxious[a], 0) >= fpar[LEARNED_AFTER]:
+        world.learned_at[a] = max(last_noxious[a], 0)
         events[a, EV_LEARNED] = 1
 
 
 @device
-def act_one(a, width, height, pos, heading, fpar, steps, actions, events, distance, resets):
+def act_one(a, world):
+    pos, heading, fpar, steps, actions = world.pos, world.heading, world.fpar, world.steps, world.actions
     if actions[a, ROTATE]:
         heading[a] = (heading[a] + steps[a, 0]) % 360.0
     if actions[a, MOVE]:
         h = math.radians(heading[a])
         pos[a, 0] += mul(steps[a, 1], math.sin(h))
         pos[a, 1] += mul(steps[a, 1], math.cos(h))
-        distance[a] += steps[a, 1]
+        world.distance[a] += steps[a, 1]
     x = pos[a, 0] - fpar[X_MIN]
     y = pos[a, 1] - fpar[Y_MIN]
-    if x < 0.0 or y < 0.0 or x > width - 1 or y > height - 1:
+    if x < 0.0 or y < 0.0 or x > world.grid.shape[1] - 1 or y > world.grid.shape[2] - 1:
         pos[a, 0] = fpar[START_X]
         pos[a, 1] = fpar[START_Y]
-        resets[a] += 1
-        events[a, EV_RESET] = 1
+        world.resets[a] += 1
+        world.events[a, EV_RESET] = 1
 
 
 @device
@@ -363,39 +380,30 @@ def netlogo_tick(a, t, training, rules, feed, net, brain):
 
 
 @cuda.jit(cache=True)  # the compiled kernel kept on disk, as the CPU kernels are
-def fused_kernel(
-    ticks, t0, tb0, bin0, flags, fpar, kind, arena_of, steps, sensor_cols, input_cols, world_cols, actuators,
-    syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key,
-    grid, pos, heading, sensors, last_patch, events, eaten, collisions, by_colour, food, distance,
-    last_collision, last_noxious, learned_at, resets, bins, actions, feed,
-    v, w, counters, last_spike, hist, ring, spiked, order,
-):  # fmt: skip
+def fused_kernel(ticks, t0, tb0, bin0, flags, senses, drives, world, sensors, feed, net, brain):
+    """`ticks` ticks of insect a = this thread: `world` a DeviceWorld, `senses` and `drives` as in
+    services.loop's fused block, `net` a DeviceNet, `brain` a DeviceBrain."""
     a = cuda.grid(1)  # pyright: ignore[reportCallIssue] (numba's stub)
-    if a >= pos.shape[0]:
+    if a >= world.pos.shape[0]:
         return
-    steps_per_ray, world_training, brain_training, rules, netlogo = (
+    ray_steps, world_training, brain_training, rules, netlogo = (
         flags[0],
         flags[1] != 0,
         flags[2] != 0,
         flags[3],
         flags[4] != 0,
     )
-    net = (syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key)
-    brain = (v, w, counters, last_spike, hist, ring, spiked, order)
-    metrics = (collisions, by_colour, food, distance, last_collision, last_noxious, learned_at, bins)
+    spiked = brain.spiked
     for k in range(ticks):
         t = t0 + k
-        sense_one(a, grid, arena_of, pos, heading, fpar, kind, sensors, steps_per_ray)
-        for j in range(sensor_cols.shape[0]):
-            feed[a, input_cols[j]] = sensors[a, sensor_cols[j]]
+        sense_one(a, world, sensors, ray_steps)
+        for j in range(senses.shape[1]):
+            feed[a, senses[1, j]] = sensors[a, senses[0, j]]
         if netlogo:
             netlogo_tick(a, tb0 + k, brain_training, rules, feed, net, brain)
         else:
             phased_tick(a, tb0 + k, brain_training, feed, net, brain)
-        for j in range(world_cols.shape[0]):
-            actions[a, world_cols[j]] = spiked[actuators[j], a]
-        row = t // BIN - bin0
-        touch_one(
-            a, t, world_training, grid, arena_of, pos, heading, fpar, kind, last_patch, events, eaten, metrics, row
-        )
-        act_one(a, grid.shape[1], grid.shape[2], pos, heading, fpar, steps, actions, events, distance, resets)
+        for j in range(drives.shape[1]):
+            world.actions[a, drives[1, j]] = spiked[drives[0, j], a]
+        touch_one(a, t, world_training, world, t // BIN - bin0)
+        act_one(a, world)

@@ -28,10 +28,10 @@ from services.world.world import (
     PAIN,
     SENSORS,
     World,
-    act_kernel,
+    act_range,
     params_for,
-    sense_kernel,
-    touch_kernel,
+    sense_range,
+    touch_range,
     world_actions,
 )
 
@@ -88,37 +88,30 @@ def fused_loop(
         blocks = get_num_threads() if world.agents >= BLOCK_FROM and not world.shared else 1
     if blocks < 1 or (blocks > 1 and world.shared):
         raise ValueError(f"blocks: >= 1, and 1 for a shared arena (its insects race for food), got {blocks}")
-    engine, m = brain.engine, world.metrics
+    engine = brain.engine
     if noxious is None:
         noxious = np.zeros((0, world.agents), np.uint8)  # none kept
     world_cols, actuators = wiring(brain)
-    actions = np.zeros((world.agents, len(ACTIONS)), np.uint8)
+    # as two arrays, not a tuple: a tuple in _fused_parallel's *args reaches its prange body as a
+    # "scalar" argument, which numba 0.68 refuses (TypeError: scalar type UniTuple(array...) given)
+    senses, drives = np.stack([brain.sensor_cols, brain.input_cols]), np.stack([actuators, world_cols])
+    netlogo = engine.semantics == "netlogo"
     done = 0
     while done < ticks:
         n = min(ticks - done, BIN - world.tick % BIN)
         kernel, lead = (_fused, (n,)) if blocks == 1 else (_fused_parallel, (blocks, n))
+        kept = noxious[done : done + n]
         kernel(
             *lead,
-            engine.semantics == "netlogo",
+            netlogo,
             world.tick,
             world.training,
-            world.grid,
-            world.arena_of,
-            world.pos,
-            world.heading,
-            world.fpar,
-            world.steps,
-            world.kind,
+            world.struct,
             world.sensors,
-            *world.touch_arrays,
-            m.resets,
-            actions,
-            brain.sensor_cols,
-            brain.input_cols,
-            world_cols,
-            actuators,
+            senses,
+            drives,
             brain.feed,
-            noxious[done : done + n],
+            kept,
             *engine.structs,
         )
         world.advance(n)
@@ -127,84 +120,26 @@ def fused_loop(
 
 
 @njit(cache=True)
-def _fused_block(
-    lo,
-    hi,
-    ticks,
-    netlogo,
-    t0,
-    world_training,
-    grid,
-    arena_of,
-    pos,
-    heading,
-    fpar,
-    steps,
-    kind,
-    sensors,
-    last_patch,
-    events,
-    eaten,
-    collisions,
-    by_colour,
-    food,
-    distance,
-    last_collision,
-    last_noxious,
-    learned_at,
-    bins,
-    resets,
-    actions,
-    sensor_cols,
-    input_cols,
-    world_cols,
-    actuators,
-    feed,
-    noxious,
-    net,
-    st,
-):
-    """`ticks` ticks of agents lo..hi-1: the world's kernels on their rows, the brain's on their
-    columns. The brain's clock is read, not moved (the caller moves it once)."""
-    spiked = st.spiked  # the engine's own [nodes, agents]
+def _fused_block(lo, hi, ticks, netlogo, t0, world_training, w, sensors, senses, drives, feed, noxious, net, st):
+    """`ticks` ticks of agents lo..hi-1: the world's kernels on their rows of the WorldStruct `w`,
+    the brain's on their columns. `senses`: sensor column senses[0, j] feeds input senses[1, j];
+    `drives`: actuator neuron drives[0, j] drives the world's action column drives[1, j]. The
+    brain's clock is read, not moved (the caller moves it once)."""
+    actions, spiked = w.actions, st.spiked  # spiked: the engine's own [nodes, agents]
     t_brain = st.clock[TICK]
-    b = slice(lo, hi)
-    a_pos, a_heading, a_sensors, a_actions, a_events = pos[b], heading[b], sensors[b], actions[b], events[b]
-    a_arena, a_distance, a_feed = arena_of[b], distance[b], feed[b]
+    a_sensors, a_feed = sensors[lo:hi], feed[lo:hi]
     for k in range(ticks):
-        sense_kernel(grid, a_arena, a_pos, a_heading, fpar, kind, a_sensors)
+        sense_range(lo, hi, w, sensors)
         if noxious.shape[0] > 0:
             for a in range(lo, hi):
                 noxious[k, a] = sensors[a, PAIN] == sensors[a, PAIN]  # fed: not NaN
-        bind(a_sensors, sensor_cols, input_cols, a_feed)
+        bind(a_sensors, senses[0], senses[1], a_feed)
         range_tick(netlogo, lo, hi, t_brain + k, feed, net, st)
         for a in range(lo, hi):  # not bind(spiked.T, ...): the kernel's own [nodes, agents], 5-10 % faster
-            for j in range(world_cols.shape[0]):
-                actions[a, world_cols[j]] = spiked[actuators[j], a]
-        touch_kernel(
-            grid,
-            a_arena,
-            a_pos,
-            a_heading,
-            fpar,
-            kind,
-            world_training,
-            t0 + k,
-            last_patch[b],
-            a_events,
-            eaten[b],
-            collisions[b],
-            by_colour[b],
-            food[b],
-            a_distance,
-            last_collision[b],
-            last_noxious[b],
-            learned_at[b],
-            bins[b],
-        )
-        act_kernel(
-            grid.shape[1], grid.shape[2], a_pos, a_heading, fpar, steps[b], a_actions, a_events, a_distance, resets[b]
-        )
+            for j in range(drives.shape[1]):
+                actions[a, drives[1, j]] = spiked[drives[0, j], a]
+        touch_range(lo, hi, w, world_training, t0 + k)
+        act_range(lo, hi, w)
 
 
 @njit(cache=True)

@@ -19,6 +19,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import get_num_threads, njit, prange
+from numba.core import types
+from numba.experimental import structref
 
 from services.kernels import Kernel
 from services.params import PARALLEL_FROM, agent_columns
@@ -48,6 +50,9 @@ COLOURS = GREEN + 1  # patch colours are 0..GREEN: the length of a table by colo
 # are cut there
 JUMP = 2.0
 ROTATE, MOVE = ACTIONS.index("rotate"), ACTIONS.index("move")
+# by colour: the sensor column of the smell that sees it (EMPTY: none)
+_SMELLS = {BLACK: "smell_black", RED: "smell_red", GREEN: "smell_green"}
+SMELL = tuple(SENSORS.index(_SMELLS[c]) if c in _SMELLS else -1 for c in range(COLOURS))
 _NO_CHANGES = np.zeros((0, 4), np.int64)
 _NO_CHANGES.flags.writeable = False
 
@@ -240,6 +245,35 @@ class Metrics:
     bins: list = field(default_factory=list)  # collisions per 1,000 ticks, [A] per finished bin
 
 
+# The arrays the kernels read and write, by name: World's attributes of these names, its act()
+# buffer and current bin, then its Metrics' arrays. On the CPU they cross into the kernels as one
+# WorldStruct (numba structref, as the engine's Network and State): one argument, not twenty. It
+# holds the arrays themselves, so they are filled in place, never rebound; the sensors are not in
+# it: the world service swaps World.sensors for a spare array every tick.
+OWN_ARRAYS = ("grid", "arena_of", "fpar", "kind", "steps", "pos", "heading", "last_patch", "events", "eaten")
+METRIC_ARRAYS = tuple(f.name for f in dataclasses.fields(Metrics) if f.name != "bins")
+KERNEL_ARRAYS = (*OWN_ARRAYS, "actions", "bin", *METRIC_ARRAYS)
+
+
+@structref.register
+class WorldType(types.StructRef):
+    def preprocess_fields(self, fields):
+        return tuple((name, types.unliteral(t)) for name, t in fields)
+
+
+class WorldStruct(structref.StructRefProxy):
+    """A World's KERNEL_ARRAYS as its kernels take them (the arrays, not copies)."""
+
+
+structref.define_proxy(WorldStruct, WorldType, list(KERNEL_ARRAYS))
+
+
+@njit(cache=True)
+def _world_struct(arrays):
+    """Made in compiled code, from numba's cache: a proxy's own constructor compiles anew in every process."""
+    return WorldStruct(*arrays)
+
+
 class World:
     """A insects in their arenas. `sense()` then `act(actions)` per tick.
 
@@ -331,12 +365,13 @@ class World:
         self._bin = np.zeros(A, np.int64)
         self.events = np.zeros((A, len(EVENT_COLUMNS)), np.int64)  # this tick's events
         self.eaten = np.full((A, 2), -1, np.int64)  # this tick: grid index of the food eaten, or -1
+        self.struct = _world_struct(tuple(self.kernel_arrays().values()))  # the kernels' argument
 
     def sense(self) -> np.ndarray:
         """Vision then touch for tick self.tick: the sensors [A, len(SENSORS)] (NaN: nothing).
 
         Reads the world and changes nothing in it; what touching a patch does comes in act()."""
-        self._sense(self.grid, self.arena_of, self.pos, self.heading, self.fpar, self.kind, self.sensors)
+        self._sense(self.struct, self.sensors)
         return self.sensors
 
     def changes(self) -> np.ndarray:
@@ -352,48 +387,14 @@ class World:
         if actions.shape != self._actions.shape:
             raise ValueError(f"actions of shape {actions.shape}, expected {self._actions.shape} (agents, actions)")
         self._actions[:] = actions
-        self._touch(
-            self.grid,
-            self.arena_of,
-            self.pos,
-            self.heading,
-            self.fpar,
-            self.kind,
-            self.training,
-            self.tick,
-            *self.touch_arrays,
-        )
-        self._act(
-            self.grid.shape[1],
-            self.grid.shape[2],
-            self.pos,
-            self.heading,
-            self.fpar,
-            self.steps,
-            self._actions,
-            self.events,
-            self.metrics.distance,
-            self.metrics.resets,
-        )
+        self._touch(self.struct, self.training, self.tick)
+        self._act(self.struct)
         self.advance(1)
 
-    @property
-    def touch_arrays(self) -> tuple[np.ndarray, ...]:
-        """What touching a patch writes, per agent: touch_kernel's arguments after `t`, in its order."""
-        m = self.metrics
-        return (
-            self.last_patch,
-            self.events,
-            self.eaten,
-            m.collisions,
-            m.collisions_by_colour,
-            m.food,
-            m.distance,
-            m.last_collision,
-            m.last_noxious,
-            m.learned_at,
-            self._bin,
-        )
+    def kernel_arrays(self) -> dict[str, np.ndarray]:
+        """The arrays the kernels take (KERNEL_ARRAYS, in that order): what self.struct holds."""
+        own = {name: getattr(self, name) for name in OWN_ARRAYS}
+        return own | {"actions": self._actions, "bin": self._bin} | {n: getattr(self.metrics, n) for n in METRIC_ARRAYS}
 
     @property
     def bin_collisions(self) -> np.ndarray:
@@ -456,11 +457,12 @@ def _cell(x, y, x_min, y_min, width, height):
 
 
 @njit(cache=True, inline="always")
-def _sense_range(lo, hi, grid, arena_of, pos, heading, fpar, kind, sensors):
-    """Vision then touch for agents lo..hi-1. The loop over agents is here, not in a caller: numba
-    counts references to the arrays handed to an inlined function at every call, which in a loop
-    over agents cost more than the sensing."""
-    steps = int(round(fpar[VIEW] / fpar[RAY_STEP]))
+def sense_range(lo, hi, w, sensors):
+    """Vision then touch into `sensors` for agents lo..hi-1 of a WorldStruct `w`. The loop over
+    agents is here, not in a caller: numba counts references to the arrays handed to an inlined
+    function at every call, which in a loop over agents cost more than the sensing."""
+    grid, arena_of, pos, heading, fpar, kind = w.grid, w.arena_of, w.pos, w.heading, w.fpar, w.kind
+    ray_steps = int(round(fpar[VIEW] / fpar[RAY_STEP]))
     x_min, y_min, width, height = fpar[X_MIN], fpar[Y_MIN], grid.shape[1], grid.shape[2]
     for a in range(lo, hi):
         g = arena_of[a]
@@ -472,17 +474,12 @@ def _sense_range(lo, hi, grid, arena_of, pos, heading, fpar, kind, sensors):
         # distance is a running sum, as NetLogo's `set itemcount itemcount + 0.2`: its 10th
         # sample is 1.9999999999999998, so a patch seen there fires its smell one tick sooner.
         d = 0.0
-        for _step in range(steps):
+        for _step in range(ray_steps):
             d += fpar[RAY_STEP]
             ix, iy = _cell(pos[a, 0] + d * dx, pos[a, 1] + d * dy, x_min, y_min, width, height)
             colour = grid[g, ix, iy] if ix >= 0 else EMPTY
             if colour != EMPTY:
-                if colour == BLACK:
-                    sensors[a, 0] = d
-                elif colour == RED:
-                    sensors[a, 1] = d
-                elif colour == GREEN:
-                    sensors[a, 2] = d
+                sensors[a, SMELL[colour]] = d
                 break
         # touch: the patch under the insect
         ix, iy = _cell(pos[a, 0], pos[a, 1], x_min, y_min, width, height)
@@ -494,44 +491,25 @@ def _sense_range(lo, hi, grid, arena_of, pos, heading, fpar, kind, sensors):
 
 
 @njit(cache=True)
-def sense_kernel(grid, arena_of, pos, heading, fpar, kind, sensors):
-    _sense_range(0, pos.shape[0], grid, arena_of, pos, heading, fpar, kind, sensors)
+def sense_kernel(w, sensors):
+    sense_range(0, w.pos.shape[0], w, sensors)
 
 
 @njit(cache=True, parallel=True)
-def _sense_parallel(grid, arena_of, pos, heading, fpar, kind, sensors):
-    agents, blocks = pos.shape[0], get_num_threads()
+def _sense_parallel(w, sensors):
+    agents, blocks = w.pos.shape[0], get_num_threads()
     for c in prange(blocks):  # reads only: agents are independent, in a shared arena too
-        lo, hi = c * agents // blocks, (c + 1) * agents // blocks
-        _sense_range(lo, hi, grid, arena_of, pos, heading, fpar, kind, sensors)
+        sense_range(c * agents // blocks, (c + 1) * agents // blocks, w, sensors)
 
 
 @njit(cache=True, inline="always")
-def _touch_range(
-    lo,
-    hi,
-    grid,
-    arena_of,
-    pos,
-    heading,
-    fpar,
-    kind,
-    training,
-    t,
-    last_patch,
-    events,
-    eaten,
-    collisions,
-    by_colour,
-    food,
-    distance,
-    last_collision,
-    last_noxious,
-    learned_at,
-    bins,
-):
+def touch_range(lo, hi, w, training, t):
     """What touching the patch under each insect lo..hi-1 does in tick t: count, push, eat, learn
-    (the loop over agents here, as in _sense_range)."""
+    (the loop over agents here, as in sense_range)."""
+    grid, arena_of, pos, heading, fpar, kind = w.grid, w.arena_of, w.pos, w.heading, w.fpar, w.kind
+    last_patch, events, eaten, distance, bins = w.last_patch, w.events, w.eaten, w.distance, w.bin
+    collisions, by_colour, food = w.collisions, w.collisions_by_colour, w.food
+    last_collision, last_noxious, learned_at = w.last_collision, w.last_noxious, w.learned_at
     x_min, y_min, width, height = fpar[X_MIN], fpar[Y_MIN], grid.shape[1], grid.shape[2]
     for a in range(lo, hi):
         g = arena_of[a]
@@ -567,105 +545,25 @@ def _touch_range(
 
 
 @njit(cache=True)
-def touch_kernel(
-    grid,
-    arena_of,
-    pos,
-    heading,
-    fpar,
-    kind,
-    training,
-    t,
-    last_patch,
-    events,
-    eaten,
-    collisions,
-    by_colour,
-    food,
-    distance,
-    last_collision,
-    last_noxious,
-    learned_at,
-    bins,
-):
+def touch_kernel(w, training, t):
     """What touching the patch under each insect does in tick t: count, push, eat, learn."""
-    _touch_range(
-        0,
-        pos.shape[0],
-        grid,
-        arena_of,
-        pos,
-        heading,
-        fpar,
-        kind,
-        training,
-        t,
-        last_patch,
-        events,
-        eaten,
-        collisions,
-        by_colour,
-        food,
-        distance,
-        last_collision,
-        last_noxious,
-        learned_at,
-        bins,
-    )
+    touch_range(0, w.pos.shape[0], w, training, t)
 
 
 @njit(cache=True, parallel=True)
-def _touch_parallel(
-    grid,
-    arena_of,
-    pos,
-    heading,
-    fpar,
-    kind,
-    training,
-    t,
-    last_patch,
-    events,
-    eaten,
-    collisions,
-    by_colour,
-    food,
-    distance,
-    last_collision,
-    last_noxious,
-    learned_at,
-    bins,
-):
+def _touch_parallel(w, training, t):
     """touch_kernel for agents each in an arena of its own (in a shared one, the first on a food patch eats it)."""
-    agents, blocks = pos.shape[0], get_num_threads()
+    agents, blocks = w.pos.shape[0], get_num_threads()
     for c in prange(blocks):
-        _touch_range(
-            c * agents // blocks,
-            (c + 1) * agents // blocks,
-            grid,
-            arena_of,
-            pos,
-            heading,
-            fpar,
-            kind,
-            training,
-            t,
-            last_patch,
-            events,
-            eaten,
-            collisions,
-            by_colour,
-            food,
-            distance,
-            last_collision,
-            last_noxious,
-            learned_at,
-            bins,
-        )
+        touch_range(c * agents // blocks, (c + 1) * agents // blocks, w, training, t)
 
 
 @njit(cache=True, inline="always")
-def _act_range(lo, hi, width, height, pos, heading, fpar, steps, actions, events, distance, resets):
+def act_range(lo, hi, w):
+    """The actions (w.actions) of agents lo..hi-1, then the boundary check."""
+    pos, heading, fpar, steps, actions = w.pos, w.heading, w.fpar, w.steps, w.actions
+    events, distance, resets = w.events, w.distance, w.resets
+    width, height = w.grid.shape[1], w.grid.shape[2]
     for a in range(lo, hi):
         if actions[a, ROTATE]:
             heading[a] = (heading[a] + steps[a, 0]) % 360.0
@@ -686,13 +584,12 @@ def _act_range(lo, hi, width, height, pos, heading, fpar, steps, actions, events
 
 
 @njit(cache=True)
-def act_kernel(width, height, pos, heading, fpar, steps, actions, events, distance, resets):
-    _act_range(0, pos.shape[0], width, height, pos, heading, fpar, steps, actions, events, distance, resets)
+def act_kernel(w):
+    act_range(0, w.pos.shape[0], w)
 
 
 @njit(cache=True, parallel=True)
-def _act_parallel(width, height, pos, heading, fpar, steps, actions, events, distance, resets):
-    agents, blocks = pos.shape[0], get_num_threads()
+def _act_parallel(w):
+    agents, blocks = w.pos.shape[0], get_num_threads()
     for c in prange(blocks):
-        lo, hi = c * agents // blocks, (c + 1) * agents // blocks
-        _act_range(lo, hi, width, height, pos, heading, fpar, steps, actions, events, distance, resets)
+        act_range(c * agents // blocks, (c + 1) * agents // blocks, w)
