@@ -137,8 +137,8 @@ def test_two_world_shards_and_brain_shards_run_bit_for_bit_as_one_process(tmp_pa
 def test_every_world_shard_is_recorded_as_one_population(tmp_path):
     """2 world shards publish their slices' state, the recorder makes one recording of the 7 insects:
     every tick's poses are the one-process closed loop's, agent 4 (world shard 2's) the detail agent
-    and its arena the map shown; forged shard states (a slice overlapping a shard's, one outside the
-    population, one of another population) are refused in a line each and the recording goes on."""
+    and its arena the map shown; forged shard states (a slice that is not a shard's, one outside the
+    population, one of another number of shards) are refused in a line each and the recording goes on."""
     made, router_at = options(tmp_path), endpoint(tmp_path, "router")
     bus = ("--group", "wr", "--connect", router_at)
     router = start("router", "--listen", router_at, log=tmp_path / "router.log")
@@ -181,8 +181,8 @@ def test_every_world_shard_is_recorded_as_one_population(tmp_path):
         wait_for(lambda: log1.exists() and re.search(r"run \w+: \d+ ticks", log1.read_text()), 60, "the run")
         run = logged(log1.read_text(), r"run (\w+): \d+ ticks").group(1)
         time.sleep(1)  # the shards' maps and first states are in before the forgeries
-        for first, agents, population in ((4, 3, 7), (5, 3, 7), (3, 4, 8)):
-            forger.session.put(keys.world_state("wr"), encode(forged_state(run, first, agents, population)))
+        for first, agents, shards in ((4, 3, 2), (5, 3, 2), (4, 3, 3)):
+            forger.session.put(keys.world_state("wr"), encode(forged_state(run, first, agents, shards)))
         for i, process in enumerate(worlds, 1):
             assert finish(process, 120, tmp_path / f"world{i}.log") == 0
         for j, process in enumerate(brains, 1):
@@ -195,9 +195,9 @@ def test_every_world_shard_is_recorded_as_one_population(tmp_path):
     said = (tmp_path / "recorder.log").read_text()
     assert "(ticks 0..2999)" in said and "ticks missing: none" in said
     for why in (
-        "world shard of agents 4..6 overlaps the shard of agents 3..6",
+        "agents 4..6: not one of 2 world shards' slices of 7",
         "agents 5..7 outside the population of 7",
-        "world shard of agents 3..6: a population of 8, the recording's shards say 7",
+        "world shard of agents 4..6: one of 3 shards of 7 agents; the recording's are 2 of 7",
     ):
         assert len([line for line in said.splitlines() if "WARNING rejected message" in line and why in line]) == 1
     alone = world_from(made)
@@ -224,8 +224,8 @@ def test_every_world_shard_is_recorded_as_one_population(tmp_path):
     assert data["/world/heading/agent4"]["tick"] == list(range(TICKS))
 
 
-def forged_state(run: str, first: int, agents: int, population: int) -> WorldState:
-    """A world shard's state of agents first.. first + agents - 1 of `population`, for a tick of the run."""
+def forged_state(run: str, first: int, agents: int, shards: int) -> WorldState:
+    """A state of agents first.. first + agents - 1 of 7, as one of `shards` world shards', for a tick of the run."""
     return WorldState(
         tick=10,
         run=run,
@@ -238,7 +238,8 @@ def forged_state(run: str, first: int, agents: int, population: int) -> WorldSta
         food=Array.of(np.zeros((1, agents), np.int64)),
         changes=Array.of(np.zeros((0, 5), np.int64)),
         first=first,
-        population=population,
+        population=AGENTS,
+        shards=shards,
     )
 
 

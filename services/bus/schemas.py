@@ -210,11 +210,12 @@ class WorldState(Message, tag="world_state", frozen=True, kw_only=True):
     final: bool = False
     first: AgentIndex = 0  # a world shard's: the population's index of its first agent (its arena 0)
     population: Population = 0  # a world shard's: the agents of the whole population; 0: this world is whole
+    shards: Population = 0  # a world shard's: the number of world shards N (its slice is one of N)
 
     def check(self):
         self.changes.numpy("changes", "<i8", 2)
         shape = self.pos.numpy("pos", "<f8", 3).shape[:2]
-        check_slice(self.first, shape[1], self.population, "agents")
+        check_slice(self.first, shape[1], self.population, self.shards, "agents")
         if self.sensors.numpy("sensors", "<f8", 3).shape != (*shape, len(self.sensor_names)):
             raise BusError(
                 f"sensors have shape {list(self.sensors.shape)} for {list(shape)} ticks x agents and "
@@ -247,19 +248,31 @@ class WorldMap(Message, tag="world_map", frozen=True, kw_only=True):
     y_min: Coordinate
     first: AgentIndex = 0  # a world shard's: the population's index of its first agent, whose arena is its 0
     population: Population = 0  # a world shard's: the agents (and arenas) of the whole population; 0: whole
+    shards: Population = 0  # a world shard's: the number of world shards N (its slice is one of N)
 
     def check(self):
         if 0 in self.grid.numpy("grid", "|u1", 3).shape:
             raise BusError(f"grid of shape {list(self.grid.shape)}: no arena")
-        check_slice(self.first, self.grid.shape[0], self.population, "arenas")
+        check_slice(self.first, self.grid.shape[0], self.population, self.shards, "arenas")
 
 
-def check_slice(first: int, agents: int, population: int, what: str) -> None:
-    """BusError unless a world shard's `agents` from `first` lie in its population (a whole world: first 0)."""
-    if population == 0 and first != 0:
-        raise BusError(f"first agent {first} in a whole world (population 0)")
-    if population and first + agents > population:
+def check_slice(first: int, agents: int, population: int, shards: int, what: str) -> None:
+    """BusError unless `agents` from `first` are a world shard's slice: shard I of `shards` of the
+    population has agents P(I-1)//N .. PI//N - 1 (services.options.shard_slice). A whole world says
+    first 0, population 0, shards 0."""
+    if population == 0:
+        if first or shards:
+            raise BusError(f"first agent {first}, {shards} shards in a whole world (population 0)")
+        return
+    if first + agents > population:
         raise BusError(f"{what} {first}..{first + agents - 1} outside the population of {population}")
+    if not 1 <= shards <= population:
+        raise BusError(f"{shards} world shards of a population of {population}")
+    i = -(-first * shards // population)  # the shard whose slice starts at `first`, if one does
+    if population * i // shards != first or population * (i + 1) // shards != first + agents:
+        raise BusError(
+            f"{what} {first}..{first + agents - 1}: not one of {shards} world shards' slices of {population}"
+        )
 
 
 KINDS = (Sensors, Motor, Control, BrainState, BrainLayout, WorldState, WorldMap)

@@ -1,13 +1,13 @@
 """World shards' state and maps (each a slice of one population) joined into the population's.
 
 N world shards (`world --shard I/N --publish-state`) each send their slice's WorldMap and
-WorldState batches, saying the slice's first agent (`first`) and the population's size
-(`population`). `ShardJoin.take(message)` keeps them by slice and gives the whole population's
-messages as soon as every slice has come: the map once every shard's has, the states tick by tick
-for the ticks every shard has sent (the shards' batches need not start at the same ticks), agents
-and arenas in population order, so the recording is the one a whole world's run makes. A slice must
-be shard I of N of the population (docs/shards.md), the same N for all, and not overlap another;
-a message that is not is refused (BusError) and nothing of it kept.
+WorldState batches, saying the slice's first agent (`first`), the population's size
+(`population`) and N (`shards`); decoding has checked that the slice is shard I of N's.
+`ShardJoin.take(message)` keeps them by slice and gives the whole population's messages as soon
+as every slice has come: the map once every shard's has, the states for the ticks every shard has
+sent (the shards' batches need not start at the same ticks), agents and arenas in population
+order, so the recording is the one a whole world's run makes. A message of another population or
+N, or that does not fit its shard's map, is refused (BusError) and nothing of it kept.
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ import msgspec
 import numpy as np
 
 from services.bus.schemas import Array, BusError, WorldMap, WorldState
-from services.options import shard_slice
 from services.vocabulary import EVENT_COLUMNS
 from services.world.world import COLOURS
 
@@ -32,19 +31,6 @@ STATE_ARRAYS = {
     "food": ("<i8", 2),
 }
 HELD_BYTES = 256 << 20  # the shards' ticks held waiting for the others, at most: beyond, the oldest are dropped
-
-
-def shard_counts(population: int, first: int, agents: int) -> set[int]:
-    """The numbers of shards N for which agents first..first+agents-1 are one shard's slice."""
-    if agents < 1:
-        return set()
-    low, high = max(1, population // (agents + 1)), min(population, population // max(agents - 1, 1) + 1)
-    counts = set()
-    for n in range(low, high + 1):
-        i = -(-first * n // population)  # the shard whose slice would start at `first`
-        if i < n and shard_slice(population, (i + 1, n)) == (first, first + agents):
-            counts.add(n)
-    return counts
 
 
 @dataclass
@@ -76,9 +62,8 @@ class ShardJoin:
     """The shards of one run's population, and the ticks each has sent that the others have not yet."""
 
     def __init__(self):
-        self.population, self.run = 0, ""
-        self.counts: set[int] | None = None  # the numbers of shards N every slice so far agrees with
-        self.slices: dict[int, int] = {}  # first agent -> agents
+        self.population, self.shards, self.run = 0, 0, ""
+        self.slices: dict[int, int] = {}  # first agent -> agents (shard I of N's slice, decoding checked)
         self.maps: dict[int, WorldMap] = {}
         self.map_sent = False
         self.blocks: dict[int, list[Block]] = {}  # first agent -> ticks waiting for the other shards
@@ -104,33 +89,22 @@ class ShardJoin:
         return self.joined_states()
 
     def check(self, message: WorldMap | WorldState) -> None:
-        """BusError unless `message` is of a slice that fits the shards so far; a new one is kept."""
-        first, population = message.first, message.population
+        """BusError unless `message` is of a shard of the population and N the recording has."""
+        first, population, shards = message.first, message.population, message.shards
         agents = message.grid.shape[0] if isinstance(message, WorldMap) else message.pos.shape[1]
         where = f"world shard of agents {first}..{first + agents - 1}"
-        if self.population and population != self.population:
-            raise BusError(f"{where}: a population of {population}, the recording's shards say {self.population}")
-        counts = self.counts if self.slices.get(first) == agents else self.check_slice(first, agents, population, where)
+        if self.population and (population, shards) != (self.population, self.shards):
+            raise BusError(
+                f"{where}: one of {shards} shards of {population} agents; the recording's are {self.shards} of "
+                f"{self.population}"
+            )
         if isinstance(message, WorldMap):
             self.check_map(message, where)
         elif first in self.finals:
             raise BusError(f"{where}: a state after its final batch")
         else:
             self.check_changes(message, agents, where)
-        self.population, self.counts, self.slices[first] = population, counts, agents
-
-    def check_slice(self, first: int, agents: int, population: int, where: str) -> set[int]:
-        """The numbers of shards N a new slice agrees with, as the others do; BusError if none."""
-        overlap = [f for f, n in self.slices.items() if f < first + agents and first < f + n]
-        if overlap:
-            f = overlap[0]
-            raise BusError(f"{where} overlaps the shard of agents {f}..{f + self.slices[f] - 1}")
-        counts = shard_counts(population, first, agents)
-        if self.counts is not None:
-            counts &= self.counts
-        if not counts:
-            raise BusError(f"{where}: not a slice of {population} agents in N world shards, as the others are")
-        return counts
+        self.population, self.shards, self.slices[first] = population, shards, agents
 
     def check_map(self, message: WorldMap, where: str) -> None:
         kept = self.maps.get(message.first)
@@ -151,8 +125,8 @@ class ShardJoin:
 
     @property
     def complete(self) -> bool:
-        """Whether every shard is known: the slices (which do not overlap) make the population."""
-        return bool(self.population) and sum(self.slices.values()) == self.population
+        """Whether every shard is known."""
+        return bool(self.shards) and len(self.slices) == self.shards
 
     def joined_map(self) -> WorldMap:
         self.map_sent = True

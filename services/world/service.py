@@ -138,10 +138,10 @@ def run_on(
     brains.wait()
     stream = None
     if state is not None:  # a shard's: its slice of the population, which the recorder joins to the others'
-        population = config.world.agents if shard[1] > 1 else 0
+        population, n = (config.world.agents, shard[1]) if shard[1] > 1 else (0, 0)
         wait_for_subscriber(state, "a recorder")
-        bus.outbox(keys.world_map(group)).put(world_map(world, run_id, population))
-        stream = StateStream(state, world, run_id, population)
+        bus.outbox(keys.world_map(group)).put(world_map(world, run_id, population, n))
+        stream = StateStream(state, world, run_id, population, n)
     if resumed and config.checkpoint:
         log.info("run %s resumed at tick %d from %s", run_id, start, config.checkpoint / CHECKPOINT)
     log.info(

@@ -15,9 +15,9 @@ from services.vocabulary import EVENT_COLUMNS
 from .world import SENSORS, World
 
 
-def world_map(world: World, run: str, population: int = 0) -> WorldMap:
-    """The arenas as they are now, the first message a recorder gets of a run (`population`: a
-    world shard's, the whole population's size)."""
+def world_map(world: World, run: str, population: int = 0, shards: int = 0) -> WorldMap:
+    """The arenas as they are now, the first message a recorder gets of a run (`population`,
+    `shards`: a world shard's, the whole population's size and the number of world shards)."""
     p = world.params
     return WorldMap(
         tick=world.tick,
@@ -27,6 +27,7 @@ def world_map(world: World, run: str, population: int = 0) -> WorldMap:
         y_min=p.y_min,
         first=int(world.numbers[0]) if population else 0,
         population=population,
+        shards=shards,
     )
 
 
@@ -47,7 +48,7 @@ def keep_state(batch: TickBatch, changes: list, world: World, t: int, sensors: n
 
 
 def state_message(
-    batch: TickBatch, changes: list, final: bool, world: World, run: str, population: int = 0
+    batch: TickBatch, changes: list, final: bool, world: World, run: str, population: int = 0, shards: int = 0
 ) -> WorldState:
     """The ticks kept since the last message (none, when a run ends before its first tick)."""
     first, a = batch.take()
@@ -80,15 +81,17 @@ def state_message(
         final=final,
         first=int(world.numbers[0]) if population else 0,
         population=population,
+        shards=shards,
     )
 
 
 class StateStream:
     """One run's ticks on their way to the recorder: kept tick by tick, sent a batch at a time
-    (`population`: a world shard's, the whole population's size)."""
+    (`population`, `shards`: a world shard's, the whole population's size and the number of shards)."""
 
-    def __init__(self, outbox: Outbox, world: World, run: str, population: int = 0):
-        self.outbox, self.world, self.run, self.population = outbox, world, run, population
+    def __init__(self, outbox: Outbox, world: World, run: str, population: int = 0, shards: int = 0):
+        self.outbox, self.world, self.run = outbox, world, run
+        self.population, self.shards = population, shards
         self.batch, self.changes = TickBatch(state_batch(world.agents)), []
 
     def keep(self, t: int, sensors: np.ndarray) -> None:
@@ -99,4 +102,6 @@ class StateStream:
         return self.batch.full
 
     def send(self, final: bool = False) -> None:
-        self.outbox.put(state_message(self.batch, self.changes, final, self.world, self.run, self.population))
+        self.outbox.put(
+            state_message(self.batch, self.changes, final, self.world, self.run, self.population, self.shards)
+        )

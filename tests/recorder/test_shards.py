@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import rerun as rr
 
-from services.bus.schemas import Array, BusError, WorldMap, WorldState, decode, encode, new_run_id
+from services.bus.schemas import Array, BusError, WorldMap, WorldState, check_slice, decode, encode, new_run_id
 from services.options import shard_slice
 from services.recorder.recorder import Recorder
-from services.recorder.shards import ShardJoin, shard_counts
+from services.recorder.shards import ShardJoin
 from services.world.world import SENSORS, generate_map, params_for
 
 from ..recordings import read
@@ -48,13 +48,21 @@ def shard_state(whole, lo, hi, tick, end, changes=(), final=False, **slice_) -> 
         final=final,
         first=slice_.get("first", lo),
         population=slice_.get("population", AGENTS),
+        shards=slice_.get("shards", 2),
     )
 
 
-def shard_map(lo, hi, population=AGENTS) -> WorldMap:
+def shard_map(lo, hi, population=AGENTS, shards=2) -> WorldMap:
     grid = np.stack([generate_map(PARAMS, a) for a in range(lo, hi)])
     return WorldMap(
-        tick=0, run=RUN, grid=Array.of(grid), x_min=PARAMS.x_min, y_min=PARAMS.y_min, first=lo, population=population
+        tick=0,
+        run=RUN,
+        grid=Array.of(grid),
+        x_min=PARAMS.x_min,
+        y_min=PARAMS.y_min,
+        first=lo,
+        population=population,
+        shards=shards,
     )
 
 
@@ -69,13 +77,26 @@ def joined(messages) -> tuple[list, dict[str, np.ndarray]]:
 ARRAYS = {"pos": ("<f8", 3), "sensors": ("<f8", 3), "heading": ("<f8", 2), "events": ("<i8", 3), "food": ("<i8", 2)}
 
 
-def test_the_slices_of_n_shards_are_known_by_their_first_agent_and_size():
-    for population in (1, 7, 100, 4000):
-        for n in range(1, min(population, 12) + 1):
-            for i in range(1, n + 1):
+def test_a_shards_message_holds_one_of_its_n_slices():
+    for population in (1, 7, 100, 4000, 2**31 - 1):
+        for n in (*range(1, min(population, 12) + 1), population):
+            for i in (*range(1, min(n, 12) + 1), n):
                 lo, hi = shard_slice(population, (i, n))
-                assert n in shard_counts(population, lo, hi - lo)
-    assert shard_counts(7, 1, 3) == set() and shard_counts(7, 0, 3) == {2} and shard_counts(7, 3, 4) == {2}
+                check_slice(lo, hi - lo, population, n, "agents")
+    for first, agents, population, shards, why in (
+        (1, 3, 7, 2, r"agents 1\.\.3: not one of 2 world shards' slices of 7"),
+        (4, 3, 7, 2, r"agents 4\.\.6: not one of 2 world shards' slices of 7"),
+        (0, 1, 2**31 - 1, 2**31 - 1, None),
+        (0, 2, 2**31 - 1, 2**31 - 1, "not one of"),
+        (3, 4, 7, 8, "8 world shards of a population of 7"),
+        (3, 4, 7, 0, "0 world shards of a population of 7"),
+        (3, 4, 0, 0, "first agent 3, 0 shards in a whole world"),
+    ):
+        if why is None:
+            check_slice(first, agents, population, shards, "agents")
+        else:
+            with pytest.raises(BusError, match=why):
+                check_slice(first, agents, population, shards, "agents")
 
 
 def test_shards_in_batches_of_their_own_make_the_populations_state_and_map():
@@ -110,9 +131,9 @@ def test_ticks_one_shard_lost_are_left_out_of_every_shards():
 def forged(whole):
     """Shard states that are not of a shard of the population the recording holds, and why."""
     return [
-        (shard_state(whole, 4, 7, 0, 10), "not a slice of 7 agents in N world shards"),  # shard 3/3's, not 2/2's
-        (shard_state(whole, 1, 4, 0, 10), r"agents 1\.\.3 overlaps the shard of agents 0\.\.2"),
-        (shard_state(whole, 3, 7, 0, 10, population=8), "a population of 8, the recording's shards say 7"),
+        (shard_state(whole, 4, 7, 0, 10), "agents 4..6: not one of 2 world shards' slices of 7"),  # decoding
+        (shard_state(whole, 4, 7, 0, 10, shards=3), "one of 3 shards of 7 agents; the recording's are 2 of 7"),
+        (shard_state(whole, 3, 6, 0, 10, population=6), "one of 2 shards of 6 agents; the recording's are 2 of 7"),
         (shard_state(whole, 3, 7, 0, 10, [(3, 4, 0, 0, 1)]), "a map change outside its arenas"),  # arena 4 of 4
         (shard_state(whole, 0, 3, 10, 20), "a state after its final batch"),
     ]
@@ -153,10 +174,10 @@ def test_a_shard_message_of_another_map_size_or_a_second_map_is_refused():
 
 
 def test_a_refused_shard_message_leaves_nothing_behind():
-    """A slice of 3 shards (agents 4..6) with a change outside its arenas: refused, and the slices of
-    2 shards that come after it are not held to its number of shards."""
+    """Shard 3 of 3 (agents 4..6) with a change outside its arenas: refused, and the shards of 2
+    that come after it are not held to its number of shards."""
     whole, join = population_state(), ShardJoin()
     with pytest.raises(BusError, match="a map change outside its arenas"):
-        join.take(shard_state(whole, 4, 7, 0, 10, [(3, 3, 0, 0, 1)]))
+        join.take(shard_state(whole, 4, 7, 0, 10, [(3, 3, 0, 0, 1)], shards=3))
     join.take(shard_state(whole, 0, 3, 0, 10))
     assert len(join.take(shard_state(whole, 3, 7, 0, 10))) == 1
