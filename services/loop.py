@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Iterable, Mapping
+from typing import TypedDict, Unpack
 
 import numpy as np
 from numba import get_num_threads, njit, prange
@@ -161,6 +162,17 @@ def _fused_parallel(chunks, ticks, *args):
     st.clock[TICK] += ticks
 
 
+class Setup(TypedDict, total=False):
+    """population()'s options, which evaluate() passes on (population() has their defaults)."""
+
+    circuit: str | Circuit
+    preset: str
+    learned_after: int
+    semantics: str
+    order: str
+    netlogo_seed: int | None
+
+
 def population(
     params: Mapping,
     seeds,
@@ -205,15 +217,10 @@ def evaluate(
     ticks: int,
     seeds: Iterable[int] = range(4),
     *,
-    circuit: str | Circuit = "insect",
-    preset: str = "paper",
-    learned_after: int = 5000,
-    semantics: str = DEFAULT_SEMANTICS,
-    order: str = "random",
     cluster: str | None = None,
     on_block: Callable[[int], object] | None = None,
     device: str = "cpu",
-    netlogo_seed: int | None = None,
+    **options: Unpack[Setup],
 ) -> dict[str, np.ndarray]:
     """Train every parameter setting on every seed for `ticks` ticks, all as one population.
 
@@ -223,6 +230,9 @@ def evaluate(
     --agents`, and the sweep's seed s). Returns arrays [settings, seeds]: "learning_time" (the last
     tick on a noxious patch before `learned_after` ticks off them; -1: not within `ticks`),
     "collisions", "food", and "collisions_last_quarter" (of the run's collision bins).
+
+    `options` (Setup): the circuit (a name or a Circuit), the world's preset, `learned_after`,
+    the engine's semantics and netlogo order, and `netlogo_seed`.
 
     `cluster`: a Dask scheduler's address (tcp://HOST:PORT, docs/cluster.md); the population runs
     there in blocks, with the same result bit for bit, and `on_block(insects)` is called as each
@@ -234,14 +244,6 @@ def evaluate(
     `device`: "cpu", or "cuda" for an NVIDIA GPU (services/gpu.py, docs/gpu.md): the same results;
     refused in one line (RuntimeError) where numba-cuda or the GPU is missing."""
     seeds = list(seeds)
-    options: dict = dict(
-        circuit=circuit,
-        preset=preset,
-        learned_after=learned_after,
-        semantics=semantics,
-        order=order,
-        netlogo_seed=netlogo_seed,
-    )
     if device != "cpu":
         from services.gpu import check_device  # numba.cuda only when the device is asked for
 
