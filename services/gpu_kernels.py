@@ -12,11 +12,13 @@ from __future__ import annotations
 
 import math
 from collections import namedtuple
+from typing import Any
 
 import numpy as np
 from numba import cuda
 from numba.core import config
 
+from services.brain import build, engine
 from services.brain.build import (
     AT_START,
     COUNT,
@@ -81,6 +83,9 @@ DeviceNet = namedtuple(
 DeviceBrain = namedtuple("DeviceBrain", ["v", "w", "counters", "last_spike", "hist", "ring", "spiked", "order"])
 
 device = cuda.jit(device=True)
+# the engine's number-only helpers, their same Python compiled for the device
+mix: Any = device(build.mix.py_func)
+order_draw: Any = device(engine.order_draw.py_func)
 
 if config.ENABLE_CUDASIM:  # pyright: ignore[reportAttributeAccessIssue] (set from the environment)
 
@@ -219,14 +224,6 @@ def feed_and_inputs(a, t, feed, inpar, syn, n_neurons, counters, ring, spiked):
 
 
 @device
-def mix(x):
-    z = x + np.uint64(0x9E3779B97F4A7C15)
-    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    return z ^ (z >> np.uint64(31))
-
-
-@device
 def receive(a, t, s, training, rules, syn, npar, lrn, v, w, counters, last_spike, hist):
     stdp, group, profile = lrn
     post = syn[s, POST]
@@ -345,8 +342,7 @@ def netlogo_tick(a, t, training, rules, feed, net, brain):
     if rules & SHUFFLE:  # the engine's Fisher-Yates from (agent seed, tick)
         r = mix(order_key[a] + np.uint64(t))
         for i in range(n_neurons - 1, 0, -1):
-            r = r * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
-            j = ((r >> np.uint64(32)) * np.uint64(i + 1)) >> np.uint64(32)
+            r, j = order_draw(r, i)
             order[i, a], order[j, a] = order[j, a], order[i, a]
     for k in range(n_neurons):
         n = order[k, a]

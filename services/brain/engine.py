@@ -230,6 +230,15 @@ def _step_parallel(feed, net, st, chunks):
     st.clock[TICK] += 1
 
 
+@njit(cache=True, inline="always")
+def order_draw(r, i):
+    """One Fisher-Yates step of the netlogo order: the LCG's next state from `r`, and j in 0..i by
+    multiply-shift. Numbers only, so free in the turns' loop; services/gpu_kernels.py compiles
+    this same Python for the device."""
+    r = r * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
+    return r, ((r >> np.uint64(32)) * np.uint64(i + 1)) >> np.uint64(32)
+
+
 # --- netlogo semantics: the original SpikingLab engine, turn by turn ------------------------------
 # Per tick: input neurons (each pulse reaches its target at once), then every neuron in its turn:
 # its state machine, then at once the pulse queues of its outgoing synapses. A pulse sent at t on
@@ -282,8 +291,7 @@ def _netlogo_range(lo, hi, t, feed, net, st):
         if rules & SHUFFLE:  # Fisher-Yates: a hashed (seed, tick) start, then LCG steps, j by multiply-shift
             r = mix(order_key[a] + np.uint64(t))
             for i in range(n_neurons - 1, 0, -1):
-                r = r * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
-                j = ((r >> np.uint64(32)) * np.uint64(i + 1)) >> np.uint64(32)
+                r, j = order_draw(r, i)
                 order[i], order[j] = order[j], order[i]
         for k in range(n_neurons):
             n = order[k]
