@@ -1,15 +1,18 @@
-"""What each shipped launch file listens on, read from the system while it runs (every process: the
-launcher and its children), against the table in docs/launch.md: nothing more, and nothing beyond
-the loopback that the table does not say."""
+"""Each shipped launch file run once: what it listens on, read from the system while it runs (every
+process: the launcher and its children), against the table in docs/launch.md (nothing more, and
+nothing beyond the loopback that the table does not say); then Ctrl-C ends every service at once."""
 
 from __future__ import annotations
 
+import contextlib
+import json
 import re
 import signal
 import subprocess
 import sys
 import time
 import tomllib
+from dataclasses import dataclass
 from pathlib import Path
 
 import psutil
@@ -20,11 +23,13 @@ from services.launch import Process, shipped
 
 from .launching import READY, launch, launch_file
 from .processes import ROOT, free_port, running_with
-from .sockets import Listener, listeners
+from .sockets import Listener, listeners, process_tree
 
 TABLE_HEADING = "## What each file listens on"
 SETTLE_S = 3.0  # after every service is at work: long enough for a listener opened later to show
 LOOPBACK = "127.0.0.1"
+CTRL_C_S = 10  # every launch ends within 3 s of Ctrl-C; this bound leaves room for a loaded
+# machine and still catches a service that the launcher has to kill after its 30 s
 BEYOND_LOOPBACK = {  # the only processes that listen on a network interface: the router the brain's
     # machine dials, ev3-dc's search for the EV3's WiFi beacon (a broadcast), and the socket the fake
     # brick sends its beacon from (bound by the system to every interface; it reads nothing there)
@@ -90,14 +95,29 @@ def process_names(file: Path, launcher_pid: int) -> dict[int, str]:
     return names
 
 
-def launch_listeners(tmp_path: Path, name: str, ports: dict[str, int]) -> tuple[list[tuple[str, Listener]], set[str]]:
-    """Every listener of `name` launched (ports moved as `ports` says), by process name, sampled
-    from its start until its services are at work and SETTLE_S more; then Ctrl-C. Also the names
-    of the processes seen."""
+@dataclass
+class Launched:
+    """What a launch file's run showed: its listeners by process name, the names of the processes
+    seen, how long after Ctrl-C it ended and with what code, the services of it then and those
+    still running after, and its log."""
+
+    listeners: list[tuple[str, Listener]]
+    running: set[str]
+    ended_s: float
+    returncode: int | None
+    services: int
+    left: list[list[str]]
+    log: str
+
+
+def launched(tmp_path: Path, name: str, ports: dict[str, int]) -> Launched:
+    """`name` launched (ports moved as `ports` says), its listeners sampled from its start until
+    its services are at work and SETTLE_S more; then Ctrl-C."""
     file = Path(launch_file(name, tmp_path, **{"ticks = 20000": "ticks = 5000000"}, **ports))
     log = tmp_path / "launch.log"
     seen: set[tuple[str, Listener]] = set()
     running: set[str] = set()
+    services: list[psutil.Process] = []
     with open(log, "w") as out:
         run = launch(tmp_path, file, stdout=out)
         try:
@@ -111,14 +131,17 @@ def launch_listeners(tmp_path: Path, name: str, ports: dict[str, int]) -> tuple[
                 if settled_at is None and all(line in log.read_text() for line in READY[name]):
                     settled_at = time.monotonic() + SETTLE_S
                 time.sleep(0.1)
-        finally:
+            services = process_tree(run.pid)[1:]
+            interrupted_at = time.monotonic()
             run.send_signal(signal.SIGINT)
-            try:
-                run.communicate(timeout=60)
-            finally:
-                run.kill()
-    assert not running_with(str(tmp_path))
-    return sorted(seen, key=str), running
+            _, err = run.communicate(timeout=60)
+            ended_s = time.monotonic() - interrupted_at
+            left = [p.cmdline() for p in services if p.is_running() and p.status() != psutil.STATUS_ZOMBIE]
+        finally:
+            for process in [*process_tree(run.pid), *services]:  # on a failure too: nothing left running
+                with contextlib.suppress(psutil.NoSuchProcess):
+                    process.kill()
+    return Launched(sorted(seen, key=str), running, ended_s, run.returncode, len(services), left, log.read_text() + err)
 
 
 def test_the_table_names_every_process_of_every_shipped_file():
@@ -129,16 +152,17 @@ def test_the_table_names_every_process_of_every_shipped_file():
 
 
 @pytest.mark.parametrize("name", sorted(READY))
-def test_a_launch_file_listens_only_on_what_docs_launch_md_says(tmp_path, name):
+def test_a_launch_file_listens_only_where_docs_launch_md_says_and_ends_at_once_on_ctrl_c(tmp_path, name):
     if name.startswith("secure"):
         made = subprocess.run(
             [sys.executable, "-m", "spikinglab", "certs", "certs"], cwd=tmp_path, capture_output=True, text=True
         )
         assert made.returncode == 0, made.stderr
     ports = {"7447": free_port(), "7448": free_port()}
-    found, running = launch_listeners(tmp_path, name, ports)
+    run = launched(tmp_path, name, ports)
     table = documented()[name]
-    assert running == {*table, "launch"}, running
+    assert run.running == {*table, "launch"}, run.running
+    found = run.listeners
     undocumented = [(p, s) for p, s in found if not any(allows(e, s, ports) for e in table.get(p, []))]
     assert not undocumented, f"{name} listens on what docs/launch.md does not say: {undocumented}"
     for process, endpoints in table.items():  # and on each TCP endpoint it says (a UDP search may be over)
@@ -147,3 +171,12 @@ def test_a_launch_file_listens_only_on_what_docs_launch_md_says(tmp_path, name):
                 assert any(p == process and allows(e, s, ports) for p, s in found), (process, e, found)
     beyond = [(p, s) for p, s in found if s.kind != "unix" and not s.address.startswith(LOOPBACK + ":")]
     assert all(p in BEYOND_LOOPBACK.get(name, ()) for p, s in beyond), f"{name} listens beyond the loopback: {beyond}"
+    # Ctrl-C: every service ends at once, none is left
+    print(f"{name}: {run.services} services ended {run.ended_s:.2f} s after Ctrl-C")
+    assert run.returncode == 130, run.log
+    assert run.ended_s < CTRL_C_S, run.log
+    assert run.services == len(table) and not run.left, run.left
+    assert not running_with(str(tmp_path))
+    if name == "simulation":
+        metrics = json.loads((tmp_path / "runs" / "launch-simulation" / "metrics.json").read_text())
+        assert metrics["partial"] is True and metrics["ticks"] > 0  # the world wrote the ticks it did
