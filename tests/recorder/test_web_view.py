@@ -41,7 +41,7 @@ def test_run_view_serves_a_web_viewer_that_renders_the_run(tmp_path):
             deadline, found = time.monotonic() + 120, {}
             while time.monotonic() < deadline:  # the wasm viewer needs real time to load and draw
                 time.sleep(3)
-                shot = page.screenshot()
+                shot = page.screenshot(timeout=60_000)  # software WebGL on a loaded machine is slow
                 found = {name: pixels_of(shot, rgb) for name, rgb in colours.items()}
                 if min(found.values()) > 500:
                     break
