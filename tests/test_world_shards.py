@@ -77,36 +77,48 @@ def test_a_shared_arena_is_not_sharded(tmp_path):
         world_from(options(tmp_path, agents=2), shard=(1, 3))
 
 
-@pytest.mark.parametrize("brains", [1, 3])
-def test_two_world_shards_and_brain_shards_run_bit_for_bit_as_one_process(tmp_path, brains):
-    """World slices 0-2 and 3-6; with 3 brain shards, shard 2/3 (agents 2-3) serves a piece of each."""
-    made = options(tmp_path)
-    bus = ("--group", "ws", "--connect", endpoint(tmp_path, "router"))
-    router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
+def start_shards(tmp_path, bus: tuple, made, brains: int, *world_options) -> tuple[list, list]:
+    """2 world shards of the population in `made` and `brains` brain shards (each saving its weights),
+    on `bus`, with the world shards' further options."""
     world = ("--ticks", TICKS, "--seed", SEED, "--agents", AGENTS, "--params", made.params, "--shards", brains)
     worlds = [
-        start("world", *bus, *world, "--shard", f"{i}/2", "--out", tmp_path, log=tmp_path / f"world{i}.log")
+        start(
+            "world",
+            *bus,
+            *world,
+            *world_options,
+            "--shard",
+            f"{i}/2",
+            "--out",
+            tmp_path,
+            log=tmp_path / f"world{i}.log",
+        )
         for i in (1, 2)
     ]
+    brain = ("--world-shards", 2, "--once", "--a-plus", 0.04, "--params", made.params)
     shards = [
         start(
             "brain",
             *bus,
+            *brain,
             "--shard",
             f"{j}/{brains}",
-            "--world-shards",
-            2,
-            "--once",
-            "--a-plus",
-            0.04,
-            "--params",
-            made.params,
             "--save",
             tmp_path / f"weights{j}.npz",
             log=tmp_path / f"brain{j}.log",
         )
         for j in range(1, brains + 1)
     ]
+    return worlds, shards
+
+
+@pytest.mark.parametrize("brains", [1, 3])
+def test_two_world_shards_and_brain_shards_run_bit_for_bit_as_one_process(tmp_path, brains):
+    """World slices 0-2 and 3-6; with 3 brain shards, shard 2/3 (agents 2-3) serves a piece of each."""
+    made = options(tmp_path)
+    bus = ("--group", "ws", "--connect", endpoint(tmp_path, "router"))
+    router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
+    worlds, shards = start_shards(tmp_path, bus, made, brains)
     try:
         for i, process in enumerate(worlds, 1):
             assert finish(process, 120, tmp_path / f"world{i}.log") == 0
@@ -143,38 +155,7 @@ def test_every_world_shard_is_recorded_as_one_population(tmp_path):
     bus = ("--group", "wr", "--connect", router_at)
     router = start("router", "--listen", router_at, log=tmp_path / "router.log")
     recorder = start("record", *bus, "--out", tmp_path / "rec.rrd", "--detail", 4, log=tmp_path / "recorder.log")
-    world = ("--ticks", TICKS, "--seed", SEED, "--agents", AGENTS, "--params", made.params, "--shards", 3)
-    worlds = [
-        start(
-            "world",
-            *bus,
-            *world,
-            "--shard",
-            f"{i}/2",
-            "--publish-state",
-            "--out",
-            tmp_path,
-            log=tmp_path / f"world{i}.log",
-        )
-        for i in (1, 2)
-    ]
-    brains = [
-        start(
-            "brain",
-            *bus,
-            "--shard",
-            f"{j}/3",
-            "--world-shards",
-            2,
-            "--once",
-            "--a-plus",
-            0.04,
-            "--params",
-            made.params,
-            log=tmp_path / f"brain{j}.log",
-        )
-        for j in (1, 2, 3)
-    ]
+    worlds, brains = start_shards(tmp_path, bus, made, 3, "--publish-state")
     forger = Watcher([router_at], [])
     try:
         log1 = tmp_path / "world1.log"
