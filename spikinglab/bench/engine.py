@@ -6,6 +6,8 @@ single: ticks/s of one agent through Engine.step(feed), the per-tick call a clos
 batch:  agent-ticks/s of A = 1000 agents stepped together.
 Both for each semantics (phased, netlogo with its random order), on the same feeds.
 --calls: where one agent's phased step() goes, in ns per call (docs/tick.md, "Layout and speed").
+--orders: what bounds the netlogo engine at A = 1000: its random order, its file order and the
+        phased engine in turns, agent-ticks/s and spikes per agent-tick of each.
 --evaluate: agent-ticks/s of `evaluate` (the closed loop, world and default engine) for --insects
         insects of one setting (A+ = A- = 0.04) over --evaluate-ticks ticks, set-up included.
 The last line printed is JSON. Run: `spikinglab bench engine` or `python -m spikinglab.bench.engine`.
@@ -102,6 +104,35 @@ def call_costs(circuit, calls: int, repeats: int) -> dict:
     return costs
 
 
+def order_split(circuit, agents: int, ticks: int, rounds: int) -> dict:
+    """Median agent-ticks/s of the netlogo engine with its random order and with file order, and of
+    the phased engine, measured in turns on the same feeds, with each one's spikes per agent-tick:
+    file order against phased is the turn-by-turn loop's cost at about the same activity, random
+    against file order what the order changes (the turns' own work, and the activity it makes)."""
+    feeds = random_feeds(np.random.default_rng(0), circuit, ticks, agents)
+    cases = {
+        "netlogo, random order": Engine(circuit, agents=agents, semantics="netlogo", order="random"),
+        "netlogo, file order": Engine(circuit, agents=agents, semantics="netlogo", order="file"),
+        "phased": Engine(circuit, agents=agents, semantics="phased"),
+    }
+    rates: dict[str, list[float]] = {name: [] for name in cases}
+    for _ in range(rounds):
+        for name, engine in cases.items():
+            engine.reset()
+            rates[name].append(best_rate(engine, feeds, 1, agents=agents))
+    result = {}
+    for name, engine in cases.items():
+        engine.reset()
+        spikes = float(engine.run(feeds).sum()) / agents / ticks
+        rate = float(np.median(rates[name]))
+        print(
+            f"{name}: A = {agents} {rate:,.0f} agent-ticks/s (median of {rounds}), {spikes:.2f} spikes per agent-tick"
+        )
+        key = name.replace(",", "").replace(" ", "_")
+        result |= {f"{key}_agent_ticks_per_s": round(rate), f"{key}_spikes_per_agent_tick": round(spikes, 3)}
+    return result
+
+
 def evaluate_rate(insects: int, ticks: int) -> dict:
     """Wall-clock agent-ticks/s of one `evaluate` call (its kernels loaded or compiled first)."""
     from services.loop import evaluate
@@ -124,6 +155,7 @@ def parser() -> Parser:
     p.add_argument("--repeats", type=at_least(1), default=3)
     p.add_argument("--rounds", type=at_least(1), default=20, help="rounds of the two batch engines in turns (ratio)")
     p.add_argument("--calls", action="store_true", help="only where one agent's step() goes, per call")
+    p.add_argument("--orders", action="store_true", help="only the netlogo engine's orders against phased, in turns")
     p.add_argument("--evaluate", action="store_true", help="only evaluate()'s agent-ticks/s")
     p.add_argument("--insects", type=at_least(1), default=1024, help="insects in the --evaluate case")
     p.add_argument("--evaluate-ticks", type=at_least(1), default=20_000, help="ticks in the --evaluate case")
@@ -140,6 +172,10 @@ def main(argv=None) -> dict:
     circuit = load_circuit("insect").with_learning_rate(0.04)
     if args.calls:
         return call_costs(circuit, args.ticks, args.repeats)
+    if args.orders:
+        result = order_split(circuit, args.agents, args.batch_ticks, args.rounds)
+        print(json.dumps(result))
+        return result
     result, batches = {}, {}
     for semantics in SEMANTICS:
         rng = np.random.default_rng(0)
