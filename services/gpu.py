@@ -68,6 +68,8 @@ def fused_loop_cuda(world: World, brain: Brain, ticks: int, stretch: int = STRET
     kernel: Any = fused_kernel  # a CUDA dispatcher: kernel[blocks, threads](...)
     if world.shared:
         raise ValueError("fused_loop_cuda needs an arena per insect (in a shared one, insects race for food)")
+    if brain.engine.order == "netlogo-stream":
+        raise ValueError("order netlogo-stream runs on the CPU only: the device draws no NetLogo stream")
     t0, agents = world.tick, world.agents
     bins = np.zeros(((t0 + ticks) // BIN - t0 // BIN + 1, agents), np.int64)  # by bin from t0's
     bins[0] = world.bin_collisions

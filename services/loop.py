@@ -208,6 +208,7 @@ def population(
         params=side["brain"],
         semantics=semantics,
         order=order,
+        netlogo_seed=netlogo_seed,
     )
     return world, brain
 

@@ -21,6 +21,7 @@ from numba.experimental import structref
 from services.params import LEARNING_FIELDS
 
 from .circuit import Circuit
+from .netlogo_stream import STREAM_TURNS, source_order
 from .stdp import stdp_table
 
 HISTORY = 30  # arrivals a neuron remembers since its last spike (oldest dropped)
@@ -29,9 +30,11 @@ SYN_BITS = 16  # a history entry packs (arrival tick << SYN_BITS) | synapse inde
 SYN_MASK = (1 << SYN_BITS) - 1
 SEMANTICS = ("phased", "netlogo")
 DEFAULT_SEMANTICS = "netlogo"  # the original's engine: the only one that learns in every setting (docs/results.md)
-ORDERS = ("random", "file")  # netlogo: neurons per tick in a seeded random order, or in file order
+# netlogo: neurons per tick in a seeded random order, in file order, or drawn from NetLogo's own
+# stream as the SpikingLab source draws them (services/brain/netlogo_stream.py)
+ORDERS = ("random", "file", "netlogo-stream")
 # netlogo rules, each of which can be switched off alone to measure what it does (docs/results.md)
-SHUFFLE, COUNT_FROM_SEND, REOPEN_IN_TURN, DT0_AGAIN = 1, 2, 4, 8
+SHUFFLE, COUNT_FROM_SEND, REOPEN_IN_TURN, DT0_AGAIN, STREAM = 1, 2, 4, 8, 16
 NETLOGO_RULES = {
     "delay_count": COUNT_FROM_SEND,  # a pulse's count-down starts in the sending tick (else: the next)
     "reopen": REOPEN_IN_TURN,  # a refractory neuron opens in its turn (else: at the next tick's start)
@@ -71,7 +74,8 @@ class Network:
     out_start: np.ndarray  # [neurons + 1] uint64: neuron n's outgoing synapses are out_syn[out_start[n]:out_start[n+1]]
     out_syn: np.ndarray  # [network synapses] uint64
     order_key: np.ndarray  # [A] uint64: the hash of agent a's seed, for its netlogo order
-    rules: int  # the NETLOGO_RULES bits in force, and SHUFFLE for the random order
+    rules: int  # the NETLOGO_RULES bits in force, and SHUFFLE or STREAM for those orders
+    stream_order: np.ndarray  # [neurons] uint64 for netlogo-stream: the neurons in NetLogo's agentset order
 
     def struct(self) -> NetworkStruct:
         return _network_struct(*(getattr(self, f.name) for f in dataclasses.fields(self)))
@@ -89,6 +93,7 @@ class State:
     hist: np.ndarray  # [A, neurons, HISTORY + 1] int64: per event, agent-major (netlogo keeps 31)
     ring: np.ndarray  # [ring length, synapses, A] uint8: pulses in flight, slot = arrival tick & mask
     spiked: np.ndarray  # [nodes, A] uint8: who spiked in the last tick
+    stream: np.ndarray  # [A, netlogo_stream.STREAM_TURNS + neurons] uint32 for netlogo-stream, else [A, 0]
 
     def struct(self) -> StateStruct:
         return _state_struct(*(getattr(self, f.name) for f in dataclasses.fields(self)))
@@ -120,16 +125,16 @@ structref.define_proxy(StateStruct, StateType, [f.name for f in dataclasses.fiel
 
 # Made in compiled code, from numba's cache: a proxy's own constructor compiles anew in every process.
 @njit(cache=True)
-def _network_struct(syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key, rules):
-    return NetworkStruct(syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key, rules)
+def _network_struct(syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key, rules, stream_order):
+    return NetworkStruct(syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key, rules, stream_order)
 
 
 @njit(cache=True)
-def _state_struct(clock, v, w, counters, last_spike, hist, ring, spiked):
-    return StateStruct(clock, v, w, counters, last_spike, hist, ring, spiked)
+def _state_struct(clock, v, w, counters, last_spike, hist, ring, spiked, stream):
+    return StateStruct(clock, v, w, counters, last_spike, hist, ring, spiked, stream)
 
 
-def check_options(agents: int, semantics: str, order: str, without) -> None:
+def check_options(agents: int, semantics: str, order: str, without, netlogo_seed: int | None = None) -> None:
     """ValueError naming a wrong engine option."""
     if agents < 1:
         raise ValueError(f"agents must be >= 1, got {agents}")
@@ -137,6 +142,11 @@ def check_options(agents: int, semantics: str, order: str, without) -> None:
         raise ValueError(f"semantics must be one of {', '.join(SEMANTICS)}, got {semantics!r}")
     if order not in ORDERS:
         raise ValueError(f"order must be one of {', '.join(ORDERS)}, got {order!r}")
+    if order == "netlogo-stream" and (semantics != "netlogo" or netlogo_seed is None):
+        raise ValueError(
+            "order netlogo-stream draws from NetLogo's stream as the source's setup leaves it: it needs "
+            "--semantics netlogo and --netlogo-seed N"
+        )
     unknown = sorted(set(without) - set(NETLOGO_RULES))
     if unknown or (without and semantics != "netlogo"):
         raise ValueError(
@@ -173,15 +183,18 @@ def build_network(circuit: Circuit, params: dict, seeds: np.ndarray, semantics: 
         out_syn = np.argsort(pre, kind="stable").astype(np.uint64)
         out_start = np.searchsorted(pre[out_syn], np.arange(n_neurons + 1)).astype(np.uint64)
         order_key = mix(seeds.view(np.uint64))  # once here rather than in every tick
-        rules = SHUFFLE * (order == "random") | sum(f for k, f in NETLOGO_RULES.items() if k not in without)
+        rules = SHUFFLE * (order == "random") | STREAM * (order == "netlogo-stream")
+        rules |= sum(f for k, f in NETLOGO_RULES.items() if k not in without)
     else:
         out_start, out_syn = np.zeros(n_neurons + 1, np.uint64), np.zeros(0, np.uint64)
         order_key, rules = np.zeros(agents, np.uint64), 0
-    return Network(syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key, rules)
+    stream_order = source_order(c) if order == "netlogo-stream" else np.zeros(0, np.uint64)
+    return Network(syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key, rules, stream_order)
 
 
-def new_state(circuit: Circuit, agents: int) -> State:
-    """The State arrays of `agents` agents of `circuit`, not yet set (Engine.reset sets them)."""
+def new_state(circuit: Circuit, agents: int, stream: bool = False) -> State:
+    """The State arrays of `agents` agents of `circuit`, not yet set (Engine.reset sets them);
+    `stream`: with a row of NetLogo's stream per agent (order netlogo-stream)."""
     N, S, nodes = len(circuit.neuron_names), len(circuit.synapses), len(circuit.node_names)
     max_delay = max((s.delay for s in circuit.synapses), default=1)
     ring_len = 1 << int(max_delay).bit_length()  # > max delay, a power of two for masking
@@ -194,6 +207,7 @@ def new_state(circuit: Circuit, agents: int) -> State:
         hist=np.zeros((agents, N, HISTORY + 1), dtype=np.int64),
         ring=np.empty((ring_len, S, agents), dtype=np.uint8),
         spiked=np.zeros((nodes, agents), dtype=np.uint8),
+        stream=np.zeros((agents, STREAM_TURNS + N if stream else 0), dtype=np.uint32),
     )
 
 

@@ -66,6 +66,7 @@ from .build import (
     REST,
     SHUFFLE,
     STDP_OFFSET,
+    STREAM,
     SYN_BITS,
     SYN_MASK,
     TABLE,
@@ -84,6 +85,7 @@ from .build import NETLOGO_RULES as NETLOGO_RULES
 from .build import ORDERS as ORDERS
 from .build import SEMANTICS as SEMANTICS
 from .circuit import Circuit
+from .netlogo_stream import STREAM_TURNS, ask_draws, next_int, setup_stream
 
 FLOAT64 = np.dtype(np.float64)
 # the per-call kernels take any feed of float64 [A, inputs], read only: no per-call check of its layout
@@ -264,7 +266,7 @@ def _netlogo_range(lo, hi, t, feed, net, st):
     syn, npar, inpar, stdp, group, profile = net.syn, net.npar, net.inpar, net.stdp, net.group, net.profile
     out_start, out_syn, order_key, rules = net.out_start, net.out_syn, net.order_key, net.rules
     clock, v, w, counters, last_spike, hist = st.clock, st.v, st.w, st.counters, st.last_spike, st.hist
-    ring, spiked = st.ring, st.spiked
+    ring, spiked, stream, stream_order = st.ring, st.spiked, st.stream, net.stream_order
     training = clock[TRAINING] != 0
     n_neurons = v.shape[0]
     _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, counters, ring, spiked)  # input pulses: slot t
@@ -293,7 +295,18 @@ def _netlogo_range(lo, hi, t, feed, net, st):
             for i in range(n_neurons - 1, 0, -1):
                 r, j = order_draw(r, i)
                 order[i], order[j] = order[j], order[i]
+        if rules & STREAM:  # NetLogo's draws before the turns (netlogo_stream.py): the world's asks,
+            ask_draws(stream, a, 3)  # ask visualsensors, twice
+            ask_draws(stream, a, 3)
+            ask_draws(stream, a, feed.shape[1])  # ask inputneurons
+            for k in range(n_neurons):  # ask normalneurons, whose shufflerator draws its first now
+                order[k] = stream_order[k]
+            j = next_int(stream, a, n_neurons)
+            order[0], order[j] = order[j], order[0]
         for k in range(n_neurons):
+            if rules & STREAM and k + 2 < n_neurons:  # each turn but the last two draws the next one first
+                j = k + 1 + next_int(stream, a, n_neurons - k - 1)
+                order[k + 1], order[j] = order[j], order[k + 1]
             n = order[k]
             spiked[n, a] = 0
             if counters[REFRACTORY, n, a] == 0:
@@ -311,6 +324,8 @@ def _netlogo_range(lo, hi, t, feed, net, st):
                         for q in range(out_start[n], out_start[n + 1]):
                             s = out_syn[q]
                             ring[np.uint64((t + syn[s, DELAY] - send) & mask), s, a] = 1
+                        if rules & STREAM:  # propagate-pulses: an ask over the outgoing synapses
+                            ask_draws(stream, a, out_start[n + 1] - out_start[n])
                         counters[REFRACTORY, n, a] = 1
                         counters[REFR_LEFT, n, a] = np.int32(npar[n, REFR_PERIOD])
                         spiked[n, a] = 1
@@ -321,6 +336,15 @@ def _netlogo_range(lo, hi, t, feed, net, st):
                 v[n, a] = npar[n, REFR_V]
                 if counters[REFR_LEFT, n, a] <= 0 and rules & REOPEN_IN_TURN:
                     counters[REFRACTORY, n, a] = 0  # open again: later arrivals in this tick count
+            if rules & STREAM:  # do-synaptic-dynamics: an ask over the outgoing synapses with pulses in flight
+                busy = 0
+                for q in range(out_start[n], out_start[n + 1]):
+                    for slot in range(ring.shape[0]):
+                        if ring[slot, out_syn[q], a]:
+                            busy += 1
+                            break
+                ask_draws(stream, a, busy)
+                stream[a, STREAM_TURNS + k] = n
             for q in range(out_start[n], out_start[n + 1]):  # its synapses' pulses due now
                 s = out_syn[q]
                 if ring[now, s, a] == 0:
@@ -419,7 +443,10 @@ class Engine:
 
     `semantics`: "phased" (five phases, a delay of d is exactly d) or "netlogo" (the original
     engine's turns, docs/tick.md). With "netlogo", `order` is "random" (agent a's order at tick t
-    is drawn from seed + a and t) or "file" (circuit file order every tick), and `without` names
+    is drawn from seed + a and t), "file" (circuit file order every tick) or "netlogo-stream"
+    (NetLogo's own stream as the SpikingLab source's setup leaves it after `random-seed
+    netlogo_seed`, the same for every agent, drawn from as the source does: docs/netlogo-random.md;
+    `turns` is then each agent's order of the last tick), and `without` names
     NetLogo rules to switch off one at a time (NETLOGO_RULES; for ablations, not for use). `seed`
     may also be one seed per agent (an array [A]; agents taken from a larger population).
 
@@ -438,15 +465,19 @@ class Engine:
         seed=0,
         without: tuple[str, ...] = (),
         params=None,
+        netlogo_seed: int | None = None,
     ):
-        check_options(agents, semantics, order, without)
+        check_options(agents, semantics, order, without, netlogo_seed)
         self.circuit, self.agents = circuit, agents
         self.semantics, self.order, self.without = semantics, order, tuple(without)
         self.seeds = agent_seeds(seed, agents)
         self.params = agent_columns(agents, params, "brain")
         self.network = build_network(circuit, self.params, self.seeds, semantics, order, without)
         self.initial_weights = initial_weights(circuit, self.params, agents)
-        self.state = new_state(circuit, agents)
+        self.state = new_state(circuit, agents, stream=order == "netlogo-stream")
+        self.stream_start = None  # the stream's row as setup leaves it (order netlogo-stream)
+        if order == "netlogo-stream" and netlogo_seed is not None:  # check_options: it is not None
+            self.stream_start = setup_stream(netlogo_seed, len(circuit.neuron_names))
         self.n_neurons, self.n_inputs, self.n_synapses = (
             len(circuit.neuron_names),
             len(circuit.inputs),
@@ -482,11 +513,21 @@ class Engine:
         st.hist[:] = 0
         st.ring[:] = 0
         st.spiked[:] = 0
+        if self.stream_start is not None:
+            st.stream[:] = self.stream_start
 
     @property
     def tick(self) -> int:
         """The tick the next step() will run."""
         return int(self.state.clock[TICK])
+
+    @property
+    def turns(self) -> np.ndarray:
+        """[A, neurons]: each agent's neurons in the order of their turns in the last tick (order
+        netlogo-stream only; a view the next step overwrites)."""
+        if self.stream_start is None:
+            raise ValueError(f"turns are kept for order netlogo-stream only, this engine's is {self.order}")
+        return self.state.stream[:, STREAM_TURNS:]
 
     @property
     def training(self) -> bool:
@@ -526,7 +567,8 @@ class Engine:
     def _state_arrays(self) -> dict[str, np.ndarray]:
         st = self.state
         arrays = {"clock": st.clock, "v": st.v, "w": st.w, "state": st.counters, "last_spike": st.last_spike}
-        return arrays | {"hist": st.hist, "ring": st.ring, "spiked": st.spiked}
+        stream = {"stream": st.stream} if self.stream_start is not None else {}
+        return arrays | {"hist": st.hist, "ring": st.ring, "spiked": st.spiked} | stream
 
     def get_weights(self) -> np.ndarray:
         """A copy of all synapse weights, [A, synapses] (checkpoints)."""

@@ -7,6 +7,7 @@ import argparse
 from dataclasses import dataclass
 from pathlib import Path
 
+from services.options import at_least
 from services.params import file_rows, read_params, side_of
 
 from .build import DEFAULT_SEMANTICS, ORDERS, SEMANTICS, learning_tables
@@ -25,8 +26,20 @@ def add_engine_args(p: argparse.ArgumentParser) -> None:
         "--order",
         choices=ORDERS,
         default="random",
-        help="netlogo: neurons each tick in a seeded random order (as NetLogo's ask) or in file order",
+        help="netlogo: neurons each tick in a seeded random order (as NetLogo's ask), in file order, or "
+        "netlogo-stream: drawn from NetLogo's own stream after the source's setup, as the source draws it "
+        "(needs --netlogo-seed; docs/netlogo-random.md)",
     )
+    try:  # `run` and `sweep` declare it with the world's options: there it is the same option
+        p.add_argument(
+            "--netlogo-seed",
+            type=at_least(-(2**31)),
+            metavar="N",
+            help="order netlogo-stream: NetLogo's stream as the SpikingLab source's setup leaves it after "
+            "`random-seed N` (the world's --netlogo-seed: its arena)",
+        )
+    except argparse.ArgumentError:
+        pass
 
 
 @dataclass(frozen=True)
@@ -35,6 +48,7 @@ class EngineOptions:
 
     semantics: str
     order: str
+    netlogo_seed: int | None = None
 
 
 def brain_params(path: Path, circuit) -> dict:

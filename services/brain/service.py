@@ -156,6 +156,7 @@ def run(config: BrainConfig, session) -> int:
             seed=config.seed,
             semantics=config.engine.semantics,
             order=config.engine.order,
+            netlogo_seed=config.engine.netlogo_seed,
         )
 
     group, service = config.bus.group, keys.brain_service(config.shard)

@@ -91,6 +91,11 @@ class MersenneTwister:
         y ^= y >> 18
         return y & _MASK32
 
+    def state(self) -> tuple[list[int], int]:
+        """A copy of the generator's 624 words and the index of the next word to temper (624: the
+        words are used up, the next draw twists them first), for compiled copies of the stream."""
+        return list(self._mt), self._index
+
     def next_int(self, n: int) -> int:
         """Uniform in [0, n) from 31-bit draws, rejecting the uneven tail (nextInt(int))."""
         if n <= 0:
