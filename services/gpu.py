@@ -15,6 +15,7 @@ NUMBA_ENABLE_CUDASIM=1, numba's CUDA simulator runs the same kernel in Python (s
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -48,24 +49,36 @@ def device_problem() -> str | None:
     )
 
 
-def check_device(device: str) -> None:
-    """ValueError for a device this path does not know; RuntimeError when it is missing here."""
+def check_device(device: str, cluster: str | None = None) -> None:
+    """ValueError for a device this path does not know, or with a cluster; RuntimeError when it is
+    missing here."""
     if device not in DEVICES:
         raise ValueError(f"device must be one of {', '.join(DEVICES)}, got {device!r}")
+    if cluster is not None:
+        raise ValueError("device and cluster: choose one (the cluster's workers run on their CPUs)")
     problem = device_problem()
     if problem is not None:
         raise RuntimeError(f"device={device!r} refused: {problem}")
 
 
-def fused_loop_cuda(world: World, brain: Brain, ticks: int, stretch: int = STRETCH) -> None:
+def fused_loop_cuda(
+    world: World,
+    brain: Brain,
+    ticks: int,
+    stretch: int = STRETCH,
+    on_noxious: Callable[[int, np.ndarray], object] | None = None,
+) -> None:
     """`ticks` ticks of services.loop.fused_loop on the device: world and brain end as the CPU
-    path leaves them (state, metrics, collision bins). Either semantics; an arena per insect."""
+    path leaves them (state, metrics, collision bins). Either semantics; an arena per insect.
+    `on_noxious(k, rows)`: after each launch, its ticks from the call's tick k on, rows [n, A]
+    uint8, 1 where an insect's pain sensor was fed (services.learning.noxious_ticks). The calls
+    of several host threads run at once on the device: each has a stream of its own."""
     from numba import cuda
     from numba.core import config
 
     from services.gpu_kernels import fused_kernel
 
-    kernel: Any = fused_kernel  # a CUDA dispatcher: kernel[blocks, threads](...)
+    kernel: Any = fused_kernel  # a CUDA dispatcher: kernel[blocks, threads, stream](...)
     if world.shared:
         raise ValueError("fused_loop_cuda needs an arena per insect (in a shared one, insects race for food)")
     if brain.engine.order == "netlogo-stream":
@@ -74,7 +87,9 @@ def fused_loop_cuda(world: World, brain: Brain, ticks: int, stretch: int = STRET
     bins = np.zeros(((t0 + ticks) // BIN - t0 // BIN + 1, agents), np.int64)  # by bin from t0's
     bins[0] = world.bin_collisions
     host = _arguments(world, brain, bins)
-    dev = [_each(x, cuda.to_device) for x in host]
+    stream = cuda.stream()
+    dev = [_each(x, lambda y: cuda.to_device(y, stream=stream)) for x in host]
+    noxious = cuda.to_device(np.zeros((stretch if on_noxious else 0, agents), np.uint8), stream=stream)
     # numba's simulator runs a block's threads as Python threads that swap each device function's
     # module globals unlocked ("dictionary changed size during iteration", seen in a test run;
     # NVIDIA/numba-cuda#690): there, one thread a block, the blocks in turn. Same result.
@@ -83,10 +98,14 @@ def fused_loop_cuda(world: World, brain: Brain, ticks: int, stretch: int = STRET
     with warnings.catch_warnings():  # the simulator's numpy scalars warn where the order's uint64 hash wraps
         warnings.filterwarnings("ignore", "overflow encountered", RuntimeWarning)
         for done in range(0, ticks, stretch):
-            kernel[blocks, threads](min(stretch, ticks - done), t0 + done, tb0 + done, t0 // BIN, *dev)
+            n = min(stretch, ticks - done)
+            kernel[blocks, threads, stream](n, t0 + done, tb0 + done, t0 // BIN, *dev, noxious)
+            if on_noxious is not None:
+                on_noxious(done, noxious[:n].copy_to_host(stream=stream))
     for d, x in zip(_flat(dev), _flat(host)):
         if x.flags.writeable:
-            d.copy_to_host(x)
+            d.copy_to_host(x, stream=stream)
+    stream.synchronize()
     _close_bins(world, bins, ticks)
     brain.engine.state.clock[TICK] += ticks
     bind(brain.engine.spiked, brain.actuator_neurons, brain.action_cols, brain.actions)

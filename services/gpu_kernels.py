@@ -376,9 +376,10 @@ def netlogo_tick(a, t, training, rules, feed, net, brain):
 
 
 @cuda.jit(cache=True)  # the compiled kernel kept on disk, as the CPU kernels are
-def fused_kernel(ticks, t0, tb0, bin0, flags, senses, drives, world, sensors, feed, net, brain):
+def fused_kernel(ticks, t0, tb0, bin0, flags, senses, drives, world, sensors, feed, net, brain, noxious):
     """`ticks` ticks of insect a = this thread: `world` a DeviceWorld, `senses` and `drives` as in
-    services.loop's fused block, `net` a DeviceNet, `brain` a DeviceBrain."""
+    services.loop's fused block, `net` a DeviceNet, `brain` a DeviceBrain, `noxious` [ticks, A]
+    uint8 (or no rows: none kept): row k set to 1 where the pain sensor was fed in the launch's tick k."""
     a = cuda.grid(1)  # pyright: ignore[reportCallIssue] (numba's stub)
     if a >= world.pos.shape[0]:
         return
@@ -393,6 +394,8 @@ def fused_kernel(ticks, t0, tb0, bin0, flags, senses, drives, world, sensors, fe
     for k in range(ticks):
         t = t0 + k
         sense_one(a, world, sensors, ray_steps)
+        if noxious.shape[0] > 0:
+            noxious[k, a] = sensors[a, PAIN] == sensors[a, PAIN]  # fed: not NaN
         for j in range(senses.shape[1]):
             feed[a, senses[1, j]] = sensors[a, senses[0, j]]
         if netlogo:

@@ -248,9 +248,7 @@ def evaluate(
     if device != "cpu":
         from services.gpu import check_device  # numba.cuda only when the device is asked for
 
-        check_device(device)
-        if cluster is not None:
-            raise ValueError("device and cluster: choose one (the cluster's workers run on their CPUs)")
+        check_device(device, cluster)
     if cluster is not None:
         from services.cluster import evaluate_on  # the cluster's packages only when one is named
 

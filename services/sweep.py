@@ -19,6 +19,7 @@ import numpy as np
 from services.brain.engine import DEFAULT_SEMANTICS
 from services.brain.engine_options import add_engine_args
 from services.cluster import ClusterError, address_option
+from services.gpu import DEVICES, check_device
 from services.learning import PAPER, all_definitions, noxious_ticks, plot_table1, quarter_collisions, stats
 from services.loop import population
 from services.options import Parser, at_least, positive
@@ -37,18 +38,20 @@ def sweep(
     order: str = "random",
     cluster: str | None = None,
     netlogo_seed: int | None = None,
+    device: str = "cpu",
 ) -> list[dict]:
     """Every A+ = A- value on seeds 0..N-1 (agent = value-major, then seed); a row per value. In
     this process as one population (`progress.update(1)` per tick), or on the Dask scheduler at
     `cluster` in blocks (`progress.update(insects)` per block), with the same rows. `netlogo_seed`:
-    every insect in the SpikingLab source's arena of `random-seed N`; the seeds vary its order."""
+    every insect in the SpikingLab source's arena of `random-seed N`; the seeds vary its order.
+    `device`: "cuda" runs the population on an NVIDIA GPU (services/gpu.py), with the same rows."""
     check_netlogo_seed(netlogo_seed, semantics, order)
     options: dict = dict(
         preset=preset, learned_after=learned_after, semantics=semantics, order=order, netlogo_seed=netlogo_seed
     )
     if cluster is None:
         on_tick = (lambda t: progress.update(1)) if progress else None
-        found = insects(a_values, list(range(seeds)), ticks, on_tick=on_tick, **options)
+        found = insects(a_values, list(range(seeds)), ticks, on_tick=on_tick, device=device, **options)
     else:
         found = on_cluster(cluster, a_values, seeds, ticks, progress, options)
     out = rows(a_values, seeds, ticks, preset, semantics, found)
@@ -69,6 +72,7 @@ def insects(
     order: str,
     netlogo_seed: int | None = None,
     on_tick=None,
+    device: str = "cpu",
 ) -> dict:
     """Every value on every seed as one population: per insect (value-major, then seed) its ticks
     on a noxious patch ("noxious"), its collisions per bin ("bins") and the world's learning time."""
@@ -81,7 +85,7 @@ def insects(
         order=order,
         netlogo_seed=netlogo_seed,
     )
-    noxious = noxious_ticks(world, brain, ticks, on_tick)
+    noxious = noxious_ticks(world, brain, ticks, on_tick, device)
     return {
         "noxious": [np.asarray(c, np.int64) for c in noxious],
         "bins": np.array(world.metrics.bins).T,  # [agents, ticks / 1000]
@@ -227,6 +231,7 @@ def run_with_progress(args) -> list[dict]:
             args.order,
             args.cluster,
             args.netlogo_seed,
+            args.device,
         )
 
 
@@ -258,12 +263,20 @@ def main(argv=None) -> int:
         metavar="ADDRESS",
         help="run on the Dask scheduler at tcp://HOST:PORT, in blocks of insects (docs/cluster.md)",
     )
+    p.add_argument(
+        "--device",
+        choices=("cpu", *DEVICES),
+        default="cpu",
+        help="cuda: the population on an NVIDIA GPU (docs/gpu.md; needs the gpu extra), the same table",
+    )
     args = p.parse_args(argv)
     try:
         check_netlogo_seed(args.netlogo_seed, args.semantics, args.order)
+        if args.device != "cpu":
+            check_device(args.device, args.cluster)
         if args.netlogo_seed is not None:
             spikinglab_setup(args.netlogo_seed, params_for(args.preset))  # its range and arena, before any run
-    except ValueError as e:
+    except (ValueError, RuntimeError) as e:
         p.error(str(e))
     folder = args.runs / (args.id or f"sweep-{datetime.datetime.now():%Y%m%d-%H%M%S}")
     created = not folder.exists()

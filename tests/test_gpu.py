@@ -12,14 +12,15 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from services.gpu import check_device, fused_loop_cuda
-from services.loop import closed_loop, evaluate, population
+from services.loop import evaluate, fused_loop, population
 
-from .processes import ROOT
+ROOT = Path(__file__).resolve().parents[1]  # not tests.processes: a GPU machine may lack the bus packages
 
 # Three settings of A+, each on the seeds given. On seed 1 the insects collide and learn within
 # the run: 200 ticks from tick 0 (learning times, in three launches), 60 ticks across the first
@@ -34,7 +35,7 @@ RUNS = {
     "phased": ("phased", [1], 0, 150, 1000),
     "seeds": ("netlogo", [2, 3, 4, 5], 0, 100, 1000),
 }
-DEVICE_RUNS = {"many": ("netlogo", range(64), 0, 6000, 1000), "many phased": ("phased", range(64), 0, 6000, 1000)}
+DEVICE_RUNS = {"many": ("netlogo", range(192), 0, 6000, 1000), "many phased": ("phased", range(192), 0, 6000, 1000)}
 WORLD = ("pos", "heading", "grid", "last_patch", "events", "eaten", "bin_collisions")
 METRICS = ("collisions", "collisions_by_colour", "food", "distance", "last_collision", "last_noxious")
 METRICS += ("learned_at", "resets")
@@ -45,11 +46,16 @@ def run(semantics: str, seeds, start: int, ticks: int, stretch: int | None) -> d
     """Everything the run leaves in the world and brain; stretch None: the CPU path."""
     world, brain = population(PARAMS, seeds, learned_after=LEARNED_AFTER, semantics=semantics)
     world.tick = start  # as a run resumed there
+    noxious = np.zeros((ticks, world.agents), np.uint8)  # the ticks on a noxious patch, which sweeps read
     if stretch is None:
-        closed_loop(world, brain, ticks)
+        fused_loop(world, brain, ticks, noxious)
     else:
-        fused_loop_cuda(world, brain, ticks, stretch)
-    out = {name: np.asarray(getattr(world, name)) for name in WORLD}
+
+        def keep(k, rows):
+            noxious[k : k + len(rows)] = rows
+
+        fused_loop_cuda(world, brain, ticks, stretch, keep)
+    out = {name: np.asarray(getattr(world, name)) for name in WORLD} | {"noxious": noxious}
     out |= {f"metrics.{name}": getattr(world.metrics, name) for name in METRICS}
     out |= {f"engine.{name}": getattr(brain.engine.state, name) for name in ENGINE}
     bins = np.array(world.metrics.bins, np.int64).reshape(-1, world.agents)
@@ -103,6 +109,7 @@ def test_device_run_equals_cpu(tmp_path, simulator):
     # the runs compared something: collisions, learning, weights moved, a bin closed
     learning, crossing = cpu_runs["learning"], cpu_runs["bin"]
     assert learning["metrics.collisions"].sum() > 0 and (learning["metrics.learned_at"] > 0).any()
+    assert learning["noxious"].sum() >= learning["metrics.collisions"].sum() > 0  # a collision is a tick on one
     _, brain = population(PARAMS, [1], learned_after=LEARNED_AFTER)
     for name in ("learning", "phased"):
         assert not np.array_equal(cpu_runs[name]["engine.w"], brain.engine.state.w), name

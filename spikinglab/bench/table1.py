@@ -6,9 +6,10 @@ grid:      semantics (phased, netlogo) x w_max (9, 15) x steps (paper 5 deg / 1 
 ablation:  from the setup closest to the NetLogo source, one factor switched at a time.
 
 Every setting is the paper's or the NetLogo source's; nothing is fitted. Each (setting, A) is one
-population of --seeds insects (arena and order seed s for insect s) in one process; two such
-populations run at once, one per core. Writes OUT/table1.json, table1.md and table1.png; the last
-line printed is a JSON summary. Run: `spikinglab bench table1 [--ablation]`.
+population of --seeds insects (arena and order seed s for insect s) in one process; --workers of
+them run at once (default: one per core), or with --device cuda all of them at once on the GPU.
+Writes OUT/table1.json, table1.md and table1.png; the last line printed is a JSON summary.
+Run: `spikinglab bench table1 [--ablation] [--device cuda]`.
 """
 
 from __future__ import annotations
@@ -17,11 +18,12 @@ import json
 import multiprocessing
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
 
+from services.gpu import DEVICES, check_device
 from services.learning import DEFAULT_DEFINITION, DEFINITIONS, PAPER, all_definitions, plot_table1, tick_text
 from services.options import Parser, at_least, positive
 
@@ -53,7 +55,7 @@ ABLATION = {  # factor -> what it is switched to
 }
 
 
-def run_population(setting: dict, a: float, seeds: int, ticks: int) -> dict:
+def run_population(setting: dict, a: float, seeds: int, ticks: int, device: str = "cpu") -> dict:
     """One population: `seeds` insects of one setting at A+ = A- = a; collision ticks per insect."""
     from services.brain.circuit import load_circuit
     from services.learning import noxious_ticks
@@ -67,7 +69,7 @@ def run_population(setting: dict, a: float, seeds: int, ticks: int) -> dict:
         world, circuit, semantics=setting["semantics"], order=setting["order"], without=setting["without"]
     )
     started = time.perf_counter()
-    collisions = noxious_ticks(world, brain, ticks)  # NetLogo resets its error-free counter in each
+    collisions = noxious_ticks(world, brain, ticks, device=device)  # NetLogo resets its error-free counter in each
     plastic = circuit.plastic_synapses
     m = world.metrics
     return {
@@ -162,7 +164,18 @@ def main(argv=None) -> dict:
     )
     p.add_argument("--workers", type=at_least(1), default=len(os.sched_getaffinity(0)))
     p.add_argument("--out", type=Path, default=Path("runs") / "table1")
+    p.add_argument(
+        "--device",
+        choices=("cpu", *DEVICES),
+        default="cpu",
+        help="cuda: every population at once on an NVIDIA GPU, a host thread and a stream each (docs/gpu.md)",
+    )
     args = p.parse_args(argv)
+    if args.device != "cpu":
+        try:
+            check_device(args.device)
+        except RuntimeError as e:
+            p.error(str(e))
     from tqdm import tqdm
 
     a_values = args.a_plus or ((0.02, 0.04) if args.ablation else A_VALUES)
@@ -170,12 +183,20 @@ def main(argv=None) -> dict:
     args.out.mkdir(parents=True, exist_ok=True)
     done: dict[int, dict] = {}  # the summary of each job, by its place in todo
     started = time.perf_counter()
+    if args.device == "cpu":
+        pool = ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn"))
+    else:  # the host threads only launch and wait: the populations run side by side on the device
+        from numba.core import config
+
+        simulated = config.ENABLE_CUDASIM  # pyright: ignore[reportAttributeAccessIssue] (from the environment)
+        pool = ThreadPoolExecutor(1 if simulated else len(todo))  # the simulator runs one kernel at a time
     with (
-        ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn")) as pool,
+        pool,
         tqdm(total=len(todo), unit="population", desc="table1" + (" ablation" if args.ablation else "")) as bar,
     ):
         futures = {
-            pool.submit(run_population, setting, a, args.seeds, args.ticks): k for k, (_, setting, a) in enumerate(todo)
+            pool.submit(run_population, setting, a, args.seeds, args.ticks, args.device): k
+            for k, (_, setting, a) in enumerate(todo)
         }
         for future in as_completed(futures):
             k = futures[future]
