@@ -14,6 +14,7 @@ NUMBA_ENABLE_CUDASIM=1, numba's CUDA simulator runs the same kernel in Python (s
 
 from __future__ import annotations
 
+import threading
 import warnings
 from collections.abc import Callable
 from typing import Any
@@ -28,6 +29,7 @@ from services.world.world import BIN, RAY_STEP, VIEW, World
 DEVICES = ("cuda",)
 STRETCH = 1000  # ticks per kernel launch: long enough that a launch's cost is nothing beside it
 THREADS = 128  # threads (insects) per block
+LAUNCH = threading.Lock()  # one launch at a time: a launch only queues the kernel on its stream
 
 
 def device_problem() -> str | None:
@@ -99,7 +101,8 @@ def fused_loop_cuda(
         warnings.filterwarnings("ignore", "overflow encountered", RuntimeWarning)
         for done in range(0, ticks, stretch):
             n = min(stretch, ticks - done)
-            kernel[blocks, threads, stream](n, t0 + done, tb0 + done, t0 // BIN, *dev, noxious)
+            with LAUNCH:  # numba-cuda's first launch loads the module, which two threads at once corrupt
+                kernel[blocks, threads, stream](n, t0 + done, tb0 + done, t0 // BIN, *dev, noxious)
             if on_noxious is not None:
                 on_noxious(done, noxious[:n].copy_to_host(stream=stream))
     for d, x in zip(_flat(dev), _flat(host)):

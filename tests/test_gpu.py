@@ -149,3 +149,40 @@ def test_bench_gpu_prints_its_figures_under_the_simulator_and_is_refused_without
 def test_an_unknown_device_is_named():
     with pytest.raises(ValueError, match="device must be one of cuda, got 'tpu'"):
         check_device("tpu")
+
+
+def device_env() -> dict[str, str]:
+    """The environment of a device run: the GPU where there is one, else numba's simulator."""
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_ENABLE_CUDASIM"}
+    return env if device_present() else env | {"NUMBA_ENABLE_CUDASIM": "1"}
+
+
+def test_sweep_and_table1_on_the_device_write_the_cpu_tables(tmp_path):
+    """Both read every insect's ticks on a noxious patch, which the kernel keeps for them."""
+    device = device_env()
+    sweep = [sys.executable, "-m", "spikinglab", "sweep", "--a-plus", "0.08", "--seeds", "2", "--ticks", "2000"]
+    sweep += ["--runs", str(tmp_path)]
+    table1 = [sys.executable, "-m", "spikinglab", "bench", "table1", "--seeds", "1", "--ticks", "1000"]
+    table1 += ["--a-plus", "0.08", "--workers", "1"]
+    for path, env in (("cuda", device), ("cpu", os.environ)):
+        on = ["--device", "cuda"] if path == "cuda" else []
+        for command in (sweep + ["--id", path], table1 + ["--out", str(tmp_path / f"table1-{path}")]):
+            done = subprocess.run(command + on, cwd=ROOT, env=env, capture_output=True, text=True, timeout=280)
+            assert done.returncode == 0, done.stderr[-2000:]
+    sweeps = [json.loads((tmp_path / path / "table.json").read_text()) for path in ("cuda", "cpu")]
+    assert sweeps[0] == sweeps[1] and sum(sweeps[1][0]["collisions_first_quarter"]) > 0
+    tables = [json.loads((tmp_path / f"table1-{path}" / "table1.json").read_text()) for path in ("cuda", "cpu")]
+    for rows in tables:
+        for row in rows:
+            del row["seconds"]
+    assert tables[0] == tables[1] and len(tables[1]) == 8 and sum(sum(r["noxious_ticks"]) for r in tables[1]) > 0
+
+
+def test_sweep_on_cuda_is_refused_in_one_line_without_a_device(tmp_path):
+    if device_present():
+        pytest.skip("a CUDA device is present here")
+    command = [sys.executable, "-m", "spikinglab", "sweep", "--device", "cuda", "--runs", str(tmp_path)]
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_ENABLE_CUDASIM"}
+    done = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and "device='cuda' refused: " in done.stderr, done.stderr
+    assert "Traceback" not in done.stderr and not any(tmp_path.iterdir())
