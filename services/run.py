@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from services.brain.brain import check_sensors
+from services.brain.build import check_options
 from services.brain.checkpoint import load_weights
 from services.brain.circuit import Circuit, CircuitError, load_circuit
 from services.brain.engine import PARALLEL_FROM
@@ -121,6 +122,10 @@ def arguments(p: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace
         p.error("argument --view: the live view comes from the recorder, which --no-record leaves out")
     if args.view_host != LOCAL and not args.view:
         p.error("argument --view-host: it says where the live view listens, which only --view starts")
+    try:  # the brain would refuse them only after the world has started
+        check_options(args.agents, args.semantics, args.order, (), args.netlogo_seed)
+    except ValueError as e:
+        p.error(str(e))
     return args
 
 

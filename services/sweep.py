@@ -96,6 +96,12 @@ def insects(
 def check_netlogo_seed(netlogo_seed: int | None, semantics: str, order: str) -> None:
     """ValueError where the source's arena leaves the seeds nothing to vary: its arena and heading
     are every insect's, so only the netlogo semantics' random order tells one seed from another."""
+    if order == "netlogo-stream":
+        raise ValueError(
+            "--order netlogo-stream draws every insect's order from the one stream of the source's "
+            "setup, so the seeds would be one run copied: run it alone with spikinglab run --preset "
+            "netlogo --netlogo-seed N --order netlogo-stream"
+        )
     if netlogo_seed is not None and (semantics, order) != ("netlogo", "random"):
         raise ValueError(
             f"--netlogo-seed gives every seed the same arena and heading, so the seeds differ only by "

@@ -74,6 +74,12 @@ ARGUMENTS = [
     ("run negative A", "run --a-plus -0.1", 2, "argument --a-plus: must be a number above 0, got -0.1"),
     ("run detail not agents", "run --detail x", 2, "argument --detail: expected agent numbers separated by commas"),
     ("run abbreviated option", "run --tick 5", 2, "unrecognized arguments: --tick 5"),
+    (
+        "run stream order without its seed",
+        "run --order netlogo-stream",
+        2,
+        "order netlogo-stream draws from NetLogo's stream as the source's setup leaves it: it needs",
+    ),
     ("sweep 500 ticks", "sweep --ticks 500", 2, "argument --ticks: must be at least 1,000, got 500"),
     ("sweep no seeds", "sweep --seeds 0", 2, "argument --seeds: must be at least 1, got 0"),
     ("conditioning no trials", "conditioning --trials 0", 2, "argument --trials: must be at least 1, got 0"),

@@ -45,6 +45,7 @@ def test_the_sweep_names_its_arena_in_every_row():
     [
         (["--order", "file"], "with --semantics netlogo --order file they would be one run copied"),
         (["--semantics", "phased"], "with --semantics phased --order random they would be one run copied"),
+        (["--order", "netlogo-stream"], "the seeds would be one run copied: run it alone with spikinglab run"),
     ],
 )
 def test_a_sweep_whose_seeds_would_be_copies_is_refused_in_one_line(argv, message, tmp_path, capsys):
@@ -54,6 +55,14 @@ def test_a_sweep_whose_seeds_would_be_copies_is_refused_in_one_line(argv, messag
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
     assert not list(tmp_path.iterdir())  # refused before any run or folder
+
+
+def test_the_stream_order_without_a_netlogo_seed_is_refused_in_one_line(tmp_path, capsys):
+    with pytest.raises(SystemExit) as stop:
+        sweep.main(["--order", "netlogo-stream", "--runs", str(tmp_path)])
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert stop.value.code == 2 and "--order netlogo-stream draws every insect's order" in line
+    assert not list(tmp_path.iterdir())
 
 
 def test_a_netlogo_seed_outside_netlogos_range_is_refused_in_one_line(tmp_path, capsys):
