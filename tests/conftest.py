@@ -1,7 +1,8 @@
 """Every test gets one or more of the markers registered in pyproject.toml, decided here from its
 source (its own, that of the fixtures it uses and that of the module's functions it calls), so that
-no test file has to say it: `pytest -m unit` is the quick in-process part, `-m "not realtime"` the
-part that a loaded machine cannot upset.
+no test file has to say it: `pytest -m unit` is the quick in-process part, `-m "not (realtime or
+viewer)"` the part that a loaded machine cannot upset (scripts/test.sh runs it on every core, then
+the rest alone).
 
   process:  starts processes (services, a run, pip)
   realtime: its outcome depends on wall-clock timing: the free-running brain (--clock), the
