@@ -40,6 +40,12 @@ def whole_number(text: str, what: str = "a whole number") -> int:
         raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
 
 
+def add_netlogo_seed(p, help: str) -> None:
+    """--netlogo-seed N: a seed of NetLogo's `random-seed` (a Java int; its upper end is checked
+    where the seed is used)."""
+    p.add_argument("--netlogo-seed", type=at_least(-(2**31)), metavar="N", help=help)
+
+
 def at_least(minimum: int):
     """An int option of at least `minimum`."""
 

@@ -22,7 +22,7 @@ from services.cluster import ClusterError, address_option
 from services.gpu import DEVICES, check_device
 from services.learning import PAPER, all_definitions, noxious_ticks, plot_table1, quarter_collisions, stats
 from services.loop import population
-from services.options import Parser, at_least, positive
+from services.options import Parser, add_netlogo_seed, at_least, positive
 from services.world.netlogo_setup import spikinglab_setup
 from services.world.world import BIN, PRESETS, params_for
 
@@ -253,11 +253,9 @@ def main(argv=None) -> int:
     )
     p.add_argument("--preset", choices=sorted(PRESETS), default="paper")
     p.add_argument("--learned-after", type=at_least(1), default=5000)
-    p.add_argument(
-        "--netlogo-seed",
-        type=int,
-        metavar="N",
-        help="every insect in the arena and first heading of the SpikingLab source's setup after "
+    add_netlogo_seed(
+        p,
+        "every insect in the arena and first heading of the SpikingLab source's setup after "
         "`random-seed N` (its own: 7850); the seeds then vary the neurons' order (docs/netlogo-random.md)",
     )
     add_engine_args(p)

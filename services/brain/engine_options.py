@@ -7,7 +7,7 @@ import argparse
 from dataclasses import dataclass
 from pathlib import Path
 
-from services.options import at_least
+from services.options import add_netlogo_seed
 from services.params import file_rows, read_params, side_of
 
 from .build import DEFAULT_SEMANTICS, ORDERS, SEMANTICS, learning_tables
@@ -31,11 +31,9 @@ def add_engine_args(p: argparse.ArgumentParser) -> None:
         "(needs --netlogo-seed; docs/netlogo-random.md)",
     )
     try:  # `run` and `sweep` declare it with the world's options: there it is the same option
-        p.add_argument(
-            "--netlogo-seed",
-            type=at_least(-(2**31)),
-            metavar="N",
-            help="order netlogo-stream: NetLogo's stream as the SpikingLab source's setup leaves it after "
+        add_netlogo_seed(
+            p,
+            "order netlogo-stream: NetLogo's stream as the SpikingLab source's setup leaves it after "
             "`random-seed N` (the world's --netlogo-seed: its arena)",
         )
     except argparse.ArgumentError:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.options import at_least, shard_slice
+from services.options import add_netlogo_seed, at_least, shard_slice
 from services.params import file_for_agents, side_of
 
 from .netlogo_setup import spikinglab_setup
@@ -29,11 +29,9 @@ def add_world_args(p: argparse.ArgumentParser) -> None:
         help="rotation and move steps: paper (5 deg, 1 patch, default) or netlogo (4 deg, 0.4 patch)",
     )
     w.add_argument("--map", type=Path, help="a text map file instead of the generated arena (docs/world.md)")
-    w.add_argument(
-        "--netlogo-seed",
-        type=at_least(-(2**31)),
-        metavar="N",
-        help="the arena and first heading that the SpikingLab source's setup makes after `random-seed N` "
+    add_netlogo_seed(
+        w,
+        "the arena and first heading that the SpikingLab source's setup makes after `random-seed N` "
         "(its own: 7850), for every agent (docs/netlogo-random.md)",
     )
     w.add_argument("--no-training", action="store_true", help="no push on noxious patches (test mode)")
