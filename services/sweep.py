@@ -241,7 +241,7 @@ def run_with_progress(args) -> list[dict]:
         )
 
 
-def main(argv=None) -> int:
+def parser() -> Parser:
     p = Parser(prog="spikinglab sweep", description=(__doc__ or "").partition("\n")[0])
     p.add_argument("--a-plus", type=positive, nargs="+", default=[0.01, 0.02, 0.03, 0.04])
     p.add_argument("--seeds", type=at_least(1), default=16, help="seeds (arenas 0..N-1) per value (default 16)")
@@ -273,6 +273,11 @@ def main(argv=None) -> int:
         default="cpu",
         help="cuda: the population on an NVIDIA GPU (docs/gpu.md; needs the gpu extra), the same table",
     )
+    return p
+
+
+def main(argv=None) -> int:
+    p = parser()
     args = p.parse_args(argv)
     try:
         check_netlogo_seed(args.netlogo_seed, args.semantics, args.order)
