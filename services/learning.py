@@ -51,17 +51,21 @@ def noxious_ticks(
     if device != "cpu":
         from services.gpu import fused_loop_cuda
 
-        found = [[] for _ in range(world.agents)]
+        none = np.zeros(0, np.int64)
+        kept: list[tuple[np.ndarray, np.ndarray]] = [(none, none)]  # (insects, ticks) of each launch, by tick
 
         def keep_rows(start: int, rows: np.ndarray) -> None:
-            for k, a in zip(*np.nonzero(rows)):  # by tick, then insect: each list in tick order
-                found[a].append(start + int(k))
+            k, a = np.nonzero(rows)
+            kept.append((a, start + k))
             if on_tick is not None:
                 for t in range(start, start + len(rows)):
                     on_tick(t)
 
         fused_loop_cuda(world, brain, ticks, on_noxious=keep_rows)
-        return found
+        insects = np.concatenate([a for a, _ in kept])
+        by_insect = np.argsort(insects, kind="stable")  # stable: each insect's ticks stay in order
+        ends = np.searchsorted(insects[by_insect], np.arange(1, world.agents))
+        return [t.tolist() for t in np.split(np.concatenate([t for _, t in kept])[by_insect], ends)]
     if brain.agents < PARALLEL_FROM:
         fed = np.zeros((ticks, world.agents), np.uint8)
         for start in range(0, ticks, BIN):
