@@ -14,6 +14,7 @@ NUMBA_ENABLE_CUDASIM=1, numba's CUDA simulator runs the same kernel in Python (s
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import warnings
 from collections.abc import Callable
@@ -95,16 +96,18 @@ def fused_loop_cuda(
     # numba's simulator runs a block's threads as Python threads that swap each device function's
     # module globals unlocked ("dictionary changed size during iteration", seen in a test run;
     # NVIDIA/numba-cuda#690): there, one thread a block, the blocks in turn. Same result.
-    threads = 1 if config.ENABLE_CUDASIM else min(THREADS, agents)  # pyright: ignore[reportAttributeAccessIssue]
+    simulated = config.ENABLE_CUDASIM  # pyright: ignore[reportAttributeAccessIssue] (from the environment)
+    threads = 1 if simulated else min(THREADS, agents)
     tb0, blocks = int(brain.engine.state.clock[TICK]), (agents + threads - 1) // threads
-    with warnings.catch_warnings():  # the simulator's numpy scalars warn where the order's uint64 hash wraps
-        warnings.filterwarnings("ignore", "overflow encountered", RuntimeWarning)
+    with _quiet_overflow() if simulated else contextlib.nullcontext():
         for done in range(0, ticks, stretch):
             n = min(stretch, ticks - done)
             with LAUNCH:  # numba-cuda's first launch loads the module, which two threads at once corrupt
                 kernel[blocks, threads, stream](n, t0 + done, tb0 + done, t0 // BIN, *dev, noxious)
             if on_noxious is not None:
-                on_noxious(done, noxious[:n].copy_to_host(stream=stream))
+                rows = noxious[:n].copy_to_host(stream=stream)
+                stream.synchronize()  # a copy on a stream may return before it is done
+                on_noxious(done, rows)
     for d, x in zip(_flat(dev), _flat(host)):
         if x.flags.writeable:
             d.copy_to_host(x, stream=stream)
@@ -112,6 +115,15 @@ def fused_loop_cuda(
     _close_bins(world, bins, ticks)
     brain.engine.state.clock[TICK] += ticks
     bind(brain.engine.spiked, brain.actuator_neurons, brain.action_cols, brain.actions)
+
+
+@contextlib.contextmanager
+def _quiet_overflow():
+    """The simulator's numpy scalars warn where the order's uint64 hash wraps, by design. (Not on a
+    device: warnings' filters are global, and table1's threads would race to set them back.)"""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "overflow encountered", RuntimeWarning)
+        yield
 
 
 def _close_bins(world: World, bins: np.ndarray, ticks: int) -> None:

@@ -49,8 +49,9 @@ def noxious_ticks(
     from services.world.world import BIN, PAIN
 
     if device != "cpu":
-        from services.gpu import fused_loop_cuda
+        from services.gpu import check_device, fused_loop_cuda
 
+        check_device(device)
         none = np.zeros(0, np.int64)
         kept: list[tuple[np.ndarray, np.ndarray]] = [(none, none)]  # (insects, ticks) of each launch, by tick
 

@@ -46,6 +46,8 @@ def sweep(
     every insect in the SpikingLab source's arena of `random-seed N`; the seeds vary its order.
     `device`: "cuda" runs the population on an NVIDIA GPU (services/gpu.py), with the same rows."""
     check_netlogo_seed(netlogo_seed, semantics, order)
+    if device != "cpu":
+        check_device(device, cluster)
     options: dict = dict(
         preset=preset, learned_after=learned_after, semantics=semantics, order=order, netlogo_seed=netlogo_seed
     )
@@ -87,6 +89,7 @@ def insects(
     )
     noxious = noxious_ticks(world, brain, ticks, on_tick, device)
     return {
+        "device": device,
         "noxious": [np.asarray(c, np.int64) for c in noxious],
         "bins": np.array(world.metrics.bins).T,  # [agents, ticks / 1000]
         "learned_at": world.metrics.learned_at.copy(),
@@ -150,6 +153,7 @@ def rows(a_values: list[float], seeds: int, ticks: int, preset: str, semantics: 
                 "a_plus": a_plus,
                 "seeds": seeds,
                 "ticks": ticks,
+                "device": found.get("device", "cpu"),  # where the insects ran
                 "learning_time": main["times"],
                 "reached": main["reached"],
                 "median": main["median"],

@@ -170,11 +170,12 @@ def test_sweep_and_table1_on_the_device_write_the_cpu_tables(tmp_path):
             done = subprocess.run(command + on, cwd=ROOT, env=env, capture_output=True, text=True, timeout=280)
             assert done.returncode == 0, done.stderr[-2000:]
     sweeps = [json.loads((tmp_path / path / "table.json").read_text()) for path in ("cuda", "cpu")]
-    assert sweeps[0] == sweeps[1] and sum(sweeps[1][0]["collisions_first_quarter"]) > 0
     tables = [json.loads((tmp_path / f"table1-{path}" / "table1.json").read_text()) for path in ("cuda", "cpu")]
-    for rows in tables:
+    for rows, path in zip(sweeps + tables, ["cuda", "cpu"] * 2):
         for row in rows:
-            del row["seconds"]
+            assert row.pop("device") == path  # recorded where the population ran
+            row.pop("seconds", None)
+    assert sweeps[0] == sweeps[1] and sum(sweeps[1][0]["collisions_first_quarter"]) > 0
     assert tables[0] == tables[1] and len(tables[1]) == 8 and sum(sum(r["noxious_ticks"]) for r in tables[1]) > 0
 
 

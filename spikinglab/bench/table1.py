@@ -74,6 +74,7 @@ def run_population(setting: dict, a: float, seeds: int, ticks: int, device: str 
     m = world.metrics
     return {
         "a": a,
+        "device": device,
         "collision_ticks": collisions,
         "seconds": time.perf_counter() - started,
         "weights": {circuit.synapse_label(k): float(np.mean(brain.engine.w[:, k])) for k in plastic},
@@ -108,6 +109,7 @@ def summarise(name: str, setting: dict, result: dict, seeds: int, ticks: int) ->
         "seeds": seeds,
         "ticks": ticks,
         "seconds": round(result["seconds"], 1),
+        "device": result["device"],
         "definitions": all_definitions(result["collision_ticks"], ticks),
         "noxious_ticks": [len(c) for c in result["collision_ticks"]],
         "mean_weights": result["weights"],
@@ -154,6 +156,34 @@ def definitions_markdown(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n\nMedian learning time (seeds that learned) per definition."
 
 
+def run_jobs(todo: list[tuple[str, dict, float]], args) -> list[dict]:
+    """Every job's summary, in todo's order: --workers processes at once on the CPU, or on the
+    device every population at once, a host thread each (they only launch and wait)."""
+    from tqdm import tqdm
+
+    if args.device == "cpu":
+        pool = ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn"))
+    else:
+        from numba.core import config
+
+        simulated = config.ENABLE_CUDASIM  # pyright: ignore[reportAttributeAccessIssue] (from the environment)
+        pool = ThreadPoolExecutor(1 if simulated else len(todo))  # the simulator runs one kernel at a time
+    done: dict[int, dict] = {}  # the summary of each job, by its place in todo
+    with (
+        pool,
+        tqdm(total=len(todo), unit="population", desc="table1" + (" ablation" if args.ablation else "")) as bar,
+    ):
+        futures = {
+            pool.submit(run_population, setting, a, args.seeds, args.ticks, args.device): k
+            for k, (_, setting, a) in enumerate(todo)
+        }
+        for future in as_completed(futures):
+            k = futures[future]
+            done[k] = summarise(todo[k][0], todo[k][1], future.result(), args.seeds, args.ticks)
+            bar.update(1)
+    return [done[k] for k in range(len(todo))]
+
+
 def main(argv=None) -> dict:
     p = Parser(prog="spikinglab bench table1", description=(__doc__ or "").splitlines()[0])
     p.add_argument("--ablation", action="store_true", help="the ablation table instead of the grid")
@@ -162,7 +192,12 @@ def main(argv=None) -> dict:
     p.add_argument(
         "--a-plus", type=positive, nargs="+", default=None, help=f"A values (default {A_VALUES}; ablation: 0.02 0.04)"
     )
-    p.add_argument("--workers", type=at_least(1), default=len(os.sched_getaffinity(0)))
+    p.add_argument(
+        "--workers",
+        type=at_least(1),
+        default=len(os.sched_getaffinity(0)),
+        help="populations at once on the CPU (default: one per core); with --device cuda, all of them",
+    )
     p.add_argument("--out", type=Path, default=Path("runs") / "table1")
     p.add_argument(
         "--device",
@@ -176,33 +211,11 @@ def main(argv=None) -> dict:
             check_device(args.device)
         except RuntimeError as e:
             p.error(str(e))
-    from tqdm import tqdm
-
     a_values = args.a_plus or ((0.02, 0.04) if args.ablation else A_VALUES)
     todo = jobs(args.ablation, a_values)
     args.out.mkdir(parents=True, exist_ok=True)
-    done: dict[int, dict] = {}  # the summary of each job, by its place in todo
     started = time.perf_counter()
-    if args.device == "cpu":
-        pool = ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn"))
-    else:  # the host threads only launch and wait: the populations run side by side on the device
-        from numba.core import config
-
-        simulated = config.ENABLE_CUDASIM  # pyright: ignore[reportAttributeAccessIssue] (from the environment)
-        pool = ThreadPoolExecutor(1 if simulated else len(todo))  # the simulator runs one kernel at a time
-    with (
-        pool,
-        tqdm(total=len(todo), unit="population", desc="table1" + (" ablation" if args.ablation else "")) as bar,
-    ):
-        futures = {
-            pool.submit(run_population, setting, a, args.seeds, args.ticks, args.device): k
-            for k, (_, setting, a) in enumerate(todo)
-        }
-        for future in as_completed(futures):
-            k = futures[future]
-            done[k] = summarise(todo[k][0], todo[k][1], future.result(), args.seeds, args.ticks)
-            bar.update(1)
-    rows = [done[k] for k in range(len(todo))]
+    rows = run_jobs(todo, args)
     stem = "ablation" if args.ablation else "table1"
     text = markdown(rows, DEFAULT_DEFINITION) + "\n\n" + definitions_markdown(rows)
     (args.out / f"{stem}.md").write_text(text + "\n")
