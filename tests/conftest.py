@@ -25,7 +25,10 @@ from pathlib import Path
 import pytest
 
 PROCESS = re.compile(r"(?<![\w.])(start|spawn)\(|\bsubprocess\.|\bPopen\(|\bLauncher\(|\bsys\.executable\b")
-REALTIME = re.compile(r'"--clock"|(?<![\w.])start\(\s*"gateway"|\bSimBackend\(|\bquiet_s=|assert .*\bmonotonic\(\) -')
+REALTIME = re.compile(
+    r'"--clock"|(?<![\w.])start\(\s*"gateway"|"spikinglab", "gateway", "--listen"'
+    r"|\bSimBackend\(|\bquiet_s=|assert .*\bmonotonic\(\) -"
+)
 # what a viewer test runs, and the system package it needs for that
 VIEWERS = {
     re.compile(r"\bsync_playwright\b"): "chromium",

@@ -202,8 +202,9 @@ def test_a_late_recorder_says_from_which_tick_it_has_data(tmp_path):
     assert len(late) == 1
     starts = re.search(r"recording starts at tick (\d+)", late[0])
     assert starts, late[0]
-    assert 1500 < int(starts.group(1)) <= joined + 500
-    assert data["/world/insects"]["tick"][0] >= int(starts.group(1))  # no data before the tick it names
+    # (not bounded by `joined`: a loaded machine's watcher counts ticks behind the world's own)
+    first, ticks = int(starts.group(1)), data["/world/insects"]["tick"]
+    assert 1500 < first <= ticks[0] < ticks[-1]  # joined late, no data before the tick it names, data after
 
 
 def test_each_run_gets_its_own_recording(tmp_path):
