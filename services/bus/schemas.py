@@ -237,6 +237,40 @@ class WorldState(Message, tag="world_state", frozen=True, kw_only=True):
         ):
             raise BusError("pos and heading must be finite")
 
+    @classmethod
+    def of(
+        cls,
+        arrays,
+        changes,
+        *,
+        tick: int,
+        run: str,
+        sensor_names,
+        final: bool = False,
+        first: int = 0,
+        population: int = 0,
+        shards: int = 0,
+    ) -> WorldState:
+        """From numpy arrays: `arrays` by name (sensors, pos, heading, events, collisions, food),
+        `changes` the changed patches' rows of 5 (any sequence)."""
+        a = {n: Array.of(arrays[n]) for n in ("sensors", "pos", "heading", "events", "collisions", "food")}
+        return cls(
+            tick=tick,
+            run=run,
+            sensor_names=tuple(sensor_names),
+            sensors=a["sensors"],
+            pos=a["pos"],
+            heading=a["heading"],
+            events=a["events"],
+            collisions=a["collisions"],
+            food=a["food"],
+            changes=Array.of(np.array(changes, np.int64).reshape(-1, 5)),
+            final=final,
+            first=first,
+            population=population,
+            shards=shards,
+        )
+
 
 class WorldMap(Message, tag="world_map", frozen=True, kw_only=True):
     """The arenas: grid [arenas, width, height] of colours (EMPTY, BLACK, RED, GREEN), patch (0, 0)

@@ -185,20 +185,7 @@ class ShardJoin:
             arrays = {n: np.zeros((0, self.population, *columns.get(n, ())), d) for n, (d, _) in STATE_ARRAYS.items()}
             changes = np.zeros((0, 5), np.int64)
         self.joined_to = tick + len(arrays["pos"])
-        a = {n: Array.of(x) for n, x in arrays.items()}
-        return WorldState(
-            tick=tick,
-            run=self.run,
-            sensor_names=self.sensor_names,
-            sensors=a["sensors"],
-            pos=a["pos"],
-            heading=a["heading"],
-            events=a["events"],
-            collisions=a["collisions"],
-            food=a["food"],
-            changes=Array.of(changes),
-            final=final,
-        )
+        return WorldState.of(arrays, changes, tick=tick, run=self.run, sensor_names=self.sensor_names, final=final)
 
     def keep_within(self, limit: int) -> None:
         """The oldest ticks of the shard that holds the most dropped until what is held is within `limit`

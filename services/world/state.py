@@ -67,19 +67,15 @@ def state_message(
         )
     rows = np.array(changes, np.int64).reshape(-1, 5)
     changes.clear()
-    return WorldState(
+    first_agent = int(world.numbers[0]) if population else 0
+    return WorldState.of(
+        a,
+        rows,
         tick=first,
         run=run,
         sensor_names=SENSORS,
-        sensors=Array.of(a["sensors"]),
-        pos=Array.of(a["pos"]),
-        heading=Array.of(a["heading"]),
-        events=Array.of(a["events"]),
-        collisions=Array.of(a["collisions"]),
-        food=Array.of(a["food"]),
-        changes=Array.of(rows),
         final=final,
-        first=int(world.numbers[0]) if population else 0,
+        first=first_agent,
         population=population,
         shards=shards,
     )

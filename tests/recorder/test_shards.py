@@ -33,18 +33,12 @@ def population_state(seed=0) -> dict[str, np.ndarray]:
 
 def shard_state(whole, lo, hi, tick, end, changes=(), final=False, **slice_) -> WorldState:
     """Ticks tick..end-1 of agents lo..hi-1, as world shard lo..hi-1 sends them (changes: its arenas)."""
-    part = {n: Array.of(a[tick:end, lo:hi]) for n, a in whole.items()}
-    return WorldState(
+    return WorldState.of(
+        {n: a[tick:end, lo:hi] for n, a in whole.items()},
+        changes,
         tick=tick,
         run=RUN,
         sensor_names=SENSORS,
-        sensors=part["sensors"],
-        pos=part["pos"],
-        heading=part["heading"],
-        events=part["events"],
-        collisions=part["collisions"],
-        food=part["food"],
-        changes=Array.of(np.array(changes, np.int64).reshape(-1, 5)),
         final=final,
         first=slice_.get("first", lo),
         population=slice_.get("population", AGENTS),
