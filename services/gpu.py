@@ -52,6 +52,13 @@ def device_problem() -> str | None:
     )
 
 
+def simulated() -> bool:
+    """Whether numba's CUDA simulator stands in for the device (NUMBA_ENABLE_CUDASIM=1)."""
+    from numba.core import config
+
+    return bool(config.ENABLE_CUDASIM)  # pyright: ignore[reportAttributeAccessIssue] (from the environment)
+
+
 def check_device(device: str, cluster: str | None = None) -> None:
     """ValueError for a device this path does not know, or with a cluster; RuntimeError when it is
     missing here."""
@@ -77,7 +84,6 @@ def fused_loop_cuda(
     uint8, 1 where an insect's pain sensor was fed (services.learning.noxious_ticks). The calls
     of several host threads run at once on the device: each has a stream of its own."""
     from numba import cuda
-    from numba.core import config
 
     from services.gpu_kernels import fused_kernel
 
@@ -96,10 +102,10 @@ def fused_loop_cuda(
     # numba's simulator runs a block's threads as Python threads that swap each device function's
     # module globals unlocked ("dictionary changed size during iteration", seen in a test run;
     # NVIDIA/numba-cuda#690): there, one thread a block, the blocks in turn. Same result.
-    simulated = config.ENABLE_CUDASIM  # pyright: ignore[reportAttributeAccessIssue] (from the environment)
-    threads = 1 if simulated else min(THREADS, agents)
+    simulator = simulated()
+    threads = 1 if simulator else min(THREADS, agents)
     tb0, blocks = int(brain.engine.state.clock[TICK]), (agents + threads - 1) // threads
-    with _quiet_overflow() if simulated else contextlib.nullcontext():
+    with _quiet_overflow() if simulator else contextlib.nullcontext():
         for done in range(0, ticks, stretch):
             n = min(stretch, ticks - done)
             with LAUNCH:  # numba-cuda's first launch loads the module, which two threads at once corrupt

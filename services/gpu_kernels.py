@@ -16,7 +16,6 @@ from typing import Any
 
 import numpy as np
 from numba import cuda
-from numba.core import config
 
 from services.brain import build, engine
 from services.brain.build import (
@@ -53,6 +52,7 @@ from services.brain.build import (
     TABLE,
     THRESHOLD,
 )
+from services.gpu import simulated
 from services.vocabulary import EMPTY, EV_ATE, EV_COLLISION, EV_LEARNED, EV_RESET
 from services.world.world import (
     BIN,
@@ -87,7 +87,7 @@ device = cuda.jit(device=True)
 mix: Any = device(build.mix.py_func)
 order_draw: Any = device(engine.order_draw.py_func)
 
-if config.ENABLE_CUDASIM:  # pyright: ignore[reportAttributeAccessIssue] (set from the environment)
+if simulated():
 
     @device
     def mul(x, y):

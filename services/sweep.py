@@ -45,7 +45,7 @@ def sweep(
     `cluster` in blocks (`progress.update(insects)` per block), with the same rows. `netlogo_seed`:
     every insect in the SpikingLab source's arena of `random-seed N`; the seeds vary its order.
     `device`: "cuda" runs the population on an NVIDIA GPU (services/gpu.py), with the same rows."""
-    check_netlogo_seed(netlogo_seed, semantics, order)
+    check_seeds_differ(netlogo_seed, semantics, order)
     if device != "cpu":
         check_device(device, cluster)
     options: dict = dict(
@@ -96,7 +96,7 @@ def insects(
     }
 
 
-def check_netlogo_seed(netlogo_seed: int | None, semantics: str, order: str) -> None:
+def check_seeds_differ(netlogo_seed: int | None, semantics: str, order: str) -> None:
     """ValueError where the source's arena leaves the seeds nothing to vary: its arena and heading
     are every insect's, so only the netlogo semantics' random order tells one seed from another."""
     if order == "netlogo-stream":
@@ -284,7 +284,7 @@ def main(argv=None) -> int:
     p = parser()
     args = p.parse_args(argv)
     try:
-        check_netlogo_seed(args.netlogo_seed, args.semantics, args.order)
+        check_seeds_differ(args.netlogo_seed, args.semantics, args.order)
         if args.device != "cpu":
             check_device(args.device, args.cluster)
         if args.netlogo_seed is not None:

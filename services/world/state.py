@@ -65,20 +65,19 @@ def state_message(
                 "food": np.zeros((0, A), np.int64),
             },
         )
-    rows = np.array(changes, np.int64).reshape(-1, 5)
-    changes.clear()
-    first_agent = int(world.numbers[0]) if population else 0
-    return WorldState.of(
+    message = WorldState.of(
         a,
-        rows,
+        changes,
         tick=first,
         run=run,
         sensor_names=SENSORS,
         final=final,
-        first=first_agent,
+        first=int(world.numbers[0]) if population else 0,
         population=population,
         shards=shards,
     )
+    changes.clear()
+    return message
 
 
 class StateStream:

@@ -2,8 +2,8 @@
 
 A population of A insects, each in its own arena (the world of seed 0, insects 0..A-1), the
 default engine semantics or --semantics (and the netlogo semantics' --order), built once. Device
-(services/gpu.py): a warm-up of --warmup ticks (compiles the kernel), then --ticks ticks timed,
-the copies to and from the device included. CPU: the same population goes on for --cpu-ticks ticks
+(services/gpu.py): a warm-up of --warmup ticks (compiles the kernel, or loads it from numba's
+cache), then --ticks ticks timed, the copies to and from the device included. CPU: the same population goes on for --cpu-ticks ticks
 on the CPU path (services.loop.closed_loop; from PARALLEL_FROM insects the kernels run on numba's
 threads on every core). Without a device it is refused in one line saying why; under
 NUMBA_ENABLE_CUDASIM=1 it runs numba's simulator (a check of the command, not a figure). Prints
@@ -16,20 +16,19 @@ Run: `spikinglab bench gpu [--agents 1000000] [--ticks 2000] [--cpu-ticks 200]`.
 from __future__ import annotations
 
 import json
-import os
 import time
 from typing import Any
 
 from numba import get_num_threads
 
 from services.brain.engine import DEFAULT_SEMANTICS, SEMANTICS
-from services.gpu import device_problem, fused_loop_cuda
+from services.gpu import device_problem, fused_loop_cuda, simulated
 from services.loop import closed_loop, population
 from services.options import Parser, at_least
 
 
 def measure(agents: int, ticks: int, warmup: int, cpu_ticks: int, semantics: str, order: str) -> dict:
-    """One population, built once: `warmup` ticks on the device (they compile the kernel), `ticks`
+    """One population, built once: `warmup` ticks on the device (they compile or load the kernel), `ticks`
     timed there, then one tick on the CPU path (it compiles) and `cpu_ticks` timed. Prints each step
     as it ends; the rates in agent-ticks/s, with the kernel's registers and local memory per thread."""
     started = time.perf_counter()
@@ -37,7 +36,7 @@ def measure(agents: int, ticks: int, warmup: int, cpu_ticks: int, semantics: str
     step("built the population", started)
     started = time.perf_counter()
     fused_loop_cuda(world, brain, warmup)
-    step(f"{warmup} ticks on the device, compiling the kernel", started)
+    step(f"{warmup} ticks on the device, the kernel compiled or loaded from numba's cache", started)
     started = time.perf_counter()
     fused_loop_cuda(world, brain, ticks)
     device = agents * ticks / step(f"{ticks} ticks on the device", started)
@@ -80,7 +79,7 @@ def main(argv=None) -> dict:
     problem = device_problem()
     if problem is not None:
         raise SystemExit(f"spikinglab bench gpu: refused: {problem}")
-    simulator = os.environ.get("NUMBA_ENABLE_CUDASIM", "0") not in ("", "0")
+    simulator = simulated()
     order = f", {args.order} order" if args.semantics == "netlogo" else ""
     print(
         f"A = {args.agents:,} insects, own arenas, {args.semantics} semantics{order}"

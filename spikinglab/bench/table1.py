@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.gpu import DEVICES, check_device
+from services.gpu import DEVICES, check_device, simulated
 from services.learning import DEFAULT_DEFINITION, DEFINITIONS, PAPER, all_definitions, plot_table1, tick_text
 from services.options import Parser, at_least, positive
 
@@ -164,10 +164,7 @@ def run_jobs(todo: list[tuple[str, dict, float]], args) -> list[dict]:
     if args.device == "cpu":
         pool = ProcessPoolExecutor(args.workers, mp_context=multiprocessing.get_context("spawn"))
     else:
-        from numba.core import config
-
-        simulated = config.ENABLE_CUDASIM  # pyright: ignore[reportAttributeAccessIssue] (from the environment)
-        pool = ThreadPoolExecutor(1 if simulated else len(todo))  # the simulator runs one kernel at a time
+        pool = ThreadPoolExecutor(1 if simulated() else len(todo))  # the simulator runs one kernel at a time
     done: dict[int, dict] = {}  # the summary of each job, by its place in todo
     with (
         pool,
