@@ -3,13 +3,14 @@
 A population of A insects, each in its own arena (the world of seed 0, insects 0..A-1), the
 default engine semantics or --semantics (and the netlogo semantics' --order), built once. Device
 (services/gpu.py): a warm-up of --warmup ticks (compiles the kernel, or loads it from numba's
-cache), then --ticks ticks timed, the copies to and from the device included. CPU: the same population goes on for --cpu-ticks ticks
-on the CPU path (services.loop.closed_loop; from PARALLEL_FROM insects the kernels run on numba's
-threads on every core). Without a device it is refused in one line saying why; under
-NUMBA_ENABLE_CUDASIM=1 it runs numba's simulator (a check of the command, not a figure). Prints
-each step's seconds, a table and, as its last line, JSON: {"agents": A, "ticks": T, "semantics": S,
-"order": O, "device": rate, "cpu": rate, "registers": R, "local_bytes": L, "cores": C,
-"simulator": bool} (registers and local memory per thread of the kernel; not under the simulator).
+cache), then --ticks ticks timed, the copies to and from the device included. CPU: the same
+population goes on for --cpu-ticks ticks on the CPU path (services.loop.closed_loop; from
+PARALLEL_FROM insects the kernels run on numba's threads on every core). Without a device it is
+refused in one line saying why; under NUMBA_ENABLE_CUDASIM=1 it runs numba's simulator (a check of
+the command, not a figure). Prints each step's seconds, a table and, as its last line, JSON:
+{"agents": A, "ticks": T, "semantics": S, "order": O, "device": rate, "cpu": rate, "registers": R,
+"local_bytes": L, "cores": C, "simulator": bool} (registers and local memory per thread of the
+kernel; not under the simulator).
 Run: `spikinglab bench gpu [--agents 1000000] [--ticks 2000] [--cpu-ticks 200]`.
 """
 
