@@ -27,7 +27,7 @@ import pytest
 PROCESS = re.compile(r"(?<![\w.])(start|spawn)\(|\bsubprocess\.|\bPopen\(|\bLauncher\(|\bsys\.executable\b")
 REALTIME = re.compile(
     r'"--clock"|(?<![\w.])start\(\s*"gateway"|"spikinglab", "gateway", "--listen"'
-    r"|\bSimBackend\(|\bquiet_s=|assert .*\bmonotonic\(\) -"
+    r"|\bgateway_and_brain\(|\bSimBackend\(|\bquiet_s=|assert .*\bmonotonic\(\) -"
 )
 # what a viewer test runs, and the system package it needs for that
 VIEWERS = {
