@@ -121,14 +121,14 @@ def _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, counters, ring, spi
             # 1. feed: an idle input neuron latches x >= 0 (NaN: nothing fed); busy ones ignore it
             x = inpar[i, AT_START] if start else feed[a, i]
             left = counters[LEFT, node, a]
-            take = left == 0 and x >= 0.0 and x < 1e9  # NaN and inf fail the tests
+            take = (left == 0) & (x >= 0.0) & (x < 1e9)  # NaN and inf fail the tests; & not `and`: no branches
             latency = np.int32(x if take else 0.0) + np.int32(1)  # floor(x) + 1; int() is floor() for x >= 0
             lat = latency if take else counters[LATENCY, node, a]
             count = np.int32(0) if take else counters[COUNT, node, a]
             left = pulses if take else left
             # 2. inputs: count this tick; a pulse when the count reaches the latency
             count += left > 0
-            fired = left > 0 and count == lat
+            fired = (left > 0) & (count == lat)
             counters[LATENCY, node, a] = lat
             counters[COUNT, node, a] = np.int32(0) if fired else count
             counters[LEFT, node, a] = left - fired
@@ -275,7 +275,9 @@ def _netlogo_range(lo, hi, t, feed, net, st):
     n_net = syn.shape[0] - feed.shape[1]
     width = stdp.shape[2] - TABLE  # W(dt) is stdp[g, p, TABLE + dt + offset] for 0 <= dt + offset < width
     order = np.empty(n_neurons, np.uint64)  # unsigned indices: no negative-index checks
+    due = np.empty(n_neurons, np.uint8)
     send = np.int64(1) if rules & COUNT_FROM_SEND else np.int64(0)  # count-down ticks used in the sending tick
+    reopen = (rules & REOPEN_IN_TURN) != 0
     for a in range(lo, hi):
         g = group[a]
         if not rules & REOPEN_IN_TURN:  # refractory periods that ended in the last tick end now
@@ -290,6 +292,9 @@ def _netlogo_range(lo, hi, t, feed, net, st):
                     v[post, a] += w[s, a]
         for n in range(n_neurons):
             order[n] = np.uint64(n)
+            due[n] = 0
+        for s in range(n_net):  # which neurons have pulses due now: most turns deliver none
+            due[syn[s, PRE]] |= ring[now, s, a]
         if rules & SHUFFLE:  # Fisher-Yates: a hashed (seed, tick) start, then LCG steps, j by multiply-shift
             r = mix(order_key[a] + np.uint64(t))
             for i in range(n_neurons - 1, 0, -1):
@@ -309,33 +314,38 @@ def _netlogo_range(lo, hi, t, feed, net, st):
                 order[k + 1], order[j] = order[j], order[k + 1]
             n = order[k]
             spiked[n, a] = 0
-            if counters[REFRACTORY, n, a] == 0:
-                if v[n, a] != npar[n, REST]:
-                    if v[n, a] >= npar[n, THRESHOLD]:  # fire: potentiation over the history, pulses out
-                        last_spike[n, a] = t
-                        p, offset = profile[n], np.int64(npar[n, STDP_OFFSET])
-                        for h in range(counters[HIST_LEN, n, a]):
-                            entry = hist[a, n, h]
-                            s, dt = entry & SYN_MASK, (entry >> SYN_BITS) - t
-                            if 0 <= dt + offset < width:  # STDP: w += W(dt), clipped to [w_min, w_max]
-                                dw = stdp[g, p, TABLE + dt + offset]
-                                w[s, a] = min(max(w[s, a] + dw, stdp[g, p, LO]), stdp[g, p, HI])
-                        counters[HIST_LEN, n, a] = 0
-                        for q in range(out_start[n], out_start[n + 1]):
-                            s = out_syn[q]
-                            ring[np.uint64((t + syn[s, DELAY] - send) & mask), s, a] = 1
-                        if rules & STREAM:  # propagate-pulses: an ask over the outgoing synapses
-                            ask_draws(stream, a, out_start[n + 1] - out_start[n])
-                        counters[REFRACTORY, n, a] = 1
-                        counters[REFR_LEFT, n, a] = np.int32(npar[n, REFR_PERIOD])
-                        spiked[n, a] = 1
-                    else:
-                        v[n, a] += (npar[n, REST] - v[n, a]) * npar[n, DECAY]
-            else:  # one tick of the refractory period, held at the refractory potential
-                counters[REFR_LEFT, n, a] -= 1
-                v[n, a] = npar[n, REFR_V]
-                if counters[REFR_LEFT, n, a] <= 0 and rules & REOPEN_IN_TURN:
-                    counters[REFRACTORY, n, a] = 0  # open again: later arrivals in this tick count
+            # The state machine computes every field and selects, but for firing: the random order
+            # makes its branches unpredictable. Refractory: one tick of the period, held at the
+            # refractory potential (with REOPEN_IN_TURN open again at its end, so that later
+            # arrivals in this tick count); else decay toward rest, or fire at threshold.
+            refractory = counters[REFRACTORY, n, a] != 0
+            vn, rest = v[n, a], npar[n, REST]
+            fire = (not refractory) & (vn != rest) & (vn >= npar[n, THRESHOLD])
+            left = counters[REFR_LEFT, n, a] - refractory
+            counters[REFR_LEFT, n, a] = left
+            counters[REFRACTORY, n, a] = refractory & ((left > 0) | (not reopen))
+            refr_v, decayed = npar[n, REFR_V], vn + (rest - vn) * npar[n, DECAY]  # both first: selects, not branches
+            v[n, a] = refr_v if refractory else (vn if fire | (vn == rest) else decayed)
+            if fire:  # potentiation over the history, pulses out
+                last_spike[n, a] = t
+                p, offset = profile[n], np.int64(npar[n, STDP_OFFSET])
+                for h in range(counters[HIST_LEN, n, a]):
+                    entry = hist[a, n, h]
+                    s, dt = entry & SYN_MASK, (entry >> SYN_BITS) - t
+                    if 0 <= dt + offset < width:  # STDP: w += W(dt), clipped to [w_min, w_max]
+                        dw = stdp[g, p, TABLE + dt + offset]
+                        w[s, a] = min(max(w[s, a] + dw, stdp[g, p, LO]), stdp[g, p, HI])
+                counters[HIST_LEN, n, a] = 0
+                for q in range(out_start[n], out_start[n + 1]):
+                    s = out_syn[q]
+                    slot = np.uint64((t + syn[s, DELAY] - send) & mask)
+                    ring[slot, s, a] = 1
+                    due[n] |= slot == now  # delay 1 counted from the sending tick: due in this turn
+                if rules & STREAM:  # propagate-pulses: an ask over the outgoing synapses
+                    ask_draws(stream, a, out_start[n + 1] - out_start[n])
+                counters[REFRACTORY, n, a] = 1
+                counters[REFR_LEFT, n, a] = np.int32(npar[n, REFR_PERIOD])
+                spiked[n, a] = 1
             if rules & STREAM:  # do-synaptic-dynamics: an ask over the outgoing synapses with pulses in flight
                 busy = 0
                 for q in range(out_start[n], out_start[n + 1]):
@@ -345,6 +355,8 @@ def _netlogo_range(lo, hi, t, feed, net, st):
                             break
                 ask_draws(stream, a, busy)
                 stream[a, STREAM_TURNS + k] = n
+            if not due[n]:
+                continue
             for q in range(out_start[n], out_start[n + 1]):  # its synapses' pulses due now
                 s = out_syn[q]
                 if ring[now, s, a] == 0:
@@ -392,12 +404,19 @@ def _netlogo_serial(feed, net, st):
     st.clock[TICK] += 1
 
 
+@njit(cache=True)
+def _netlogo_block(lo, hi, t, feed, net, st):
+    """One thread's block of agents: a function of its own, compiled as the one-thread tick is
+    (inlined into the parallel loop's body, the turns compiled to slower code)."""
+    _netlogo_range(lo, hi, t, feed, net, st)
+
+
 @njit(cache=True, parallel=True)
 def _netlogo_parallel(feed, net, st, chunks):
     agents = st.v.shape[1]
     for c in prange(chunks):
         lo, hi = np.uint64(c * agents // chunks), np.uint64((c + 1) * agents // chunks)
-        _netlogo_range(lo, hi, st.clock[TICK], feed, net, st)
+        _netlogo_block(lo, hi, st.clock[TICK], feed, net, st)
     st.clock[TICK] += 1
 
 
