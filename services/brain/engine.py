@@ -120,11 +120,13 @@ def _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, counters, ring, spi
         for a in range(lo, hi):
             # 1. feed: an idle input neuron latches x >= 0 (NaN: nothing fed); busy ones ignore it
             x = inpar[i, AT_START] if start else feed[a, i]
-            left = counters[LEFT, node, a]
+            # Every field is loaded before the selects: a load in a select's arm makes it a branch.
+            left, lat, count = counters[LEFT, node, a], counters[LATENCY, node, a], counters[COUNT, node, a]
             take = (left == 0) & (x >= 0.0) & (x < 1e9)  # NaN and inf fail the tests; & not `and`: no branches
-            latency = np.int32(x if take else 0.0) + np.int32(1)  # floor(x) + 1; int() is floor() for x >= 0
-            lat = latency if take else counters[LATENCY, node, a]
-            count = np.int32(0) if take else counters[COUNT, node, a]
+            # floor(x) + 1 (int() is floor() for x >= 0); not for NaN or inf, whose latency is not selected
+            latency = np.int32(x) + np.int32(1)
+            lat = latency if take else lat
+            count = np.int32(0) if take else count
             left = pulses if take else left
             # 2. inputs: count this tick; a pulse when the count reaches the latency
             count += left > 0
@@ -358,19 +360,17 @@ def _netlogo_range(lo, hi, t, feed, net, st):
             if not due[n]:
                 continue
             for q in range(out_start[n], out_start[n + 1]):  # its synapses' pulses due now
+                # NetLogo receive-pulse: potential change unless REFRACTORY (computed and selected,
+                # as in the state machine); a plastic arrival in training is remembered, and STDP
+                # runs over the post's history (see above)
                 s = out_syn[q]
-                if ring[now, s, a] == 0:
-                    continue
-                # NetLogo receive-pulse: potential change unless REFRACTORY; a plastic arrival in
-                # training is remembered, and STDP runs over the post's history (see above)
+                arrived, flags, post = ring[now, s, a] != 0, syn[s, FLAGS], syn[s, POST]
                 ring[now, s, a] = 0
-                post = syn[s, POST]
-                if counters[REFRACTORY, post, a] == 0:
-                    if syn[s, FLAGS] & INHIBITORY:
-                        v[post, a] = max(v[post, a] - w[s, a], npar[post, FLOOR])
-                    else:
-                        v[post, a] += w[s, a]
-                if not (training and syn[s, FLAGS] & PLASTIC):
+                vp, ws = v[post, a], w[s, a]
+                inhibited, excited = max(vp - ws, npar[post, FLOOR]), vp + ws
+                changed = inhibited if flags & INHIBITORY else excited
+                v[post, a] = changed if arrived & (counters[REFRACTORY, post, a] == 0) else vp
+                if not (arrived & training & ((flags & PLASTIC) != 0)):
                     continue
                 m = counters[HIST_LEN, post, a]
                 if m > HISTORY:  # NetLogo drops the oldest when it holds more than 30, then appends: up to 31
