@@ -280,6 +280,12 @@ def _netlogo_range(lo, hi, t, feed, net, st):
     due = np.empty(n_neurons, np.uint8)
     send = np.int64(1) if rules & COUNT_FROM_SEND else np.int64(0)  # count-down ticks used in the sending tick
     reopen = (rules & REOPEN_IN_TURN) != 0
+    # In the turns, the [neuron, agent] and [synapse, agent] arrays are read as flat views with one
+    # index (n * agents + a) each: fewer live strides than a register file holds.
+    agents = np.uint64(v.shape[1])
+    v1, w1, spiked1, last1 = v.reshape(-1), w.reshape(-1), spiked.reshape(-1), last_spike.reshape(-1)
+    refr1, left1 = counters[REFRACTORY].reshape(-1), counters[REFR_LEFT].reshape(-1)
+    hlen1, ring_now = counters[HIST_LEN].reshape(-1), ring[now].reshape(-1)
     for a in range(lo, hi):
         g = group[a]
         if not rules & REOPEN_IN_TURN:  # refractory periods that ended in the last tick end now
@@ -287,11 +293,10 @@ def _netlogo_range(lo, hi, t, feed, net, st):
                 if counters[REFRACTORY, n, a] and counters[REFR_LEFT, n, a] <= 0:
                     counters[REFRACTORY, n, a] = 0
         for s in range(n_net, syn.shape[0]):  # input neurons: straight to their target, not plastic
-            if ring[now, s, a]:
-                ring[now, s, a] = 0
-                post = syn[s, POST]
-                if counters[REFRACTORY, post, a] == 0:
-                    v[post, a] += w[s, a]
+            post, arrived = syn[s, POST], ring[now, s, a] != 0  # feeds arrive at random: selects
+            ring[now, s, a] = 0
+            vp, ws, closed = v[post, a], w[s, a], counters[REFRACTORY, post, a]
+            v[post, a] = vp + ws if arrived & (closed == 0) else vp
         for n in range(n_neurons):
             order[n] = np.uint64(n)
             due[n] = 0
@@ -315,29 +320,31 @@ def _netlogo_range(lo, hi, t, feed, net, st):
                 j = k + 1 + next_int(stream, a, n_neurons - k - 1)
                 order[k + 1], order[j] = order[j], order[k + 1]
             n = order[k]
-            spiked[n, a] = 0
+            na = n * agents + a
+            spiked1[na] = 0
             # The state machine computes every field and selects, but for firing: the random order
             # makes its branches unpredictable. Refractory: one tick of the period, held at the
             # refractory potential (with REOPEN_IN_TURN open again at its end, so that later
             # arrivals in this tick count); else decay toward rest, or fire at threshold.
-            refractory = counters[REFRACTORY, n, a] != 0
-            vn, rest = v[n, a], npar[n, REST]
+            refractory = refr1[na] != 0
+            vn, rest = v1[na], npar[n, REST]
             fire = (not refractory) & (vn != rest) & (vn >= npar[n, THRESHOLD])
-            left = counters[REFR_LEFT, n, a] - refractory
-            counters[REFR_LEFT, n, a] = left
-            counters[REFRACTORY, n, a] = refractory & ((left > 0) | (not reopen))
+            left = left1[na] - refractory
+            left1[na] = left
+            refr1[na] = refractory & ((left > 0) | (not reopen))
             refr_v, decayed = npar[n, REFR_V], vn + (rest - vn) * npar[n, DECAY]  # both first: selects, not branches
-            v[n, a] = refr_v if refractory else (vn if fire | (vn == rest) else decayed)
+            v1[na] = refr_v if refractory else (vn if fire | (vn == rest) else decayed)
             if fire:  # potentiation over the history, pulses out
-                last_spike[n, a] = t
+                last1[na] = t
                 p, offset = profile[n], np.int64(npar[n, STDP_OFFSET])
-                for h in range(counters[HIST_LEN, n, a]):
+                for h in range(hlen1[na]):
                     entry = hist[a, n, h]
                     s, dt = entry & SYN_MASK, (entry >> SYN_BITS) - t
                     if 0 <= dt + offset < width:  # STDP: w += W(dt), clipped to [w_min, w_max]
                         dw = stdp[g, p, TABLE + dt + offset]
-                        w[s, a] = min(max(w[s, a] + dw, stdp[g, p, LO]), stdp[g, p, HI])
-                counters[HIST_LEN, n, a] = 0
+                        sa = s * agents + a
+                        w1[sa] = min(max(w1[sa] + dw, stdp[g, p, LO]), stdp[g, p, HI])
+                hlen1[na] = 0
                 for q in range(out_start[n], out_start[n + 1]):
                     s = out_syn[q]
                     slot = np.uint64((t + syn[s, DELAY] - send) & mask)
@@ -345,9 +352,9 @@ def _netlogo_range(lo, hi, t, feed, net, st):
                     due[n] |= slot == now  # delay 1 counted from the sending tick: due in this turn
                 if rules & STREAM:  # propagate-pulses: an ask over the outgoing synapses
                     ask_draws(stream, a, out_start[n + 1] - out_start[n])
-                counters[REFRACTORY, n, a] = 1
-                counters[REFR_LEFT, n, a] = np.int32(npar[n, REFR_PERIOD])
-                spiked[n, a] = 1
+                refr1[na] = 1
+                left1[na] = np.int32(npar[n, REFR_PERIOD])
+                spiked1[na] = 1
             if rules & STREAM:  # do-synaptic-dynamics: an ask over the outgoing synapses with pulses in flight
                 busy = 0
                 for q in range(out_start[n], out_start[n + 1]):
@@ -364,22 +371,24 @@ def _netlogo_range(lo, hi, t, feed, net, st):
                 # as in the state machine); a plastic arrival in training is remembered, and STDP
                 # runs over the post's history (see above)
                 s = out_syn[q]
-                arrived, flags, post = ring[now, s, a] != 0, syn[s, FLAGS], syn[s, POST]
-                ring[now, s, a] = 0
-                vp, ws = v[post, a], w[s, a]
+                flags, post = syn[s, FLAGS], syn[s, POST]
+                sa, pa = s * agents + a, np.uint64(post) * agents + a
+                arrived = ring_now[sa] != 0
+                ring_now[sa] = 0
+                vp, ws = v1[pa], w1[sa]
                 inhibited, excited = max(vp - ws, npar[post, FLOOR]), vp + ws
                 changed = inhibited if flags & INHIBITORY else excited
-                v[post, a] = changed if arrived & (counters[REFRACTORY, post, a] == 0) else vp
+                v1[pa] = changed if arrived & (refr1[pa] == 0) else vp
                 if not (arrived & training & ((flags & PLASTIC) != 0)):
                     continue
-                m = counters[HIST_LEN, post, a]
+                m = hlen1[pa]
                 if m > HISTORY:  # NetLogo drops the oldest when it holds more than 30, then appends: up to 31
                     for h in range(m - 1):
                         hist[a, post, h] = hist[a, post, h + 1]
                     m -= 1
                 hist[a, post, m] = (t << SYN_BITS) | s
-                counters[HIST_LEN, post, a] = m + 1
-                last = last_spike[post, a]
+                hlen1[pa] = m + 1
+                last = last1[pa]
                 p, offset = profile[post], np.int64(npar[post, STDP_OFFSET])
                 lo_w, hi_w = stdp[g, p, LO], stdp[g, p, HI]
                 if rules & DT0_AGAIN:
@@ -387,15 +396,15 @@ def _netlogo_range(lo, hi, t, feed, net, st):
                         entry = hist[a, post, h]
                         if (entry >> SYN_BITS) != last:
                             break
-                        e = entry & SYN_MASK
+                        ea = (entry & SYN_MASK) * agents + a
                         if 0 <= offset < width:
-                            w[e, a] = min(max(w[e, a] + stdp[g, p, TABLE + offset], lo_w), hi_w)
+                            w1[ea] = min(max(w1[ea] + stdp[g, p, TABLE + offset], lo_w), hi_w)
                     depress = t > last  # the new arrival's one depression
                 else:  # the new arrival alone: potentiation at dt = 0, else its one depression
                     depress = True
                 dt = t - last
                 if depress and 0 <= dt + offset < width:
-                    w[s, a] = min(max(w[s, a] + stdp[g, p, TABLE + dt + offset], lo_w), hi_w)
+                    w1[sa] = min(max(w1[sa] + stdp[g, p, TABLE + dt + offset], lo_w), hi_w)
 
 
 @njit(cache=True)
