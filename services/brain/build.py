@@ -120,7 +120,12 @@ class StateStruct(structref.StructRefProxy):
 
 
 structref.define_proxy(NetworkStruct, NetworkType, [f.name for f in dataclasses.fields(Network)])
-structref.define_proxy(StateStruct, StateType, [f.name for f in dataclasses.fields(State)])
+# The netlogo turns index by neuron in a random order, and read these as flat views with one index
+# each (n * A + a; a ring slot's synapses at slot * S * A): fewer live strides than a register file
+# holds. Made once with the struct: a view made per call costs more than one agent's tick.
+FLAT_VIEWS = ("v_flat", "w_flat", "spiked_flat", "last_spike_flat", "refractory_flat", "refr_left_flat")
+FLAT_VIEWS += ("hist_len_flat", "ring_flat")
+structref.define_proxy(StateStruct, StateType, [f.name for f in dataclasses.fields(State)] + list(FLAT_VIEWS))
 
 
 # Made in compiled code, from numba's cache: a proxy's own constructor compiles anew in every process.
@@ -131,7 +136,10 @@ def _network_struct(syn, npar, inpar, stdp, group, profile, out_start, out_syn, 
 
 @njit(cache=True)
 def _state_struct(clock, v, w, counters, last_spike, hist, ring, spiked, stream):
-    return StateStruct(clock, v, w, counters, last_spike, hist, ring, spiked, stream)
+    flat = (v.reshape(-1), w.reshape(-1), spiked.reshape(-1), last_spike.reshape(-1))
+    counters_flat = (counters[REFRACTORY].reshape(-1), counters[REFR_LEFT].reshape(-1), counters[HIST_LEN].reshape(-1))
+    arrays = (clock, v, w, counters, last_spike, hist, ring, spiked, stream)
+    return StateStruct(*arrays, *flat, *counters_flat, ring.reshape(-1))
 
 
 def check_options(agents: int, semantics: str, order: str, without, netlogo_seed: int | None = None) -> None:

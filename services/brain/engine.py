@@ -90,6 +90,7 @@ from .netlogo_stream import STREAM_TURNS, ask_draws, next_int, setup_stream
 FLOAT64 = np.dtype(np.float64)
 # the per-call kernels take any feed of float64 [A, inputs], read only: no per-call check of its layout
 FEED_TYPE = types.Array(types.float64, 2, "A", readonly=True)
+ORDER, DUE = 0, 1  # the netlogo turns' scratch rows
 
 
 @njit(cache=True, inline="always")
@@ -267,25 +268,24 @@ def _netlogo_range(lo, hi, t, feed, net, st):
     of the one-thread tick at A = 1,000; the parallel kernel's outlined loop was spared)."""
     syn, npar, inpar, stdp, group, profile = net.syn, net.npar, net.inpar, net.stdp, net.group, net.profile
     out_start, out_syn, order_key, rules = net.out_start, net.out_syn, net.order_key, net.rules
-    clock, v, w, counters, last_spike, hist = st.clock, st.v, st.w, st.counters, st.last_spike, st.hist
-    ring, spiked, stream, stream_order = st.ring, st.spiked, st.stream, net.stream_order
+    clock, v, w, counters, hist, ring = st.clock, st.v, st.w, st.counters, st.hist, st.ring
+    stream, stream_order = st.stream, net.stream_order
     training = clock[TRAINING] != 0
     n_neurons = v.shape[0]
-    _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, counters, ring, spiked)  # input pulses: slot t
+    _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, counters, ring, st.spiked)  # input pulses: slot t
     mask = ring.shape[0] - 1
     now = np.uint64(t & mask)
     n_net = syn.shape[0] - feed.shape[1]
     width = stdp.shape[2] - TABLE  # W(dt) is stdp[g, p, TABLE + dt + offset] for 0 <= dt + offset < width
-    order = np.empty(n_neurons, np.uint64)  # unsigned indices: no negative-index checks
-    due = np.empty(n_neurons, np.uint8)
+    # one allocation a call: [ORDER, k] the k-th neuron to take its turn, [DUE, n] whether neuron n
+    # has pulses due now (most turns deliver none); unsigned: no negative-index checks
+    turns = np.empty((2, n_neurons), np.uint64)
     send = np.int64(1) if rules & COUNT_FROM_SEND else np.int64(0)  # count-down ticks used in the sending tick
     reopen = (rules & REOPEN_IN_TURN) != 0
-    # In the turns, the [neuron, agent] and [synapse, agent] arrays are read as flat views with one
-    # index (n * agents + a) each: fewer live strides than a register file holds.
-    agents = np.uint64(v.shape[1])
-    v1, w1, spiked1, last1 = v.reshape(-1), w.reshape(-1), spiked.reshape(-1), last_spike.reshape(-1)
-    refr1, left1 = counters[REFRACTORY].reshape(-1), counters[REFR_LEFT].reshape(-1)
-    hlen1, ring_now = counters[HIST_LEN].reshape(-1), ring[now].reshape(-1)
+    agents = np.uint64(v.shape[1])  # the turns read flat views (build.FLAT_VIEWS): index n * agents + a
+    v1, w1, spiked1, last1 = st.v_flat, st.w_flat, st.spiked_flat, st.last_spike_flat
+    refr1, left1, hlen1, ring1 = st.refractory_flat, st.refr_left_flat, st.hist_len_flat, st.ring_flat
+    ring_now = now * np.uint64(ring.shape[1]) * agents  # slot now's first synapse in ring1
     for a in range(lo, hi):
         g = group[a]
         if not rules & REOPEN_IN_TURN:  # refractory periods that ended in the last tick end now
@@ -298,28 +298,28 @@ def _netlogo_range(lo, hi, t, feed, net, st):
             vp, ws, closed = v[post, a], w[s, a], counters[REFRACTORY, post, a]
             v[post, a] = vp + ws if arrived & (closed == 0) else vp
         for n in range(n_neurons):
-            order[n] = np.uint64(n)
-            due[n] = 0
+            turns[ORDER, n] = np.uint64(n)
+            turns[DUE, n] = 0
         for s in range(n_net):  # which neurons have pulses due now: most turns deliver none
-            due[syn[s, PRE]] |= ring[now, s, a]
+            turns[DUE, syn[s, PRE]] |= ring[now, s, a]
         if rules & SHUFFLE:  # Fisher-Yates: a hashed (seed, tick) start, then LCG steps, j by multiply-shift
             r = mix(order_key[a] + np.uint64(t))
             for i in range(n_neurons - 1, 0, -1):
                 r, j = order_draw(r, i)
-                order[i], order[j] = order[j], order[i]
+                turns[ORDER, i], turns[ORDER, j] = turns[ORDER, j], turns[ORDER, i]
         if rules & STREAM:  # NetLogo's draws before the turns (netlogo_stream.py): the world's asks,
             ask_draws(stream, a, 3)  # ask visualsensors, twice
             ask_draws(stream, a, 3)
             ask_draws(stream, a, feed.shape[1])  # ask inputneurons
             for k in range(n_neurons):  # ask normalneurons, whose shufflerator draws its first now
-                order[k] = stream_order[k]
+                turns[ORDER, k] = stream_order[k]
             j = next_int(stream, a, n_neurons)
-            order[0], order[j] = order[j], order[0]
+            turns[ORDER, 0], turns[ORDER, j] = turns[ORDER, j], turns[ORDER, 0]
         for k in range(n_neurons):
             if rules & STREAM and k + 2 < n_neurons:  # each turn but the last two draws the next one first
                 j = k + 1 + next_int(stream, a, n_neurons - k - 1)
-                order[k + 1], order[j] = order[j], order[k + 1]
-            n = order[k]
+                turns[ORDER, k + 1], turns[ORDER, j] = turns[ORDER, j], turns[ORDER, k + 1]
+            n = turns[ORDER, k]
             na = n * agents + a
             spiked1[na] = 0
             # The state machine computes every field and selects, but for firing: the random order
@@ -349,7 +349,7 @@ def _netlogo_range(lo, hi, t, feed, net, st):
                     s = out_syn[q]
                     slot = np.uint64((t + syn[s, DELAY] - send) & mask)
                     ring[slot, s, a] = 1
-                    due[n] |= slot == now  # delay 1 counted from the sending tick: due in this turn
+                    turns[DUE, n] |= slot == now  # delay 1 counted from the sending tick: due in this turn
                 if rules & STREAM:  # propagate-pulses: an ask over the outgoing synapses
                     ask_draws(stream, a, out_start[n + 1] - out_start[n])
                 refr1[na] = 1
@@ -364,7 +364,7 @@ def _netlogo_range(lo, hi, t, feed, net, st):
                             break
                 ask_draws(stream, a, busy)
                 stream[a, STREAM_TURNS + k] = n
-            if not due[n]:
+            if not turns[DUE, n]:
                 continue
             for q in range(out_start[n], out_start[n + 1]):  # its synapses' pulses due now
                 # NetLogo receive-pulse: potential change unless REFRACTORY (computed and selected,
@@ -373,8 +373,8 @@ def _netlogo_range(lo, hi, t, feed, net, st):
                 s = out_syn[q]
                 flags, post = syn[s, FLAGS], syn[s, POST]
                 sa, pa = s * agents + a, np.uint64(post) * agents + a
-                arrived = ring_now[sa] != 0
-                ring_now[sa] = 0
+                arrived = ring1[ring_now + sa] != 0
+                ring1[ring_now + sa] = 0
                 vp, ws = v1[pa], w1[sa]
                 inhibited, excited = max(vp - ws, npar[post, FLOOR]), vp + ws
                 changed = inhibited if flags & INHIBITORY else excited
