@@ -121,10 +121,10 @@ def _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, counters, ring, spi
         for a in range(lo, hi):
             # 1. feed: an idle input neuron latches x >= 0 (NaN: nothing fed); busy ones ignore it
             x = inpar[i, AT_START] if start else feed[a, i]
-            # Every field is loaded before the selects: a load in a select's arm makes it a branch.
+            # The fields are loaded before the selects: a load in a select's arm compiles to a branch.
             left, lat, count = counters[LEFT, node, a], counters[LATENCY, node, a], counters[COUNT, node, a]
             take = (left == 0) & (x >= 0.0) & (x < 1e9)  # NaN and inf fail the tests; & not `and`: no branches
-            # floor(x) + 1 (int() is floor() for x >= 0); not for NaN or inf, whose latency is not selected
+            # floor(x) + 1 (int() is floor() for x >= 0); selected only for x in [0, 1e9), not NaN or inf
             latency = np.int32(x) + np.int32(1)
             lat = latency if take else lat
             count = np.int32(0) if take else count
@@ -265,7 +265,7 @@ def _netlogo_range(lo, hi, t, feed, net, st):
 
     One function with no calls in its loops: numba counts references to each array handed to a
     helper, inlined or not, and in the turns those atomic counts cost more than the turns (a third
-    of the one-thread tick at A = 1,000; the parallel kernel's outlined loop was spared)."""
+    of the one-thread tick at A = 1,000)."""
     syn, npar, inpar, stdp, group, profile = net.syn, net.npar, net.inpar, net.stdp, net.group, net.profile
     out_start, out_syn, order_key, rules = net.out_start, net.out_syn, net.order_key, net.rules
     clock, v, w, counters, hist, ring = st.clock, st.v, st.w, st.counters, st.hist, st.ring
@@ -278,7 +278,7 @@ def _netlogo_range(lo, hi, t, feed, net, st):
     n_net = syn.shape[0] - feed.shape[1]
     width = stdp.shape[2] - TABLE  # W(dt) is stdp[g, p, TABLE + dt + offset] for 0 <= dt + offset < width
     # one allocation a call: [ORDER, k] the k-th neuron to take its turn, [DUE, n] whether neuron n
-    # has pulses due now (most turns deliver none); unsigned: no negative-index checks
+    # has pulses due now (most turns deliver none); ORDER unsigned: no negative-index checks
     turns = np.empty((2, n_neurons), np.uint64)
     send = np.int64(1) if rules & COUNT_FROM_SEND else np.int64(0)  # count-down ticks used in the sending tick
     reopen = (rules & REOPEN_IN_TURN) != 0
