@@ -67,16 +67,20 @@ def _noop_structures(feed, network, state):
     pass
 
 
-@njit
-def _noop_arrays(a0, a1, a2, a3, a4, a5, a6, a7, a8, a9, a10, a11, a12, a13, a14, a15, a16, a17, a18):
-    pass
+def noop_of(arity: int):
+    """A compiled no-op of `arity` arguments, each unboxed at every call (numba compiles a *args
+    function for one tuple, which would be unboxed as one)."""
+    names = ", ".join(f"a{i}" for i in range(arity))
+    scope: dict = {}
+    exec(f"def noop({names}):\n    pass\n", scope)
+    return njit(scope["noop"])
 
 
 def call_costs(circuit, calls: int, repeats: int) -> dict:
     """ns per call, best of `repeats` passes of `calls`: one agent's phased step() (the feed's
     check, then the compiled tick), the compiled tick alone, a compiled no-op given the tick's
     arguments (the feed and the two structures) and one given the same arrays one by one, as the
-    kernels took them before they took structures (the feed, 10 network and 8 state fields)."""
+    kernels took them before they took structures (the feed, the network's and the state's fields)."""
     engine = Engine(circuit, semantics="phased")
     feed = np.full(engine.no_feed.shape, np.nan)
     network, state = engine.network, engine.state
@@ -84,7 +88,7 @@ def call_costs(circuit, calls: int, repeats: int) -> dict:
     arrays += tuple(getattr(state, f) for f in state.__dataclass_fields__)
     structures = (feed, *engine.structs)
     noop_structures = compiled(_noop_structures, (FEED_TYPE, *(typeof(s) for s in engine.structs)))
-    noop_arrays = compiled(_noop_arrays, tuple(typeof(a) for a in arrays))
+    noop_arrays = compiled(noop_of(len(arrays)), tuple(typeof(a) for a in arrays))
     cases = {
         "step": (engine.step, (feed,)),
         "tick": (engine._tick, structures),
