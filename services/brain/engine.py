@@ -90,7 +90,8 @@ from .netlogo_stream import STREAM_TURNS, ask_draws, next_int, setup_stream
 FLOAT64 = np.dtype(np.float64)
 # the per-call kernels take any feed of float64 [A, inputs], read only: no per-call check of its layout
 FEED_TYPE = types.Array(types.float64, 2, "A", readonly=True)
-ORDER, DUE = 0, 1  # the netlogo turns' scratch rows
+ORDER, DUE, JUMP_MUL, JUMP_ADD = 0, 1, 2, 3  # the netlogo turns' scratch rows
+LCG_MUL, LCG_ADD = np.uint64(6364136223846793005), np.uint64(1442695040888963407)  # the order's LCG
 
 
 @njit(cache=True, inline="always")
@@ -238,9 +239,9 @@ def _step_parallel(feed, net, st, chunks):
 @njit(cache=True, inline="always")
 def order_draw(r, i):
     """One Fisher-Yates step of the netlogo order: the LCG's next state from `r`, and j in 0..i by
-    multiply-shift. Numbers only, so free in the turns' loop; services/gpu_kernels.py compiles
-    this same Python for the device."""
-    r = r * np.uint64(6364136223846793005) + np.uint64(1442695040888963407)
+    multiply-shift. The device's order (services/gpu_kernels.py compiles this Python); the CPU's
+    turns draw the same states by jump-ahead (_netlogo_range), tests/test_gpu.py holds them equal."""
+    r = r * LCG_MUL + LCG_ADD
     return r, ((r >> np.uint64(32)) * np.uint64(i + 1)) >> np.uint64(32)
 
 
@@ -279,7 +280,13 @@ def _netlogo_range(lo, hi, t, feed, net, st):
     width = stdp.shape[2] - TABLE  # W(dt) is stdp[g, p, TABLE + dt + offset] for 0 <= dt + offset < width
     # one allocation a call: [ORDER, k] the k-th neuron to take its turn, [DUE, n] whether neuron n
     # has pulses due now (most turns deliver none); ORDER unsigned: no negative-index checks
-    turns = np.empty((2, n_neurons), np.uint64)
+    turns = np.empty((4, n_neurons), np.uint64)
+    # [JUMP_MUL, k], [JUMP_ADD, k]: the LCG k steps on from r is r * mul + add, so an order's draws
+    # are independent multiplies, not a chain of them (order_draw's states, bit for bit)
+    mul, add = np.uint64(1), np.uint64(0)
+    for k in range(n_neurons):
+        turns[JUMP_MUL, k], turns[JUMP_ADD, k] = mul, add
+        mul, add = mul * LCG_MUL, add * LCG_MUL + LCG_ADD
     send = np.int64(1) if rules & COUNT_FROM_SEND else np.int64(0)  # count-down ticks used in the sending tick
     reopen = (rules & REOPEN_IN_TURN) != 0
     agents = np.uint64(v.shape[1])  # the turns read flat views (build.FLAT_VIEWS): index n * agents + a
@@ -303,9 +310,10 @@ def _netlogo_range(lo, hi, t, feed, net, st):
         for s in range(n_net):  # which neurons have pulses due now: most turns deliver none
             turns[DUE, syn[s, PRE]] |= ring[now, s, a]
         if rules & SHUFFLE:  # Fisher-Yates: a hashed (seed, tick) start, then LCG steps, j by multiply-shift
-            r = mix(order_key[a] + np.uint64(t))
+            r0 = mix(order_key[a] + np.uint64(t))
             for i in range(n_neurons - 1, 0, -1):
-                r, j = order_draw(r, i)
+                r = r0 * turns[JUMP_MUL, n_neurons - i] + turns[JUMP_ADD, n_neurons - i]  # order_draw's r
+                j = ((r >> np.uint64(32)) * np.uint64(i + 1)) >> np.uint64(32)
                 turns[ORDER, i], turns[ORDER, j] = turns[ORDER, j], turns[ORDER, i]
         if rules & STREAM:  # NetLogo's draws before the turns (netlogo_stream.py): the world's asks,
             ask_draws(stream, a, 3)  # ask visualsensors, twice
