@@ -77,7 +77,7 @@ def use_cache_folder() -> Path | None:
         if "numba" in sys.modules:  # numba read its environment when it was imported
             from numba.core import config
 
-            config.CACHE_DIR = str(folder)
+            config.CACHE_DIR = str(folder)  # pyright: ignore[reportAttributeAccessIssue] (from the environment)
         return folder
     return None
 

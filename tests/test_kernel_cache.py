@@ -8,7 +8,6 @@ import textwrap
 import time
 from pathlib import Path
 
-import numba
 from numba.core import config
 
 from services.kernel_cache import cache_roots, prune, sources_digest, use_cache_folder
@@ -36,6 +35,10 @@ FOLDER_PER_VERSION = textwrap.dedent(
     """
 )
 NUMBA_ALONE = "import services  # its own folder, which pkg's sources do not name\n"
+
+
+def numba_cache_dir() -> str:
+    return config.CACHE_DIR  # pyright: ignore[reportAttributeAccessIssue] (from the environment)
 
 
 def run_package(tmp_path) -> str:
@@ -92,11 +95,11 @@ def test_an_unwritable_root_falls_back_to_the_temporary_folder(tmp_path, monkeyp
     blocked = tmp_path / "a-file"
     blocked.write_text("")
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(blocked))  # restored after the test
-    monkeypatch.setattr(config, "CACHE_DIR", config.CACHE_DIR)
+    monkeypatch.setattr(config, "CACHE_DIR", numba_cache_dir())
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
     folder = use_cache_folder()
     assert folder == tmp_path / "tmp" / f"spikinglab-numba-{os.getuid()}" / sources_digest()
-    assert folder.is_dir() and config.CACHE_DIR == os.environ["NUMBA_CACHE_DIR"] == str(folder)
+    assert folder is not None and folder.is_dir() and numba_cache_dir() == os.environ["NUMBA_CACHE_DIR"] == str(folder)
 
 
 def test_hidden_and_unreadable_files_do_not_stop_the_digest(tmp_path):
@@ -112,9 +115,10 @@ def test_services_compile_into_this_versions_folder():
     """Here, and in a child process (which inherits the setting) that imports numba first."""
     import services.brain.engine as engine
 
-    folder = numba.config.CACHE_DIR
+    folder = numba_cache_dir()
     assert os.path.basename(folder) == sources_digest() and os.environ["NUMBA_CACHE_DIR"] == folder
-    assert engine._netlogo_serial._cache._cache_path.startswith(folder)
+    kernel_cache = engine._netlogo_serial._cache  # pyright: ignore[reportAttributeAccessIssue] (numba's)
+    assert kernel_cache._cache_path.startswith(folder)
     child = subprocess.run(
         [sys.executable, "-c", "import numba, services; print(numba.config.CACHE_DIR)"],
         capture_output=True,
