@@ -137,3 +137,36 @@ def test_prune_deletes_only_other_versions_unused_for_days(tmp_path):
         os.utime(folder, (ten_days_ago, ten_days_ago))
     prune(tmp_path, 7)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["00000000000000bb", "not-a-version"]
+
+
+def test_every_kernel_a_large_world_and_brain_use_is_cached():
+    """numba refuses to cache a kernel that reads a global such as get_num_threads() (a warning,
+    once); every world process then compiled its kernels anew, about 3 s each start."""
+    import importlib
+    import pkgutil
+
+    import numpy as np
+    from numba.core.caching import NullCache
+    from numba.core.registry import CPUDispatcher
+
+    import services
+    from services.brain.circuit import load_circuit
+    from services.brain.engine import Engine
+    from services.params import PARALLEL_FROM
+    from services.world.world import ACTIONS, World
+
+    world = World(seed=1, agents=PARALLEL_FROM)
+    world.sense()
+    world.act(np.zeros((PARALLEL_FROM, len(ACTIONS)), np.uint8))
+    Engine(load_circuit("insect"), agents=PARALLEL_FROM, semantics="netlogo").step()
+    used = {}
+    for info in pkgutil.walk_packages(services.__path__, "services."):
+        if info.name.startswith(("services.gpu", "services.ev3_gateway")) or info.name.endswith("__main__"):
+            continue  # the device's kernels; the robot's optional packages; a process's start
+        module = importlib.import_module(info.name)
+        for name, value in vars(module).items():
+            cache = getattr(value, "_cache", None)  # numba's
+            if isinstance(value, CPUDispatcher) and value.overloads and not isinstance(cache, NullCache):
+                used[f"{info.name}.{name}"] = cache._cache_file._index_path  # pyright: ignore[reportOptionalMemberAccess]
+    assert "services.world.world._sense_parallel" in used and "services.brain.engine._netlogo_parallel" in used
+    assert [name for name, index in used.items() if not os.path.exists(index)] == []

@@ -324,9 +324,15 @@ class World:
         # large populations: each kernel a loop across agents on every core (numba's threads); the
         # same result, as agents are independent (but for food in a shared arena: first come)
         large = self.world_kernels_parallel = agents >= PARALLEL_FROM
-        self._sense = Kernel(_sense_parallel if large else sense_kernel)
-        self._touch = Kernel(_touch_parallel if large and not shared else touch_kernel)
-        self._act = Kernel(_act_parallel if large else act_kernel)
+        # a parallel kernel's blocks (one a thread) come as an argument: numba cannot cache a kernel
+        # that reads get_num_threads() itself, and compiled it anew in every process
+        blocks = (get_num_threads(),)
+        self._sense, self._sense_blocks = (Kernel(_sense_parallel), blocks) if large else (Kernel(sense_kernel), ())
+        touch_parallel = large and not shared
+        self._touch, self._touch_blocks = (
+            (Kernel(_touch_parallel), blocks) if touch_parallel else (Kernel(touch_kernel), ())
+        )
+        self._act, self._act_blocks = (Kernel(_act_parallel), blocks) if large else (Kernel(act_kernel), ())
         self._actions = np.zeros((agents, len(ACTIONS)), np.uint8)  # act()'s, in the type its kernel was compiled for
         self.kind = np.zeros(COLOURS, dtype=np.uint8)  # per colour: 1 noxious, 2 rewarding
         for c in p.noxious:
@@ -371,7 +377,7 @@ class World:
         """Vision then touch for tick self.tick: the sensors [A, len(SENSORS)] (NaN: nothing).
 
         Reads the world and changes nothing in it; what touching a patch does comes in act()."""
-        self._sense(self.struct, self.sensors)
+        self._sense(self.struct, self.sensors, *self._sense_blocks)
         return self.sensors
 
     def changes(self) -> np.ndarray:
@@ -387,8 +393,8 @@ class World:
         if actions.shape != self._actions.shape:
             raise ValueError(f"actions of shape {actions.shape}, expected {self._actions.shape} (agents, actions)")
         self._actions[:] = actions
-        self._touch(self.struct, self.training, self.tick)
-        self._act(self.struct)
+        self._touch(self.struct, self.training, self.tick, *self._touch_blocks)
+        self._act(self.struct, *self._act_blocks)
         self.advance(1)
 
     def kernel_arrays(self) -> dict[str, np.ndarray]:
@@ -496,8 +502,8 @@ def sense_kernel(w, sensors):
 
 
 @njit(cache=True, parallel=True)
-def _sense_parallel(w, sensors):
-    agents, blocks = w.pos.shape[0], get_num_threads()
+def _sense_parallel(w, sensors, blocks):
+    agents = w.pos.shape[0]
     for c in prange(blocks):  # reads only: agents are independent, in a shared arena too
         sense_range(c * agents // blocks, (c + 1) * agents // blocks, w, sensors)
 
@@ -551,9 +557,9 @@ def touch_kernel(w, training, t):
 
 
 @njit(cache=True, parallel=True)
-def _touch_parallel(w, training, t):
+def _touch_parallel(w, training, t, blocks):
     """touch_kernel for agents each in an arena of its own (in a shared one, the first on a food patch eats it)."""
-    agents, blocks = w.pos.shape[0], get_num_threads()
+    agents = w.pos.shape[0]
     for c in prange(blocks):
         touch_range(c * agents // blocks, (c + 1) * agents // blocks, w, training, t)
 
@@ -589,7 +595,7 @@ def act_kernel(w):
 
 
 @njit(cache=True, parallel=True)
-def _act_parallel(w):
-    agents, blocks = w.pos.shape[0], get_num_threads()
+def _act_parallel(w, blocks):
+    agents = w.pos.shape[0]
     for c in prange(blocks):
         act_range(c * agents // blocks, (c + 1) * agents // blocks, w)
