@@ -154,8 +154,8 @@ class LockStep:
         """A run stopped without its end (`why`): its weights so far are saved beside --save, never
         lost to the next run."""
         save, node = self.config.save, self.node
-        self.kept = self.progress()
         if not save:
+            self.kept = self.progress()
             log.warning(
                 "run %s stopped at tick %d without its end (%s); its weights are not saved (no --save)",
                 node.run,
@@ -165,6 +165,9 @@ class LockStep:
             return
         path = save.with_name(f"{save.stem}-{node.run}-tick{node.last_tick + 1}.npz")
         save_weights(path, self.weights(), node.circuit, tick=node.last_tick + 1)
+        self.kept = (
+            self.progress()
+        )  # only now: a SIGTERM during the save (the run ending as its world is lost) saves again
         log.warning(
             "run %s stopped at tick %d without its end (%s): its weights so far saved to %s",
             node.run,
