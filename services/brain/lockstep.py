@@ -165,9 +165,8 @@ class LockStep:
             return
         path = save.with_name(f"{save.stem}-{node.run}-tick{node.last_tick + 1}.npz")
         save_weights(path, self.weights(), node.circuit, tick=node.last_tick + 1)
-        self.kept = (
-            self.progress()
-        )  # only now: a SIGTERM during the save (the run ending as its world is lost) saves again
+        # kept only now: a SIGTERM during the save (the run ending as its world is lost) saves again
+        self.kept = self.progress()
         log.warning(
             "run %s stopped at tick %d without its end (%s): its weights so far saved to %s",
             node.run,
