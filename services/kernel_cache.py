@@ -31,14 +31,14 @@ def sources_digest(root: Path = SOURCES) -> str:
     editor's lock files, left out; an unreadable one counts by its name)."""
     digest = blake2b(digest_size=8)
     for path in sorted(root.rglob("*.py")):
-        name = path.relative_to(root).as_posix()
-        if any(part.startswith(".") for part in path.relative_to(root).parts):
+        relative = path.relative_to(root)
+        if any(part.startswith(".") for part in relative.parts):
             continue
         try:
             content = path.read_bytes()
         except OSError:
             content = b"unreadable"
-        digest.update(name.encode() + b"\0" + content)
+        digest.update(relative.as_posix().encode() + b"\0" + content)
     return digest.hexdigest()
 
 

@@ -63,7 +63,7 @@ TICK, TRAINING = 0, 1
 
 @dataclass(frozen=True)
 class Network:
-    """What a run does not change. The phased semantics ignores the last four fields."""
+    """What a run does not change. The phased semantics ignores the fields from out_start on."""
 
     syn: np.ndarray  # [synapses, PRE..FLAGS] int64: network synapses, then one per input neuron
     npar: np.ndarray  # [neurons, REST..STDP_OFFSET]
@@ -74,6 +74,7 @@ class Network:
     out_start: np.ndarray  # [neurons + 1] uint64: neuron n's outgoing synapses are out_syn[out_start[n]:out_start[n+1]]
     out_syn: np.ndarray  # [network synapses] uint64
     order_key: np.ndarray  # [A] uint64: the hash of agent a's seed, for its netlogo order
+    order_jump: np.ndarray  # [2, neurons] uint64: the order's LCG k steps on from r is r * [0, k] + [1, k]
     rules: int  # the NETLOGO_RULES bits in force, and SHUFFLE or STREAM for those orders
     stream_order: np.ndarray  # [neurons] uint64 for netlogo-stream: the neurons in NetLogo's agentset order
 
@@ -130,8 +131,8 @@ structref.define_proxy(StateStruct, StateType, [f.name for f in dataclasses.fiel
 
 # Made in compiled code, from numba's cache: a proxy's own constructor compiles anew in every process.
 @njit(cache=True)
-def _network_struct(syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key, rules, stream_order):
-    return NetworkStruct(syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key, rules, stream_order)
+def _network_struct(*fields):  # Network's, in its order
+    return NetworkStruct(*fields)
 
 
 @njit(cache=True)
@@ -191,13 +192,25 @@ def build_network(circuit: Circuit, params: dict, seeds: np.ndarray, semantics: 
         out_syn = np.argsort(pre, kind="stable").astype(np.uint64)
         out_start = np.searchsorted(pre[out_syn], np.arange(n_neurons + 1)).astype(np.uint64)
         order_key = mix(seeds.view(np.uint64))  # once here rather than in every tick
+        order_jump = lcg_jumps(n_neurons)  # the same
         rules = SHUFFLE * (order == "random") | STREAM * (order == "netlogo-stream")
         rules |= sum(f for k, f in NETLOGO_RULES.items() if k not in without)
     else:
         out_start, out_syn = np.zeros(n_neurons + 1, np.uint64), np.zeros(0, np.uint64)
-        order_key, rules = np.zeros(agents, np.uint64), 0
+        order_key, order_jump, rules = np.zeros(agents, np.uint64), np.zeros((2, 0), np.uint64), 0
     stream_order = source_order(c) if order == "netlogo-stream" else np.zeros(0, np.uint64)
-    return Network(syn, npar, inpar, stdp, group, profile, out_start, out_syn, order_key, rules, stream_order)
+    order_fields = (out_start, out_syn, order_key, order_jump, rules, stream_order)
+    return Network(syn, npar, inpar, stdp, group, profile, *order_fields)
+
+
+def lcg_jumps(steps: int) -> np.ndarray:
+    """[2, steps] uint64: the netlogo order's LCG (LCG_MUL, LCG_ADD) k steps on from r is
+    r * jumps[0, k] + jumps[1, k], so an order's draws are independent multiplies, not a chain."""
+    jumps, mul, add = np.zeros((2, steps), np.uint64), 1, 0
+    for k in range(steps):
+        jumps[:, k] = mul, add
+        mul, add = mul * int(LCG_MUL) % 2**64, (add * int(LCG_MUL) + int(LCG_ADD)) % 2**64
+    return jumps
 
 
 def new_state(circuit: Circuit, agents: int, stream: bool = False) -> State:
@@ -217,6 +230,9 @@ def new_state(circuit: Circuit, agents: int, stream: bool = False) -> State:
         spiked=np.zeros((nodes, agents), dtype=np.uint8),
         stream=np.zeros((agents, STREAM_TURNS + N if stream else 0), dtype=np.uint32),
     )
+
+
+LCG_MUL, LCG_ADD = np.uint64(6364136223846793005), np.uint64(1442695040888963407)  # the netlogo order's LCG
 
 
 @njit(cache=True, inline="always")

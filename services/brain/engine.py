@@ -51,6 +51,8 @@ from .build import (
     HISTORY,
     INHIBITORY,
     LATENCY,
+    LCG_ADD,
+    LCG_MUL,
     LEFT,
     LO,
     NEVER,
@@ -90,8 +92,7 @@ from .netlogo_stream import STREAM_TURNS, ask_draws, next_int, setup_stream
 FLOAT64 = np.dtype(np.float64)
 # the per-call kernels take any feed of float64 [A, inputs], read only: no per-call check of its layout
 FEED_TYPE = types.Array(types.float64, 2, "A", readonly=True)
-ORDER, DUE, JUMP_MUL, JUMP_ADD = 0, 1, 2, 3  # the netlogo turns' scratch rows
-LCG_MUL, LCG_ADD = np.uint64(6364136223846793005), np.uint64(1442695040888963407)  # the order's LCG
+ORDER, DUE = 0, 1  # the netlogo turns' scratch rows
 
 
 @njit(cache=True, inline="always")
@@ -268,7 +269,7 @@ def _netlogo_range(lo, hi, t, feed, net, st):
     helper, inlined or not, and in the turns those atomic counts cost more than the turns (a third
     of the one-thread tick at A = 1,000)."""
     syn, npar, inpar, stdp, group, profile = net.syn, net.npar, net.inpar, net.stdp, net.group, net.profile
-    out_start, out_syn, order_key, rules = net.out_start, net.out_syn, net.order_key, net.rules
+    out_start, out_syn, order_key, jump, rules = net.out_start, net.out_syn, net.order_key, net.order_jump, net.rules
     clock, v, w, counters, hist, ring = st.clock, st.v, st.w, st.counters, st.hist, st.ring
     stream, stream_order = st.stream, net.stream_order
     training = clock[TRAINING] != 0
@@ -280,13 +281,7 @@ def _netlogo_range(lo, hi, t, feed, net, st):
     width = stdp.shape[2] - TABLE  # W(dt) is stdp[g, p, TABLE + dt + offset] for 0 <= dt + offset < width
     # one allocation a call: [ORDER, k] the k-th neuron to take its turn, [DUE, n] whether neuron n
     # has pulses due now (most turns deliver none); ORDER unsigned: no negative-index checks
-    turns = np.empty((4, n_neurons), np.uint64)
-    # [JUMP_MUL, k], [JUMP_ADD, k]: the LCG k steps on from r is r * mul + add, so an order's draws
-    # are independent multiplies, not a chain of them (order_draw's states, bit for bit)
-    mul, add = np.uint64(1), np.uint64(0)
-    for k in range(n_neurons):
-        turns[JUMP_MUL, k], turns[JUMP_ADD, k] = mul, add
-        mul, add = mul * LCG_MUL, add * LCG_MUL + LCG_ADD
+    turns = np.empty((2, n_neurons), np.uint64)
     send = np.int64(1) if rules & COUNT_FROM_SEND else np.int64(0)  # count-down ticks used in the sending tick
     reopen = (rules & REOPEN_IN_TURN) != 0
     agents = np.uint64(v.shape[1])  # the turns read flat views (build.FLAT_VIEWS): index n * agents + a
@@ -312,7 +307,7 @@ def _netlogo_range(lo, hi, t, feed, net, st):
         if rules & SHUFFLE:  # Fisher-Yates: a hashed (seed, tick) start, then LCG steps, j by multiply-shift
             r0 = mix(order_key[a] + np.uint64(t))
             for i in range(n_neurons - 1, 0, -1):
-                r = r0 * turns[JUMP_MUL, n_neurons - i] + turns[JUMP_ADD, n_neurons - i]  # order_draw's r
+                r = r0 * jump[0, n_neurons - i] + jump[1, n_neurons - i]  # order_draw's r, by jump-ahead
                 j = ((r >> np.uint64(32)) * np.uint64(i + 1)) >> np.uint64(32)
                 turns[ORDER, i], turns[ORDER, j] = turns[ORDER, j], turns[ORDER, i]
         if rules & STREAM:  # NetLogo's draws before the turns (netlogo_stream.py): the world's asks,
