@@ -126,7 +126,13 @@ structref.define_proxy(NetworkStruct, NetworkType, [f.name for f in dataclasses.
 # holds. Made once with the struct: made per call, they cost one agent's run() a quarter of its speed.
 FLAT_VIEWS = ("v_flat", "w_flat", "spiked_flat", "last_spike_flat", "refractory_flat", "refr_left_flat")
 FLAT_VIEWS += ("hist_len_flat", "ring_flat")
-structref.define_proxy(StateStruct, StateType, [f.name for f in dataclasses.fields(State)] + list(FLAT_VIEWS))
+# Scratch the kernels overwrite, made once with the struct (not state: never saved):
+# feed_column [A] float64, one input neuron's feed for its agents, contiguous (engine._feed_and_inputs);
+# due_flat [neurons * A] uint8 at n * A + a, whether neuron n has pulses due now (engine._netlogo_range).
+SCRATCH = ("feed_column", "due_flat")
+structref.define_proxy(
+    StateStruct, StateType, [f.name for f in dataclasses.fields(State)] + list(FLAT_VIEWS) + list(SCRATCH)
+)
 
 
 # Made in compiled code, from numba's cache: a proxy's own constructor compiles anew in every process.
@@ -140,7 +146,8 @@ def _state_struct(clock, v, w, counters, last_spike, hist, ring, spiked, stream)
     flat = (v.reshape(-1), w.reshape(-1), spiked.reshape(-1), last_spike.reshape(-1))
     counters_flat = (counters[REFRACTORY].reshape(-1), counters[REFR_LEFT].reshape(-1), counters[HIST_LEN].reshape(-1))
     arrays = (clock, v, w, counters, last_spike, hist, ring, spiked, stream)
-    return StateStruct(*arrays, *flat, *counters_flat, ring.reshape(-1))
+    scratch = (np.empty(v.shape[1]), np.empty(v.size, np.uint8))
+    return StateStruct(*arrays, *flat, *counters_flat, ring.reshape(-1), *scratch)
 
 
 def check_options(agents: int, semantics: str, order: str, without, netlogo_seed: int | None = None) -> None:

@@ -92,7 +92,6 @@ from .netlogo_stream import STREAM_TURNS, ask_draws, next_int, setup_stream
 FLOAT64 = np.dtype(np.float64)
 # the per-call kernels take any feed of float64 [A, inputs], read only: no per-call check of its layout
 FEED_TYPE = types.Array(types.float64, 2, "A", readonly=True)
-ORDER, DUE = 0, 1  # the netlogo turns' scratch rows
 
 
 @njit(cache=True, inline="always")
@@ -110,7 +109,7 @@ def _learn(w, s, a, post, dt, npar, lrn):
 
 
 @njit(cache=True, inline="always")
-def _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, counters, ring, spiked):
+def _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, counters, ring, spiked, column):
     """Phases 1 (feed) and 2 (inputs), in one loop: each input neuron is independent."""
     mask = ring.shape[0] - 1
     n_net = syn.shape[0] - feed.shape[1]  # the input neurons' synapses come last, one each
@@ -119,10 +118,14 @@ def _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, counters, ring, spi
         pulses = np.int32(inpar[i, PULSES])
         start = t == 0 and not math.isnan(inpar[i, AT_START])  # the circuit's own feed at tick 0
         slot = (t + syn[s, DELAY]) & mask  # delay 0: delivered in this tick's phase 3
+        # One input's feed copied contiguous (`column`, [A]): read across the feed's rows (a stride),
+        # the loop below runs as scalar code (LLVM's vector loop assumes a unit stride), 5 x slower.
+        for a in range(lo, hi):
+            column[a] = inpar[i, AT_START] if start else feed[a, i]
         # Feeds arrive at random, so this loop computes every field and selects (no branches).
         for a in range(lo, hi):
             # 1. feed: an idle input neuron latches x >= 0 (NaN: nothing fed); busy ones ignore it
-            x = inpar[i, AT_START] if start else feed[a, i]
+            x = column[a]
             # The fields are loaded before the selects: a load in a select's arm compiles to a branch.
             left, lat, count = counters[LEFT, node, a], counters[LATENCY, node, a], counters[COUNT, node, a]
             take = (left == 0) & (x >= 0.0) & (x < 1e9)  # NaN and inf fail the tests; & not `and`: no branches
@@ -216,7 +219,7 @@ def _step_range(lo, hi, t, feed, net, st):
     training = st.clock[TRAINING] != 0
     syn, npar, lrn = net.syn, net.npar, (net.stdp, net.group, net.profile)
     v, w, counters, last_spike, hist, ring, spiked = st.v, st.w, st.counters, st.last_spike, st.hist, st.ring, st.spiked
-    _feed_and_inputs(lo, hi, t, feed, net.inpar, syn, v.shape[0], counters, ring, spiked)
+    _feed_and_inputs(lo, hi, t, feed, net.inpar, syn, v.shape[0], counters, ring, spiked, st.feed_column)
     _deliver(lo, hi, t, training, syn, npar, lrn, v, w, counters, last_spike, hist, ring)
     _fire(lo, hi, t, training, npar, lrn, v, w, counters, last_spike, hist, spiked)
     _emit(lo, hi, t, syn, feed.shape[1], ring, spiked)
@@ -256,7 +259,8 @@ def order_draw(r, i):
 
 @njit(cache=True, inline="always")
 def _netlogo_range(lo, hi, t, feed, net, st):
-    """NetLogo tick t for agents lo..hi-1: each agent is a sequence of turns (no vector loop).
+    """NetLogo tick t for agents lo..hi-1: what precedes the turns (the feed, input pulses, which
+    neurons have pulses due) as vector loops across agents, then each agent's turns in sequence.
 
     Of a neuron's whole history only two kinds of entry change w when a plastic pulse arrives:
     every remembered arrival came at or after the post's last spike (the history is cleared when
@@ -274,55 +278,61 @@ def _netlogo_range(lo, hi, t, feed, net, st):
     stream, stream_order = st.stream, net.stream_order
     training = clock[TRAINING] != 0
     n_neurons = v.shape[0]
-    _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, counters, ring, st.spiked)  # input pulses: slot t
+    _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, counters, ring, st.spiked, st.feed_column)  # input pulses
     mask = ring.shape[0] - 1
     now = np.uint64(t & mask)
     n_net = syn.shape[0] - feed.shape[1]
     width = stdp.shape[2] - TABLE  # W(dt) is stdp[g, p, TABLE + dt + offset] for 0 <= dt + offset < width
-    # one allocation a call: [ORDER, k] the k-th neuron to take its turn, [DUE, n] whether neuron n
-    # has pulses due now (most turns deliver none); ORDER unsigned: no negative-index checks
-    turns = np.empty((2, n_neurons), np.uint64)
+    order = np.empty(n_neurons, np.uint64)  # the k-th neuron to take its turn; unsigned: no negative-index checks
     send = np.int64(1) if rules & COUNT_FROM_SEND else np.int64(0)  # count-down ticks used in the sending tick
     reopen = (rules & REOPEN_IN_TURN) != 0
     agents = np.uint64(v.shape[1])  # the turns read flat views (build.FLAT_VIEWS): index n * agents + a
     v1, w1, spiked1, last1 = st.v_flat, st.w_flat, st.spiked_flat, st.last_spike_flat
     refr1, left1, hlen1, ring1 = st.refractory_flat, st.refr_left_flat, st.hist_len_flat, st.ring_flat
+    due1 = st.due_flat
     ring_now = now * np.uint64(ring.shape[1]) * agents  # slot now's first synapse in ring1
+    # What comes before the turns depends on each agent's state alone: one vector loop across agents each.
+    if not reopen:  # refractory periods that ended in the last tick end now
+        for n in range(n_neurons):
+            for a in range(lo, hi):
+                closed, left = counters[REFRACTORY, n, a], counters[REFR_LEFT, n, a]
+                counters[REFRACTORY, n, a] = closed if left > 0 else np.int32(0)
+    for s in range(n_net, syn.shape[0]):  # input neurons: straight to their target, not plastic
+        post = syn[s, POST]
+        for a in range(lo, hi):
+            arrived, vp, ws, closed = ring[now, s, a] != 0, v[post, a], w[s, a], counters[REFRACTORY, post, a]
+            ring[now, s, a] = 0
+            v[post, a] = vp + ws if arrived & (closed == 0) else vp
+    for n in range(n_neurons):  # which neurons have pulses due now: most turns deliver none
+        for a in range(lo, hi):
+            due1[n * agents + a] = 0
+    for s in range(n_net):
+        pre = np.uint64(syn[s, PRE])
+        for a in range(lo, hi):
+            due1[pre * agents + a] |= ring[now, s, a]
     for a in range(lo, hi):
         g = group[a]
-        if not rules & REOPEN_IN_TURN:  # refractory periods that ended in the last tick end now
-            for n in range(n_neurons):
-                if counters[REFRACTORY, n, a] and counters[REFR_LEFT, n, a] <= 0:
-                    counters[REFRACTORY, n, a] = 0
-        for s in range(n_net, syn.shape[0]):  # input neurons: straight to their target, not plastic
-            post, arrived = syn[s, POST], ring[now, s, a] != 0  # feeds arrive at random: selects
-            ring[now, s, a] = 0
-            vp, ws, closed = v[post, a], w[s, a], counters[REFRACTORY, post, a]
-            v[post, a] = vp + ws if arrived & (closed == 0) else vp
         for n in range(n_neurons):
-            turns[ORDER, n] = np.uint64(n)
-            turns[DUE, n] = 0
-        for s in range(n_net):  # which neurons have pulses due now: most turns deliver none
-            turns[DUE, syn[s, PRE]] |= ring[now, s, a]
+            order[n] = np.uint64(n)
         if rules & SHUFFLE:  # Fisher-Yates: a hashed (seed, tick) start, then LCG steps, j by multiply-shift
             r0 = mix(order_key[a] + np.uint64(t))
             for i in range(n_neurons - 1, 0, -1):
                 r = r0 * jump[0, n_neurons - i] + jump[1, n_neurons - i]  # order_draw's r, by jump-ahead
                 j = ((r >> np.uint64(32)) * np.uint64(i + 1)) >> np.uint64(32)
-                turns[ORDER, i], turns[ORDER, j] = turns[ORDER, j], turns[ORDER, i]
+                order[i], order[j] = order[j], order[i]
         if rules & STREAM:  # NetLogo's draws before the turns (netlogo_stream.py): the world's asks,
             ask_draws(stream, a, 3)  # ask visualsensors, twice
             ask_draws(stream, a, 3)
             ask_draws(stream, a, feed.shape[1])  # ask inputneurons
             for k in range(n_neurons):  # ask normalneurons, whose shufflerator draws its first now
-                turns[ORDER, k] = stream_order[k]
+                order[k] = stream_order[k]
             j = next_int(stream, a, n_neurons)
-            turns[ORDER, 0], turns[ORDER, j] = turns[ORDER, j], turns[ORDER, 0]
+            order[0], order[j] = order[j], order[0]
         for k in range(n_neurons):
             if rules & STREAM and k + 2 < n_neurons:  # each turn but the last two draws the next one first
                 j = k + 1 + next_int(stream, a, n_neurons - k - 1)
-                turns[ORDER, k + 1], turns[ORDER, j] = turns[ORDER, j], turns[ORDER, k + 1]
-            n = turns[ORDER, k]
+                order[k + 1], order[j] = order[j], order[k + 1]
+            n = order[k]
             na = n * agents + a
             spiked1[na] = 0
             # The state machine computes every field and selects, but for firing: the random order
@@ -352,7 +362,7 @@ def _netlogo_range(lo, hi, t, feed, net, st):
                     s = out_syn[q]
                     slot = np.uint64((t + syn[s, DELAY] - send) & mask)
                     ring[slot, s, a] = 1
-                    turns[DUE, n] |= slot == now  # delay 1 counted from the sending tick: due in this turn
+                    due1[na] |= slot == now  # delay 1 counted from the sending tick: due in this turn
                 if rules & STREAM:  # propagate-pulses: an ask over the outgoing synapses
                     ask_draws(stream, a, out_start[n + 1] - out_start[n])
                 refr1[na] = 1
@@ -367,7 +377,7 @@ def _netlogo_range(lo, hi, t, feed, net, st):
                             break
                 ask_draws(stream, a, busy)
                 stream[a, STREAM_TURNS + k] = n
-            if not turns[DUE, n]:
+            if not due1[na]:
                 continue
             for q in range(out_start[n], out_start[n + 1]):  # its synapses' pulses due now
                 # NetLogo receive-pulse: potential change unless REFRACTORY (computed and selected,
