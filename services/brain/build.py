@@ -128,8 +128,9 @@ FLAT_VIEWS = ("v_flat", "w_flat", "spiked_flat", "last_spike_flat", "refractory_
 FLAT_VIEWS += ("hist_len_flat", "ring_flat")
 # Scratch the kernels overwrite, made once with the struct (not state: never saved):
 # feed_column [A] float64, one input neuron's feed for its agents, contiguous (engine._feed_and_inputs);
-# due_flat [neurons * A] uint8 at n * A + a, whether neuron n has pulses due now (engine._netlogo_range).
-SCRATCH = ("feed_column", "due_flat")
+# due_flat [neurons * A] uint8 at n * A + a, whether neuron n has pulses due now; draws_flat
+# [(neurons + 1) * A] uint64, the random order's draws (engine._netlogo_range).
+SCRATCH = ("feed_column", "due_flat", "draws_flat")
 structref.define_proxy(
     StateStruct, StateType, [f.name for f in dataclasses.fields(State)] + list(FLAT_VIEWS) + list(SCRATCH)
 )
@@ -146,7 +147,7 @@ def _state_struct(clock, v, w, counters, last_spike, hist, ring, spiked, stream)
     flat = (v.reshape(-1), w.reshape(-1), spiked.reshape(-1), last_spike.reshape(-1))
     counters_flat = (counters[REFRACTORY].reshape(-1), counters[REFR_LEFT].reshape(-1), counters[HIST_LEN].reshape(-1))
     arrays = (clock, v, w, counters, last_spike, hist, ring, spiked, stream)
-    scratch = (np.empty(v.shape[1]), np.empty(v.size, np.uint8))
+    scratch = (np.empty(v.shape[1]), np.empty(v.size, np.uint8), np.empty(v.size + v.shape[1], np.uint64))
     return StateStruct(*arrays, *flat, *counters_flat, ring.reshape(-1), *scratch)
 
 

@@ -92,6 +92,7 @@ from .netlogo_stream import STREAM_TURNS, ask_draws, next_int, setup_stream
 FLOAT64 = np.dtype(np.float64)
 # the per-call kernels take any feed of float64 [A, inputs], read only: no per-call check of its layout
 FEED_TYPE = types.Array(types.float64, 2, "A", readonly=True)
+IDENTITY = np.uint64(0xFEDCBA9876543210)  # the file order of up to 16 neurons, 4 bits each
 
 
 @njit(cache=True, inline="always")
@@ -310,15 +311,35 @@ def _netlogo_range(lo, hi, t, feed, net, st):
         pre = np.uint64(syn[s, PRE])
         for a in range(lo, hi):
             due1[pre * agents + a] |= ring[now, s, a]
+    # The random order: each agent's Fisher-Yates draws across agents (vector loops), then the
+    # swaps. Row 0 of `draws`: the LCG's start, a hash of (seed, tick); step i's r by jump-ahead,
+    # j in 0..i by multiply-shift. Up to 16 neurons, the swaps too, on a permutation packed in
+    # row 1 (4 bits a neuron); else row i + 1 keeps step i's j for the agent's own swaps.
+    draws, packed = st.draws_flat, n_neurons <= 16
+    if rules & SHUFFLE:
+        for a in range(lo, hi):
+            draws[a] = mix(order_key[a] + np.uint64(t))
+            draws[agents + a] = IDENTITY
+        for i in range(n_neurons - 1, 0, -1):
+            m0, m1 = jump[0, n_neurons - i], jump[1, n_neurons - i]
+            row, si = np.uint64(i + 1) * agents, np.uint64(4 * i)
+            for a in range(lo, hi):
+                r = draws[a] * m0 + m1  # order_draw's r
+                j = ((r >> np.uint64(32)) * np.uint64(i + 1)) >> np.uint64(32)
+                if packed:  # swap the 4 bits of i and j
+                    perm, sj = draws[agents + a], j * np.uint64(4)
+                    x = ((perm >> si) ^ (perm >> sj)) & np.uint64(15)
+                    draws[agents + a] = perm ^ ((x << si) | (x << sj))
+                else:
+                    draws[row + a] = j
     for a in range(lo, hi):
         g = group[a]
+        perm = draws[agents + a] if rules & SHUFFLE else IDENTITY
         for n in range(n_neurons):
-            order[n] = np.uint64(n)
-        if rules & SHUFFLE:  # Fisher-Yates: a hashed (seed, tick) start, then LCG steps, j by multiply-shift
-            r0 = mix(order_key[a] + np.uint64(t))
+            order[n] = (perm >> np.uint64(4 * n)) & np.uint64(15) if packed else np.uint64(n)
+        if rules & SHUFFLE and not packed:
             for i in range(n_neurons - 1, 0, -1):
-                r = r0 * jump[0, n_neurons - i] + jump[1, n_neurons - i]  # order_draw's r, by jump-ahead
-                j = ((r >> np.uint64(32)) * np.uint64(i + 1)) >> np.uint64(32)
+                j = draws[np.uint64(i + 1) * agents + a]
                 order[i], order[j] = order[j], order[i]
         if rules & STREAM:  # NetLogo's draws before the turns (netlogo_stream.py): the world's asks,
             ask_draws(stream, a, 3)  # ask visualsensors, twice

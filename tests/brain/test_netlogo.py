@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from services.brain.build import HIST_LEN
+from services.brain.build import HIST_LEN, mix
 from services.brain.circuit import build_circuit, load_circuit
-from services.brain.engine import PARALLEL_FROM, Engine
+from services.brain.engine import PARALLEL_FROM, Engine, order_draw
 
 from .helpers import random_feeds, run_with_events
 
@@ -62,6 +62,39 @@ def test_random_order_gives_both_arrival_ticks_from_the_seed():
     assert 16 <= sum(b == [2] for b in seen.values()) <= 48  # about half each way
     again = Engine(chain(("A", "B"), 3), semantics="netlogo", order="random", seed=5)
     assert run_with_events(again, 12, {0: {"a_in": 0}})["B"] == seen[5]  # the seed fixes the order
+
+
+def fisher_yates(order_key, tick, neurons):
+    """The random order of turns as docs/tick.md defines it: Fisher-Yates on order_draw's draws
+    from a hash of (agent seed, tick), in plain Python (the kernels draw it packed or by rows)."""
+    order, r = list(range(neurons)), mix(np.uint64(order_key) + np.uint64(tick))
+    for i in range(neurons - 1, 0, -1):
+        r, j = order_draw(np.uint64(r), i)
+        order[i], order[int(j)] = order[int(j)], order[i]
+    return order
+
+
+@pytest.mark.parametrize("pairs", [4, 8, 9])  # 8 and 16 neurons: the order packed in a word; 18: by rows
+@pytest.mark.parametrize("agents", [3, PARALLEL_FROM + 3])
+def test_every_agent_takes_its_turns_in_its_fisher_yates_order(pairs, agents):
+    # A_k fires at tick 0 and its pulse (delay 1) reaches B_k in A_k's turn: B_k fires at 0 when
+    # its turn comes after A_k's, else at 1. So each pair shows one comparison of the order.
+    c = build_circuit(
+        {
+            "neurons": {f"{x}{k}": "regular" for x in "AB" for k in range(pairs)},
+            "inputs": {f"in{k}": {"target": f"A{k}"} for k in range(pairs)},
+            "synapses": [{"from": f"A{k}", "to": f"B{k}", "weight": 20, "delay": 1} for k in range(pairs)],
+        }
+    )
+    e = Engine(c, agents=agents, semantics="netlogo", order="random", seed=7)
+    e.step(np.zeros((agents, pairs)))
+    a_at = [c.node_names.index(f"A{k}") for k in range(pairs)]
+    b_at = [c.node_names.index(f"B{k}") for k in range(pairs)]
+    assert e.spiked[:, a_at].all()
+    for a in range(agents):
+        turn = np.argsort(fisher_yates(e.network.order_key[a], 0, 2 * pairs))  # each neuron's place
+        expected = [turn[a_at[k]] < turn[b_at[k]] for k in range(pairs)]
+        assert e.spiked[a, b_at].tolist() == expected, a
 
 
 def test_a_refractory_neuron_reopens_in_its_turn_and_takes_later_arrivals():
