@@ -111,7 +111,8 @@ def _learn(w, s, a, post, dt, npar, lrn):
 
 @njit(cache=True, inline="always")
 def _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, counters, ring, spiked, column):
-    """Phases 1 (feed) and 2 (inputs), in one loop: each input neuron is independent."""
+    """Phases 1 (feed) and 2 (inputs), one pass per input neuron (its feed copied first): each
+    input neuron is independent."""
     mask = ring.shape[0] - 1
     n_net = syn.shape[0] - feed.shape[1]  # the input neurons' synapses come last, one each
     for i in range(feed.shape[1]):
@@ -120,7 +121,8 @@ def _feed_and_inputs(lo, hi, t, feed, inpar, syn, n_neurons, counters, ring, spi
         start = t == 0 and not math.isnan(inpar[i, AT_START])  # the circuit's own feed at tick 0
         slot = (t + syn[s, DELAY]) & mask  # delay 0: delivered in this tick's phase 3
         # One input's feed copied contiguous (`column`, [A]): read across the feed's rows (a stride),
-        # the loop below runs as scalar code (LLVM's vector loop assumes a unit stride), 5 x slower.
+        # the loop below ran as scalar code (LLVM's vector loop assumes a unit stride and checks it):
+        # 18.7 against 5.6 ns per agent-tick for the six inputs of the insect circuit.
         for a in range(lo, hi):
             column[a] = inpar[i, AT_START] if start else feed[a, i]
         # Feeds arrive at random, so this loop computes every field and selects (no branches).
@@ -260,8 +262,9 @@ def order_draw(r, i):
 
 @njit(cache=True, inline="always")
 def _netlogo_range(lo, hi, t, feed, net, st):
-    """NetLogo tick t for agents lo..hi-1: what precedes the turns (the feed, input pulses, which
-    neurons have pulses due) as vector loops across agents, then each agent's turns in sequence.
+    """NetLogo tick t for agents lo..hi-1: what precedes the turns (the feed, input pulses, the end
+    of refractory periods, which neurons have pulses due, the random order's draws and, up to 16
+    neurons, its swaps) as vector loops across agents, then each agent's turns in sequence.
 
     Of a neuron's whole history only two kinds of entry change w when a plastic pulse arrives:
     every remembered arrival came at or after the post's last spike (the history is cleared when
@@ -305,8 +308,9 @@ def _netlogo_range(lo, hi, t, feed, net, st):
             ring[now, s, a] = 0
             v[post, a] = vp + ws if arrived & (closed == 0) else vp
     for n in range(n_neurons):  # which neurons have pulses due now: most turns deliver none
+        row = np.uint64(n) * agents
         for a in range(lo, hi):
-            due1[n * agents + a] = 0
+            due1[row + a] = 0
     for s in range(n_net):
         pre = np.uint64(syn[s, PRE])
         for a in range(lo, hi):
@@ -319,7 +323,8 @@ def _netlogo_range(lo, hi, t, feed, net, st):
     if rules & SHUFFLE:
         for a in range(lo, hi):
             draws[a] = mix(order_key[a] + np.uint64(t))
-            draws[agents + a] = IDENTITY
+            if packed:
+                draws[agents + a] = IDENTITY
         for i in range(n_neurons - 1, 0, -1):
             m0, m1 = jump[0, n_neurons - i], jump[1, n_neurons - i]
             row, si = np.uint64(i + 1) * agents, np.uint64(4 * i)
@@ -334,7 +339,7 @@ def _netlogo_range(lo, hi, t, feed, net, st):
                     draws[row + a] = j
     for a in range(lo, hi):
         g = group[a]
-        perm = draws[agents + a] if rules & SHUFFLE else IDENTITY
+        perm = draws[agents + a] if rules & SHUFFLE and packed else IDENTITY
         for n in range(n_neurons):
             order[n] = (perm >> np.uint64(4 * n)) & np.uint64(15) if packed else np.uint64(n)
         if rules & SHUFFLE and not packed:

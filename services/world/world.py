@@ -265,7 +265,11 @@ class WorldStruct(structref.StructRefProxy):
     """A World's KERNEL_ARRAYS as its kernels take them (the arrays, not copies)."""
 
 
-structref.define_proxy(WorldStruct, WorldType, list(KERNEL_ARRAYS))
+# And the CPU kernels' scratch, never saved: sin_cos [A, 2] of each insect's heading, and that
+# heading's bits [A] (int64). libm's sincos was a tenth of `evaluate`'s time; a heading changes in
+# about 1.5 % of an insect's ticks, so they are computed again only then (_sin_cos).
+SCRATCH = ("sin_cos", "sin_cos_of")
+structref.define_proxy(WorldStruct, WorldType, [*KERNEL_ARRAYS, *SCRATCH])
 
 
 @njit(cache=True)
@@ -371,7 +375,8 @@ class World:
         self._bin = np.zeros(A, np.int64)
         self.events = np.zeros((A, len(EVENT_COLUMNS)), np.int64)  # this tick's events
         self.eaten = np.full((A, 2), -1, np.int64)  # this tick: grid index of the food eaten, or -1
-        self.struct = _world_struct(tuple(self.kernel_arrays().values()))  # the kernels' argument
+        scratch = (np.zeros((A, 2)), np.full(A, -1, np.int64))  # bits -1: a NaN, no heading of a world
+        self.struct = _world_struct((*self.kernel_arrays().values(), *scratch))  # the kernels' argument
 
     def sense(self) -> np.ndarray:
         """Vision then touch for tick self.tick: the sensors [A, len(SENSORS)] (NaN: nothing).
@@ -463,19 +468,29 @@ def _cell(x, y, x_min, y_min, width, height):
 
 
 @njit(cache=True, inline="always")
+def _sin_cos(h, h_bits, sin_cos, of, a):
+    """sin and cos of insect a's heading h (degrees, its bits h_bits): sin_cos[a] while of[a] holds
+    those bits (bit for bit: -0.0 is not 0.0), else computed and kept there."""
+    if of[a] != h_bits:
+        r = math.radians(h)
+        sin_cos[a, 0], sin_cos[a, 1], of[a] = math.sin(r), math.cos(r), h_bits
+    return sin_cos[a, 0], sin_cos[a, 1]
+
+
+@njit(cache=True, inline="always")
 def sense_range(lo, hi, w, sensors):
     """Vision then touch into `sensors` for agents lo..hi-1 of a WorldStruct `w`. The loop over
     agents is here, not in a caller: numba counts references to the arrays handed to an inlined
     function at every call, which in a loop over agents cost more than the sensing."""
     grid, arena_of, pos, heading, fpar, kind = w.grid, w.arena_of, w.pos, w.heading, w.fpar, w.kind
+    sin_cos, of, bits = w.sin_cos, w.sin_cos_of, heading.view(np.int64)
     ray_steps = int(round(fpar[VIEW] / fpar[RAY_STEP]))
     x_min, y_min, width, height = fpar[X_MIN], fpar[Y_MIN], grid.shape[1], grid.shape[2]
     for a in range(lo, hi):
         g = arena_of[a]
         for k in range(sensors.shape[1]):
             sensors[a, k] = np.nan
-        h = math.radians(heading[a])
-        dx, dy = math.sin(h), math.cos(h)
+        dx, dy = _sin_cos(heading[a], bits[a], sin_cos, of, a)
         # vision: the first non-empty patch along the heading, sampled every ray_step. The
         # distance is a running sum, as NetLogo's `set itemcount itemcount + 0.2`: its 10th
         # sample is 1.9999999999999998, so a patch seen there fires its smell one tick sooner.
@@ -516,6 +531,7 @@ def touch_range(lo, hi, w, training, t):
     last_patch, events, eaten, distance, bins = w.last_patch, w.events, w.eaten, w.distance, w.bin
     collisions, by_colour, food = w.collisions, w.collisions_by_colour, w.food
     last_collision, last_noxious, learned_at = w.last_collision, w.last_noxious, w.learned_at
+    sin_cos, of, bits = w.sin_cos, w.sin_cos_of, heading.view(np.int64)
     x_min, y_min, width, height = fpar[X_MIN], fpar[Y_MIN], grid.shape[1], grid.shape[2]
     for a in range(lo, hi):
         g = arena_of[a]
@@ -533,9 +549,9 @@ def touch_range(lo, hi, w, training, t):
                 last_collision[a] = t
                 events[a, EV_COLLISION] = colour
             if training:  # pushed on, so it cannot spin on the spot forever
-                h = math.radians(heading[a])
-                pos[a, 0] += fpar[PUSH] * math.sin(h)
-                pos[a, 1] += fpar[PUSH] * math.cos(h)
+                sin_h, cos_h = _sin_cos(heading[a], bits[a], sin_cos, of, a)
+                pos[a, 0] += fpar[PUSH] * sin_h
+                pos[a, 1] += fpar[PUSH] * cos_h
                 distance[a] += fpar[PUSH]
         elif kind[colour] == 2:  # rewarding: eaten (in a shared arena, by the first insect on it)
             grid[g, ix, iy] = EMPTY
@@ -569,14 +585,15 @@ def act_range(lo, hi, w):
     """The actions (w.actions) of agents lo..hi-1, then the boundary check."""
     pos, heading, fpar, steps, actions = w.pos, w.heading, w.fpar, w.steps, w.actions
     events, distance, resets = w.events, w.distance, w.resets
+    sin_cos, of, bits = w.sin_cos, w.sin_cos_of, heading.view(np.int64)
     width, height = w.grid.shape[1], w.grid.shape[2]
     for a in range(lo, hi):
         if actions[a, ROTATE]:
             heading[a] = (heading[a] + steps[a, 0]) % 360.0
         if actions[a, MOVE]:
-            h = math.radians(heading[a])
-            pos[a, 0] += steps[a, 1] * math.sin(h)
-            pos[a, 1] += steps[a, 1] * math.cos(h)
+            sin_h, cos_h = _sin_cos(heading[a], bits[a], sin_cos, of, a)
+            pos[a, 0] += steps[a, 1] * sin_h
+            pos[a, 1] += steps[a, 1] * cos_h
             distance[a] += steps[a, 1]
         # boundary: leaving the arena (past the centre line of its border) puts the insect back
         # at its start, as NetLogo's check-boundaries does

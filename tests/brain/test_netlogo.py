@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from services.brain.build import HIST_LEN, mix
+from services.brain.build import HIST_LEN, TICK, mix
 from services.brain.circuit import build_circuit, load_circuit
 from services.brain.engine import PARALLEL_FROM, Engine, order_draw
 
@@ -87,14 +87,17 @@ def test_every_agent_takes_its_turns_in_its_fisher_yates_order(pairs, agents):
         }
     )
     e = Engine(c, agents=agents, semantics="netlogo", order="random", seed=7)
-    e.step(np.zeros((agents, pairs)))
     a_at = [c.node_names.index(f"A{k}") for k in range(pairs)]
     b_at = [c.node_names.index(f"B{k}") for k in range(pairs)]
-    assert e.spiked[:, a_at].all()
-    for a in range(agents):
-        turn = np.argsort(fisher_yates(e.network.order_key[a], 0, 2 * pairs))  # each neuron's place
-        expected = [turn[a_at[k]] < turn[b_at[k]] for k in range(pairs)]
-        assert e.spiked[a, b_at].tolist() == expected, a
+    for tick in (0, 5, 1000):  # the same kernel's scratch from tick to tick; the order by tick
+        e.reset()
+        e.state.clock[TICK] = tick
+        e.step(np.zeros((agents, pairs)))
+        assert e.spiked[:, a_at].all()
+        for a in range(agents):
+            turn = np.argsort(fisher_yates(e.network.order_key[a], tick, 2 * pairs))  # each neuron's place
+            expected = [turn[a_at[k]] < turn[b_at[k]] for k in range(pairs)]
+            assert e.spiked[a, b_at].tolist() == expected, (tick, a)
 
 
 def test_a_refractory_neuron_reopens_in_its_turn_and_takes_later_arrivals():

@@ -131,6 +131,20 @@ def test_actions_follow_netlogo_headings():
     assert netlogo.metrics.distance[0] == pytest.approx(0.4)
 
 
+def test_a_heading_set_between_ticks_is_the_one_sensed_and_moved_along():
+    # the kernels keep each insect's sine and cosine while its heading stays, bit for bit
+    w = corridor("S..R....", start=(2.0, 1.0))
+    assert w.sense()[0, SMELL[RED]] == pytest.approx(1.6)  # east: patch 4 starts at x = 3.5
+    w.heading[:] = 270.0  # west, set from outside
+    seen = w.sense()[0]
+    assert np.isnan(seen[SMELL[RED]]) and seen[SMELL[BLACK]] == pytest.approx(1.6)  # the wall at x = 0
+    w.act(np.array([[0, 1]], np.uint8))  # move west
+    assert w.pos[0] == pytest.approx([1.0, 1.0])
+    w.heading[:] = 90.0
+    w.act(np.array([[0, 1]], np.uint8))  # east, not along the heading kept from before
+    assert w.pos[0] == pytest.approx([2.0, 1.0])
+
+
 def test_leaving_the_arena_returns_to_start():
     w = corridor("S.......", start=(1.0, 1.0))
     w.pos[0] = (8.9, 1.0)
