@@ -469,12 +469,12 @@ def _cell(x, y, x_min, y_min, width, height):
 
 @njit(cache=True, inline="always")
 def _sin_cos(h, h_bits, kept_bits, kept_sin, kept_cos):
-    """sin and cos of a heading h (degrees): those kept when they are of the same bits (-0.0 is not
-    0.0). Numbers only, as _cell; the caller keeps what it returns."""
+    """sin and cos of a heading h (degrees), and whether they are new: those kept when they are of
+    the same bits (-0.0 is not 0.0). Numbers only, as _cell; the caller keeps new ones."""
     if h_bits == kept_bits:
-        return kept_sin, kept_cos
+        return kept_sin, kept_cos, False
     r = math.radians(h)
-    return math.sin(r), math.cos(r)
+    return math.sin(r), math.cos(r), True
 
 
 @njit(cache=True, inline="always")
@@ -490,8 +490,9 @@ def sense_range(lo, hi, w, sensors):
         g = arena_of[a]
         for k in range(sensors.shape[1]):
             sensors[a, k] = np.nan
-        dx, dy = _sin_cos(heading[a], bits[a], of[a], sin_cos[a, 0], sin_cos[a, 1])
-        sin_cos[a, 0], sin_cos[a, 1], of[a] = dx, dy, bits[a]
+        dx, dy, new = _sin_cos(heading[a], bits[a], of[a], sin_cos[a, 0], sin_cos[a, 1])
+        if new:
+            sin_cos[a, 0], sin_cos[a, 1], of[a] = dx, dy, bits[a]
         # vision: the first non-empty patch along the heading, sampled every ray_step. The
         # distance is a running sum, as NetLogo's `set itemcount itemcount + 0.2`: its 10th
         # sample is 1.9999999999999998, so a patch seen there fires its smell one tick sooner.
@@ -550,8 +551,9 @@ def touch_range(lo, hi, w, training, t):
                 last_collision[a] = t
                 events[a, EV_COLLISION] = colour
             if training:  # pushed on, so it cannot spin on the spot forever
-                sin_h, cos_h = _sin_cos(heading[a], bits[a], of[a], sin_cos[a, 0], sin_cos[a, 1])
-                sin_cos[a, 0], sin_cos[a, 1], of[a] = sin_h, cos_h, bits[a]
+                sin_h, cos_h, new = _sin_cos(heading[a], bits[a], of[a], sin_cos[a, 0], sin_cos[a, 1])
+                if new:
+                    sin_cos[a, 0], sin_cos[a, 1], of[a] = sin_h, cos_h, bits[a]
                 pos[a, 0] += fpar[PUSH] * sin_h
                 pos[a, 1] += fpar[PUSH] * cos_h
                 distance[a] += fpar[PUSH]
@@ -593,8 +595,9 @@ def act_range(lo, hi, w):
         if actions[a, ROTATE]:
             heading[a] = (heading[a] + steps[a, 0]) % 360.0
         if actions[a, MOVE]:
-            sin_h, cos_h = _sin_cos(heading[a], bits[a], of[a], sin_cos[a, 0], sin_cos[a, 1])
-            sin_cos[a, 0], sin_cos[a, 1], of[a] = sin_h, cos_h, bits[a]
+            sin_h, cos_h, new = _sin_cos(heading[a], bits[a], of[a], sin_cos[a, 0], sin_cos[a, 1])
+            if new:
+                sin_cos[a, 0], sin_cos[a, 1], of[a] = sin_h, cos_h, bits[a]
             pos[a, 0] += steps[a, 1] * sin_h
             pos[a, 1] += steps[a, 1] * cos_h
             distance[a] += steps[a, 1]
