@@ -521,7 +521,7 @@ def sense_kernel(w, sensors):
 @njit(cache=True, parallel=True)
 def _sense_parallel(w, sensors, blocks):
     agents = w.pos.shape[0]
-    for c in prange(blocks):  # reads only: agents are independent, in a shared arena too
+    for c in prange(blocks):  # each agent reads the world and writes its own rows, in a shared arena too
         sense_range(c * agents // blocks, (c + 1) * agents // blocks, w, sensors)
 
 
