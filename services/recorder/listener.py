@@ -15,7 +15,7 @@ from pathlib import Path
 
 import rerun as rr
 
-from services.bus.schemas import RUN_ID, BusError
+from services.bus.schemas import RUN_ID, BrainState, BusError, WorldState
 from services.bus.transport import QUIET_S, Inbox, Presence
 
 from .recorder import Recorder
@@ -24,6 +24,7 @@ log = logging.getLogger("spikinglab.recorder")
 END_GRACE = 5.0  # seconds to wait after the run's end for the brain's last messages
 FLUSH_S = 0.5  # written to the file at least this often: a killed recorder loses about this much of the run
 NEXT_RUN_HELD = 256  # messages of another run held while the run recorded may still go on (its map comes first)
+STREAMS = {WorldState: "world", BrainState: "brain"}  # the state streams whose first message is said in the log
 
 
 class Listener:
@@ -50,6 +51,7 @@ class Listener:
         self.rejected, self.last_flush, self.ending = 0, time.monotonic(), None
         self.received, self.first_at = 0, time.monotonic()
         self.heard_at = time.monotonic()  # when the run recorded last sent a message that was recorded
+        self.heard: set[str] = set()  # the state streams that have come: their states are lossy on the bus
 
     def step(self, message) -> bool:
         """One read of the inbox (`message`, or None when none came): recorded, and everything
@@ -92,6 +94,10 @@ class Listener:
         try:
             self.recorder.on(message)
             self.heard_at = time.monotonic()
+            stream = STREAMS.get(type(message))
+            if stream is not None and stream not in self.heard:
+                self.heard.add(stream)
+                log.info("the %s's state comes in from tick %d", stream, message.tick)
             # a world shard's final batch is not the world's: the recorder's join of them says when that came
             done = self.recorder.world_done or self.recorder.brain_done
             if done and not self.forever and self.ending is None:

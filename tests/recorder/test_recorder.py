@@ -187,6 +187,10 @@ def test_a_late_recorder_says_from_which_tick_it_has_data(tmp_path):
         wait_for(lambda: len(ticks_in(early.messages[keys.world_state("insect")])) > 1500, 60, "the run to get going")
         recorder = start("record", *connecting(world_ep, brain_ep), "--out", tmp_path / "late.rrd", log=recorder_log)
         wait_for(lambda: "recording group" in recorder_log.read_text(), 60, "the recorder to subscribe")
+        # the states are lossy on the bus: under load the first ones to the recorder may be dropped
+        for stream in ("world", "brain"):
+            said = f"the {stream}'s state comes in from tick"
+            wait_for(lambda said=said: said in recorder_log.read_text(), 60, f"the {stream}'s state at the recorder")
         joined = len(ticks_in(early.messages[keys.world_state("insect")]))
         wait_for(lambda: len(ticks_in(early.messages[keys.world_state("insect")])) > joined + 500, 60, "more ticks")
         world.send_signal(signal.SIGINT)  # ends the run at the tick it is in, for the brain and the recorder too
