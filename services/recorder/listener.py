@@ -24,7 +24,7 @@ log = logging.getLogger("spikinglab.recorder")
 END_GRACE = 5.0  # seconds to wait after the run's end for the brain's last messages
 FLUSH_S = 0.5  # written to the file at least this often: a killed recorder loses about this much of the run
 NEXT_RUN_HELD = 256  # messages of another run held while the run recorded may still go on (its map comes first)
-STREAMS = {WorldState: "world", BrainState: "brain"}  # the state streams whose first message is said in the log
+STREAMS = {WorldState: "world", BrainState: "brain"}  # state streams by their names in Recorder.next_tick
 
 
 class Listener:
@@ -51,7 +51,6 @@ class Listener:
         self.rejected, self.last_flush, self.ending = 0, time.monotonic(), None
         self.received, self.first_at = 0, time.monotonic()
         self.heard_at = time.monotonic()  # when the run recorded last sent a message that was recorded
-        self.heard: set[str] = set()  # the state streams that have come: their states are lossy on the bus
 
     def step(self, message) -> bool:
         """One read of the inbox (`message`, or None when none came): recorded, and everything
@@ -92,12 +91,8 @@ class Listener:
             self.first_at = time.monotonic()
         self.received += 1
         try:
-            self.recorder.on(message)
+            self.record(message)
             self.heard_at = time.monotonic()
-            stream = STREAMS.get(type(message))
-            if stream is not None and stream not in self.heard:
-                self.heard.add(stream)
-                log.info("the %s's state comes in from tick %d", stream, message.tick)
             # a world shard's final batch is not the world's: the recorder's join of them says when that came
             done = self.recorder.world_done or self.recorder.brain_done
             if done and not self.forever and self.ending is None:
@@ -112,6 +107,15 @@ class Listener:
                 self.next_run.append(message)  # perhaps the next run: it waits for this one to go quiet
             else:
                 self.inbox.refuse(e, f"({type(message).__name__} of tick {message.tick})")
+
+    def record(self, message) -> None:
+        """Into the recording, saying in the log when each state stream of the run first comes in
+        (state messages are lossy on the bus: a late recorder may miss the first ones)."""
+        stream = STREAMS.get(type(message))
+        new = stream is not None and stream not in self.recorder.next_tick
+        self.recorder.on(message)
+        if new and stream in self.recorder.next_tick:  # a world shard's slice: once the state is joined
+            log.info("the %s's state comes in from tick %d", stream, message.tick)
 
     def start_next_run(self) -> None:
         """The run recorded is closed; the run of the messages held gets a file and a Recorder."""
@@ -135,7 +139,7 @@ class Listener:
         self.recorder.event(f"recorder on group {self.group}: run {run_id} follows another run, writing {path}")
         for held in self.next_run:
             try:
-                self.recorder.on(held)
+                self.record(held)
             except BusError as e:
                 self.inbox.refuse(e, f"({type(held).__name__} of tick {held.tick})")
         self.next_run, self.heard_at = [], time.monotonic()

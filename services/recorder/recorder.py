@@ -104,7 +104,7 @@ class Recorder:
         self._trail: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # agent -> (ticks, positions)
         self._last_pose = None  # (tick, pos [A, 2], heading [A]) after the last tick of the world's last batch
         self.missing: dict[str, int] = {}  # "world" / "brain" -> ticks of its state that never came
-        self._next_tick: dict[str, int] = {}  # the tick each state stream's next batch should start at
+        self.next_tick: dict[str, int] = {}  # the tick each state stream's next batch should start at (once one came)
         self.shards = ShardJoin()  # a sharded world's slices, joined into the population's state and map
         self._reset_buffers()
         rec.log("/world/map", rr.AnnotationContext([(c, name, rgb) for c, name, rgb in PATCH_COLOURS]), static=True)
@@ -335,7 +335,7 @@ class Recorder:
 
     def _count_gap(self, stream: str, first: int, ticks: int) -> None:
         """Count and say the ticks of a state stream that never came (dropped on the way)."""
-        expected = self._next_tick.get(stream)
+        expected = self.next_tick.get(stream)
         if expected is not None and first > expected:
             self.missing[stream] = self.missing.get(stream, 0) + first - expected
             self.event(
@@ -344,7 +344,7 @@ class Recorder:
                 "WARN",
                 first,
             )
-        self._next_tick[stream] = max(expected or 0, first + ticks)
+        self.next_tick[stream] = max(expected or 0, first + ticks)
 
     def event(self, text: str, level: str = "INFO", tick: int | None = None) -> None:
         self.rec.set_time("tick", sequence=max(tick if tick is not None else self.last_tick, 0))
