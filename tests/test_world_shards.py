@@ -237,3 +237,17 @@ def test_the_scale_benchmark_measures_world_shards():
     assert figures["agents"] == 40 and figures["shards"].keys() == {"3"}
     assert {w: set(rates) for w, rates in figures["world_shards"].items()} == {"1": {"3"}, "2": {"3"}}
     assert all(rate > 0 for rates in figures["world_shards"].values() for rate in rates.values())
+    rows = [line.split("|") for line in done.stdout.splitlines() if line.count("|") == 4][1:]
+    (_, _, first, _, _), (_, _, second, up, of_linear) = rows  # 1x3, then 2x3
+    speed_up = int(second.replace(",", "")) / int(first.replace(",", ""))
+    assert abs(float(up) - speed_up) <= 0.01
+    assert abs(float(of_linear.split("(")[0]) - speed_up / (5 / 4)) <= 0.01  # over the shards: 2 + 3 of 1 + 3
+
+
+def test_the_scale_benchmark_refuses_impossible_cases_before_starting():
+    for options in (["--agents", "2", "--shards", "3"], ["--agents", "2", "--shards", "1", "--world-shards", "3"]):
+        done = subprocess.run(
+            [sys.executable, "-m", "spikinglab", "bench", "scale", *options], capture_output=True, text=True, timeout=60
+        )
+        assert done.returncode == 2 and done.stdout == ""
+        assert len(done.stderr.splitlines()) == 1 and "at most one shard per agent" in done.stderr

@@ -1,16 +1,25 @@
-"""Sharded benchmark: agent-ticks/s of one population whose brain runs as 1, 2, 4, 8 shards, and
-whose world runs as 1 or more shards (`--world-shards`).
+"""Sharded benchmark: agent-ticks/s of one population run as W world shards x M brain shards.
 
-Each case starts a world (`--agents A --shards N`), or W world shards (`world --shard I/W`) on a
-router, and N brain processes (`brain --shard I/N`) on a local bus; each brain shard's engine gets
-cores / N threads and each world shard's kernels cores / W (at least one), and the world (the lead
-shard: the slowest shard's) measures the lock-step rate from its first to its last tick. Prints
-the scaling table (speed-up over one brain shard of the first case, and that over the brain shards:
-1.0 is linear)
-and, as its last line, JSON: {"agents": A, "cores": C, "shards": {"1": agent_ticks_per_s, ...}
-(one world), "world_shards": {"W": {"N": agent_ticks_per_s, ...}, ...}}. Process counts above the
-core count share cores, so measure where there are at least as many cores as processes. Run:
-`spikinglab bench scale [--agents 16000] [--shards 1 2 4 8] [--world-shards 1 2] [--ticks 200]`.
+Each case starts a world (`--agents A --shards M`), or W world shards (`world --shard I/W`) on a
+router, and M brain processes (`brain --shard I/M`) on a local bus; each brain shard's engine gets
+cores / M threads and each world shard's kernels cores / W (at least one), and the world (the lead
+shard: the slowest shard's) measures the lock-step rate from its first to its last tick.
+
+Before the measured cases, two unmeasured ones as long as a case (the least W x M, then the most)
+compile and cache every kernel the cases' processes use: which kernels a process picks depends on
+its slice's size and on W > 1, and these two hold the largest and the smallest slices of each kind.
+Then a bare Zenoh ping-pong between two processes is measured, as the bus's bound.
+
+Prints the table: agent-ticks/s, the speed-up over the first case, and "of linear": that speed-up
+over the growth in shards, (W + M) / (W + M of the first case), so 1.0 means each added shard
+brought its full share. A row notes what bounds it where the benchmark can tell: more processes
+(the shards, and the router where W > 1) than cores; ticks/s at least half the bare ping-pong's
+round trips/s (a tick waits for at least one). The engine's share is not noted: it is not measured
+here (`spikinglab bench engine`). The last line is JSON: {"agents": A, "cores": C, "shards":
+{"M": agent_ticks_per_s, ...} (W = 1), "world_shards": {"W": {"M": agent_ticks_per_s, ...}, ...}}.
+Process counts above the core count share cores, so measure where there are at least as many
+cores as processes. Run:
+`spikinglab bench scale [--agents 16000] [--shards 1 2 4 8] [--world-shards 1] [--ticks 200]`.
 """
 
 from __future__ import annotations
@@ -24,6 +33,10 @@ from pathlib import Path
 from services.launch import local_endpoints, spawn
 from services.options import Parser, at_least
 from spikinglab.bench import steady_rate
+from spikinglab.bench.loop import zenoh_roundtrips
+
+NEAR = 0.5  # a rate at least this share of a bound's is noted as near that bound
+ROUND_TRIPS = 2000  # of the bare ping-pong
 
 
 def sharded(agents: int, shards: int, ticks: int, worlds: int = 1) -> float:
@@ -66,28 +79,53 @@ def sharded(agents: int, shards: int, ticks: int, worlds: int = 1) -> float:
         return steady_rate(Path(tmp)) * agents
 
 
+def bounds(worlds: int, shards: int, ticks_per_s: float, cores: int, round_trips: float) -> str:
+    """The row's note: each bound the case is near or over, as measured, or ""."""
+    processes = worlds + shards + (worlds > 1)  # the router relays where there are world shards
+    notes = [f"{processes} processes on {cores} cores"] if processes > cores else []
+    if ticks_per_s >= NEAR * round_trips:
+        notes.append(f"bus: {ticks_per_s / round_trips:.0%} of the bare round trips/s")
+    return f"  ({'; '.join(notes)})" if notes else ""
+
+
 def main(argv=None) -> dict:
-    p = Parser(prog="spikinglab bench scale", description=(__doc__ or "").splitlines()[0])
-    p.add_argument("--agents", type=at_least(1), default=16_000)
-    p.add_argument("--shards", type=at_least(1), nargs="+", default=[1, 2, 4, 8], help="brain shards per case")
-    p.add_argument("--world-shards", type=at_least(1), nargs="+", default=[1], help="world shards per case")
-    p.add_argument("--ticks", type=at_least(1), default=200)
+    p = Parser(prog="spikinglab bench scale", description=(__doc__ or "").partition("\n\n")[0])
+    p.add_argument("--agents", type=at_least(1), default=16_000, help="the population (default 16000)")
+    p.add_argument(
+        "--shards", type=at_least(1), nargs="+", default=[1, 2, 4, 8], help="brain shards per case (default 1 2 4 8)"
+    )
+    p.add_argument("--world-shards", type=at_least(1), nargs="+", default=[1], help="world shards per case (default 1)")
+    p.add_argument(
+        "--ticks",
+        type=at_least(2),
+        default=200,
+        help="lock-step ticks per case; the rate is after the first (default 200)",
+    )
     args = p.parse_args(argv)
+    for option, counts in (("--shards", args.shards), ("--world-shards", args.world_shards)):
+        if max(counts) > args.agents:
+            p.error(f"argument {option}: {max(counts)} shards of {args.agents:,} agents: at most one shard per agent")
+        if len(set(counts)) < len(counts):  # the JSON keeps one figure per count
+            p.error(f"argument {option}: give each count once, got {' '.join(map(str, counts))}")
     cores = os.cpu_count() or 1
     print(f"A = {args.agents:,} agents, {args.ticks} lock-step ticks per case, {cores} cores")
-    rates: dict[str, dict[str, int]] = {}
-    base = None
+    least, most = (min(args.world_shards), min(args.shards)), (max(args.world_shards), max(args.shards))
+    warm_ups = dict.fromkeys((least, most))  # one where they are the same
+    print(f"warm-up, unmeasured: {' and '.join(f'{w}x{n}' for w, n in warm_ups)}", flush=True)
+    for w, n in warm_ups:
+        sharded(args.agents, n, args.ticks, w)
+    round_trips = zenoh_roundtrips(ROUND_TRIPS)
+    print(f"bound: a bare Zenoh ping-pong, {round_trips:,.0f} round trips/s (a tick waits for one at least)")
+    first = args.world_shards[0], args.shards[0]
+    print(f"speed-up: over {first[0]}x{first[1]}; of linear: speed-up / ((W + M) / {sum(first)})", flush=True)
     print("world shards | brain shards | agent-ticks/s | speed-up | of linear")
+    rates: dict[str, dict[str, int]] = {}
     for w in args.world_shards:
         for n in args.shards:
             rate = rates.setdefault(str(w), {})[str(n)] = round(sharded(args.agents, n, args.ticks, w))
-            base = base or rate / args.shards[0]  # per brain shard of the first case
-            up = rate / base
-            print(
-                f"{w:12d} | {n:12d} | {rate:13,} | {up:8.2f} | {up / n:9.2f}"
-                + ("  (more processes than cores)" if w + n > cores else ""),
-                flush=True,
-            )
+            up = rate / rates[str(first[0])][str(first[1])]
+            note = bounds(w, n, rate / args.agents, cores, round_trips)
+            print(f"{w:12d} | {n:12d} | {rate:13,} | {up:8.2f} | {up / ((w + n) / sum(first)):9.2f}{note}", flush=True)
     result = {"agents": args.agents, "cores": cores, "shards": rates.get("1", {}), "world_shards": rates}
     print(json.dumps(result))
     return result
