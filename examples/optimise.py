@@ -12,13 +12,18 @@ mid-generation has its blocks run again on the others.
 """
 
 import argparse
+import sys
 
-import cma
 import numpy as np
 from tqdm import tqdm
 
 from services.cluster import ClusterError, address_option
 from spikinglab import evaluate
+
+try:
+    import cma
+except ImportError:
+    sys.exit("optimise.py: the optimiser is the cma library: pip install -e '.[optimise]'")
 
 # the search space: A+ = A- from 0.005 to 0.08 (the paper's Table 1 spans 0.01 .. 0.04 and its robot
 # ran at 0.08), w_max from the circuit's initial plastic weight 5 to 30 (the model's: 15)

@@ -11,8 +11,11 @@ another worker.
 from __future__ import annotations
 
 import argparse
+import asyncio
 import re
+import socket
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from functools import partial
 from typing import cast
@@ -32,7 +35,7 @@ class ClusterError(Exception):
 
 def cluster_address(text: str) -> str:
     """A scheduler's address, tcp://HOST:PORT; ValueError says what was wrong."""
-    found = ADDRESS.fullmatch(text)
+    found = ADDRESS.fullmatch(text) if isinstance(text, str) else None
     if not found or not 0 < int(found[2]) < 65536:
         raise ValueError(f"expected a Dask scheduler's address tcp://HOST:PORT, got {text!r}")
     return text
@@ -49,19 +52,67 @@ def address_option(text: str) -> str:
 @contextmanager
 def connected(address: str):
     """A Dask client of the scheduler at `address`, closed (and its unfinished tasks cancelled) on leaving."""
-    cluster_address(address)
+    found = ADDRESS.fullmatch(cluster_address(address))
+    assert found is not None  # cluster_address checked it
     try:
         from distributed import Client
     except ImportError:
         raise ClusterError("a cluster needs Dask distributed: pip install 'spikinglab[cluster]'") from None
+    greets(address, found[1].strip("[]"), int(found[2]))
     try:
         client = Client(address, timeout=CONNECT_S, set_as_default=False)
     except (OSError, TimeoutError) as e:
         raise ClusterError(
             f"no Dask scheduler answers at {address} within {CONNECT_S} s ({type(e).__name__})"
         ) from None
+    except Exception as e:  # it speaks Dask's protocol, or seemed to, but is no scheduler
+        raise ClusterError(f"{address} answered, but not as a Dask scheduler ({type(e).__name__})") from None
     with client:
         yield client
+
+
+def greets(address: str, host: str, port: int) -> None:
+    """ClusterError unless a Dask scheduler at host:port says who it is within CONNECT_S: the
+    client's connect waits for Dask's greeting without end (a silent port, such as the scheduler's
+    dashboard given for the scheduler, would hang a study), reads any other server's bytes as
+    message frames, and takes a worker's address for a scheduler's until its first call fails."""
+    try:
+        socket.create_connection((host, port), timeout=CONNECT_S).close()
+    except socket.gaierror:
+        raise ClusterError(f"no host {host!r} (in {address}): the name does not resolve") from None
+    except OSError as e:  # refused, unreachable, or no connection within CONNECT_S
+        raise ClusterError(
+            f"no Dask scheduler answers at {address} within {CONNECT_S} s ({type(e).__name__})"
+        ) from None
+    with ThreadPoolExecutor(1) as thread:  # a loop of its own: the caller may be in one (Jupyter)
+        try:
+            kind = thread.submit(asyncio.run, identity(address)).result()
+        except TimeoutError:
+            raise ClusterError(
+                f"something at {address} accepts connections but does not answer as Dask does within "
+                f"{CONNECT_S} s: not a Dask scheduler (its dashboard's port?)"
+            ) from None
+        except Exception as e:  # another protocol's bytes read as Dask's frames: any error
+            raise ClusterError(
+                f"something at {address} answered, but not as a Dask scheduler ({type(e).__name__})"
+            ) from None
+    if kind != "Scheduler":
+        raise ClusterError(f"{address} is a Dask {kind}, not a scheduler: give the scheduler's address")
+
+
+async def identity(address: str) -> str:
+    """What the Dask process at `address` says it is ("Scheduler", "Worker", "Nanny")."""
+    from distributed.comm import connect
+
+    async def ask() -> str:
+        comm = await connect(address, timeout=CONNECT_S)
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return str((await comm.read()).get("type"))
+        finally:
+            await comm.close()
+
+    return await asyncio.wait_for(ask(), CONNECT_S)
 
 
 def split(n: int, parts: int) -> list[range]:
@@ -84,9 +135,9 @@ def in_blocks(
 ) -> Iterator[tuple[range, range, object]]:
     """`task(settings, seed positions)` on the cluster, once per block; (settings, seed positions,
     result) as each block finishes. `task` is pickled: a module-level function or a partial of one."""
-    from distributed import as_completed
-
     with connected(address) as client:
+        from distributed import as_completed  # after connected(): it says when the extra is missing
+
         threads = sum(cast(dict, client.nthreads()).values())  # a dict: the client is synchronous
         futures = {client.submit(task, s, j, pure=False): (s, j) for s, j in blocks(settings, seeds, threads)}
         for future in as_completed(futures, loop=client.loop):

@@ -247,7 +247,14 @@ def run_with_progress(args) -> list[dict]:
 
 def parser() -> Parser:
     p = Parser(prog="spikinglab sweep", description=(__doc__ or "").partition("\n")[0])
-    p.add_argument("--a-plus", type=positive, nargs="+", default=[0.01, 0.02, 0.03, 0.04])
+    p.add_argument(
+        "--a-plus",
+        type=positive,
+        nargs="+",
+        default=[0.01, 0.02, 0.03, 0.04],
+        metavar="A",
+        help="the values of A+ = A- (default: the paper's Table 1, 0.01 0.02 0.03 0.04)",
+    )
     p.add_argument("--seeds", type=at_least(1), default=16, help="seeds (arenas 0..N-1) per value (default 16)")
     p.add_argument(
         "--ticks",
@@ -255,16 +262,27 @@ def parser() -> Parser:
         default=150_000,
         help=f"ticks per seed, at least one bin of {BIN:,} (default 150,000)",
     )
-    p.add_argument("--preset", choices=sorted(PRESETS), default="paper")
-    p.add_argument("--learned-after", type=at_least(1), default=5000)
+    p.add_argument(
+        "--preset",
+        choices=sorted(PRESETS),
+        default="paper",
+        help="the insect's steps: the paper's, or the NetLogo source's (default paper)",
+    )
+    p.add_argument(
+        "--learned-after",
+        type=at_least(1),
+        default=5000,
+        metavar="TICKS",
+        help="learned: this many ticks in a row off noxious patches (default 5,000; docs/world.md)",
+    )
     add_netlogo_seed(
         p,
         "every insect in the arena and first heading of the SpikingLab source's setup after "
         "`random-seed N` (its own: 7850); the seeds then vary the neurons' order (docs/netlogo-random.md)",
     )
     add_engine_args(p)
-    p.add_argument("--runs", type=Path, default=Path("runs"))
-    p.add_argument("--id", help="folder name (default sweep-<date>)")
+    p.add_argument("--runs", type=Path, default=Path("runs"), help="where the sweep's folder goes (default runs/)")
+    p.add_argument("--id", help="the sweep's folder name (default sweep-<date>-<time>)")
     p.add_argument(
         "--cluster",
         type=address_option,
@@ -296,9 +314,12 @@ def main(argv=None) -> int:
     folder.mkdir(parents=True, exist_ok=True)
     try:
         rows = run_with_progress(args)
-    except ClusterError as e:
+    except (ClusterError, KeyboardInterrupt) as e:
         if created:
             folder.rmdir()
+        if isinstance(e, KeyboardInterrupt):  # Ctrl-C: the population's table comes at its end only
+            print("spikinglab sweep: interrupted, no table written", file=sys.stderr)
+            return 130
         print(f"spikinglab sweep: {e}", file=sys.stderr)
         return 1
     text = table(rows, args.learned_after)

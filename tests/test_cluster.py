@@ -4,6 +4,7 @@ bit for bit, and still does when a worker is killed (kill -9) while it holds a b
 runs that block again on another worker. Without a cluster, nothing of Dask (or Ray) is imported."""
 
 import json
+import re
 import socket
 import subprocess
 import sys
@@ -16,7 +17,7 @@ import pytest
 from distributed import Client
 
 from services import sweep
-from services.cluster import blocks
+from services.cluster import ClusterError, blocks
 from services.loop import evaluate
 
 from .processes import ROOT
@@ -186,8 +187,42 @@ def test_a_cluster_where_nothing_answers_is_one_line(closed_port, tmp_path, caps
     address = f"tcp://127.0.0.1:{closed_port}"
     assert sweep.main(["--seeds", "1", "--ticks", "1000", "--cluster", address, "--runs", str(tmp_path)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
-    assert err[-1] == f"spikinglab sweep: no Dask scheduler answers at {address} within 5 s (OSError)"
+    assert err[-1] == f"spikinglab sweep: no Dask scheduler answers at {address} within 5 s (ConnectionRefusedError)"
     assert "Traceback" not in "\n".join(err) and not list(tmp_path.iterdir())  # no run folder left
+
+
+def test_an_address_that_is_not_a_scheduler_is_named_in_one_line(cluster, tmp_path):
+    """A worker's address, a port that accepts and stays silent (an HTTP server's, as the dashboard's
+    is), a server that answers with other bytes, a host that does not resolve: each is one
+    ClusterError that says which, where the client alone would wait without end or fail deep inside."""
+    address, _ = cluster
+    with Client(address, timeout=30) as client:
+        a_worker = next(iter(cast(dict, client.scheduler_info())["workers"]))
+    with socket.socket() as silent, socket.socket() as chatty:
+        for server in (silent, chatty):
+            server.bind(("127.0.0.1", 0))
+            server.listen()
+        ports = {"silent": silent.getsockname()[1], "chatty": chatty.getsockname()[1]}
+
+        def chatter():  # answers every connection with what is not Dask's protocol
+            chatty.settimeout(30)  # the test never waits on it for good
+            for _ in range(2):
+                connection, _ = chatty.accept()
+                with connection:
+                    connection.sendall(b"HTTP/1.0 200 OK\r\n\r\n" + b"\xff" * 4096)
+
+        with ThreadPoolExecutor(1) as thread:
+            thread.submit(chatter)
+            cases = {
+                a_worker: f"{a_worker} is a Dask Worker, not a scheduler: give the scheduler's address",
+                f"tcp://127.0.0.1:{ports['silent']}": "accepts connections but does not answer as Dask does within 5 s",
+                f"tcp://127.0.0.1:{ports['chatty']}": "answered, but not as a Dask scheduler",
+                "tcp://nosuchhost.invalid:8786": "no host 'nosuchhost.invalid' (in tcp://nosuchhost.invalid:8786): "
+                "the name does not resolve",
+            }
+            for wrong, said in cases.items():
+                with pytest.raises(ClusterError, match=re.escape(said)):
+                    evaluate(PARAMS, 1000, [0], cluster=wrong)
 
 
 def test_a_malformed_address_is_refused_before_anything_starts(tmp_path, capsys):
@@ -197,5 +232,6 @@ def test_a_malformed_address_is_refused_before_anything_starts(tmp_path, capsys)
     assert "argument --cluster: expected a Dask scheduler's address tcp://HOST:PORT, got '127.0.0.1:8786'" in (
         capsys.readouterr().err
     )
-    with pytest.raises(ValueError, match="tcp://HOST:PORT"):
-        evaluate(PARAMS, 1000, [0], cluster="scheduler")
+    for wrong in ("scheduler", 8786):
+        with pytest.raises(ValueError, match=f"tcp://HOST:PORT, got {wrong!r}"):
+            evaluate(PARAMS, 1000, [0], cluster=wrong)  # type: ignore[arg-type]
