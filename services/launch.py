@@ -371,8 +371,10 @@ def main(argv=None) -> int:
     p = parser()
     args = p.parse_args(argv)
     if args.list:
-        for name, path in shipped().items():
-            print(f"{name:14s} {path}")
+        files = shipped()
+        width = max(map(len, files))
+        for name, path in files.items():
+            print(f"{name:{width}s}  {path}")
         return 0
     if args.file is None:
         p.error("which launch file? a .toml path, or one of the shipped: " + ", ".join(shipped()))

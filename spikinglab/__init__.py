@@ -20,6 +20,7 @@ if TYPE_CHECKING:  # what static tools see; at run time __getattr__ imports a na
     from services.brain.brain import Brain
     from services.brain.circuit import Circuit, load_circuit
     from services.brain.engine import Engine
+    from services.cluster import ClusterError
     from services.learning import DEFINITIONS, learning_time, noxious_ticks
     from services.loop import brain_for, closed_loop, evaluate
     from services.params import AGENT_PARAMS
@@ -34,6 +35,7 @@ API = {  # name -> module
     "Circuit": "services.brain.circuit",
     "Brain": "services.brain.brain",
     "Engine": "services.brain.engine",
+    "ClusterError": "services.cluster",
     "brain_for": "services.loop",
     "closed_loop": "services.loop",
     "evaluate": "services.loop",
@@ -47,6 +49,7 @@ __all__ = [  # API's names, written out for static tools (tests/test_api.py chec
     "AGENT_PARAMS",
     "Brain",
     "Circuit",
+    "ClusterError",
     "DEFINITIONS",
     "Engine",
     "World",
