@@ -102,7 +102,7 @@ def greets(address: str, host: str, port: int) -> None:
 
 async def identity(address: str) -> str:
     """What the Dask process at `address` says it is ("Scheduler", "Worker", "Nanny")."""
-    from distributed.comm import connect
+    from distributed.comm.core import connect
 
     async def ask() -> str:
         comm = await connect(address, timeout=CONNECT_S)

@@ -303,7 +303,8 @@ def test_a_brain_that_refuses_every_reading_is_named_by_the_world(files, tmp_pat
     try:
         world_log = tmp_path / "world.log"
         wait_for(lambda: "on the bus but no answer" in world_log.read_text(), 25, "the world to say so")
-        assert "brain on the bus but no answer to tick 0 for 10 s: its log says why" in world_log.read_text()
+        said = "brain on the bus but no answer to tick 0 for 10 s: on a first run on this machine a brain compiles"
+        assert said in world_log.read_text() and "else its log says why" in world_log.read_text()
         assert "does not fit the parameter file" in (tmp_path / "brain.log").read_text()
         assert world.poll() is None and brain.poll() is None  # neither gives up
     finally:

@@ -146,6 +146,60 @@ def test_two_world_shards_and_brain_shards_run_bit_for_bit_as_one_process(tmp_pa
         assert "keeps checkpoints" not in (tmp_path / f"brain{j}.log").read_text()  # no shard's first tick says so
 
 
+def test_a_world_shard_whose_options_differ_from_the_leads_says_which_and_stays_off(tmp_path):
+    """World shard 2 started with another seed, tick count and map than shard 1: its slice would not
+    be of the lead's population, so it names each difference and ends (exit 2) before it joins;
+    the lead keeps waiting for a shard 2 and says so."""
+    made = options(tmp_path)
+    own_map = tmp_path / "own.map"
+    own_map.write_text("#####\n#S..#\n#####\n")
+    bus = ("--group", "wd", "--connect", endpoint(tmp_path, "router"))
+    router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
+    common = ("--agents", AGENTS, "--params", made.params, "--shards", 1)
+    lead = start("world", *bus, *common, "--seed", 5, "--ticks", 2000, "--shard", "1/2", log=tmp_path / "world1.log")
+    other = ("--seed", 7, "--ticks", 3000, "--map", own_map, "--shard", "2/2")
+    follower = start("world", *bus, *common, *other, log=tmp_path / "world2.log")
+    try:
+        assert finish(follower, 60, tmp_path / "world2.log") == 2
+        said = (tmp_path / "world2.log").read_text()
+        for difference in (
+            "--seed 7 here, 5 at world shard 1",
+            "--ticks 3000 here, 2000 at world shard 1",
+            "--map (its file's SHA-256) ",
+        ):
+            assert difference in said
+        assert "Traceback" not in said
+        wait_for(
+            lambda: "waiting for world shard(s) world-2of2 to join" in (tmp_path / "world1.log").read_text(),
+            30,
+            "the lead to say whom it waits for",
+        )
+        assert lead.poll() is None
+    finally:
+        for process in (lead, follower, router):
+            process.kill()
+
+
+def test_a_world_shard_lost_mid_run_ends_the_lead_with_an_error(tmp_path):
+    """kill -9 of world shard 2 mid-run: the lead runs its own slice to the end, then names the lost
+    shard and exits 1 (no metrics.json: half the population has no result), not 0."""
+    made = options(tmp_path)
+    bus = ("--group", "wl", "--connect", endpoint(tmp_path, "router"))
+    router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
+    worlds, shards = start_shards(tmp_path, bus, made, 1, "--ticks", 20_000)
+    try:
+        wait_for(lambda: " run " in (tmp_path / "world2.log").read_text(), 120, "the run to start")
+        time.sleep(0.5)
+        worlds[1].kill()
+        assert finish(worlds[0], 120, tmp_path / "world1.log") == 1
+        log = (tmp_path / "world1.log").read_text()
+        assert "world-2of2 left the bus before the end of its ticks: the run has no result for its insects" in log
+        assert not (tmp_path / "metrics.json").exists()
+    finally:
+        for process in (*worlds, *shards, router):
+            process.kill()
+
+
 def test_every_world_shard_is_recorded_as_one_population(tmp_path):
     """2 world shards publish their slices' state, the recorder makes one recording of the 7 insects:
     every tick's poses are the one-process closed loop's, agent 4 (world shard 2's) the detail agent

@@ -21,10 +21,10 @@ import numpy as np
 
 from services.vocabulary import EVENT_COLUMNS
 
-VERSION = 7  # 2: brain and world states come in batches of consecutive ticks; 3: no training switch on the bus;
+VERSION = 8  # 2: brain and world states come in batches of consecutive ticks; 3: no training switch on the bus;
 # 4: sensors, motor and control name the run they belong to; 5: motor names the reading it answers, the states
 # name their run; 6: sensors say when the world keeps a checkpoint; 7: a world shard's state and map say which
-# slice of the population they hold
+# slice of the population they hold; 8: the lead world shard names the run with RunTerms
 _MAX_ELEMENTS = 1 << 26
 _ITEMSIZE = {"<f8": 8, "<f4": 4, "<i8": 8, "|u1": 1}  # the dtypes messages carry
 
@@ -83,6 +83,7 @@ def new_run_id() -> str:
     return secrets.token_hex(8)
 
 
+Seed = Annotated[int, msgspec.Meta(ge=0, lt=2**62)]  # a world's --seed
 Tick = Annotated[int, msgspec.Meta(ge=0, lt=2**62)]  # a run's ticks; rerun and numpy take them as int64
 Coordinate = Annotated[int, msgspec.Meta(ge=-(2**31), lt=2**31)]
 AgentIndex = Annotated[int, msgspec.Meta(ge=0, lt=2**31)]
@@ -113,7 +114,7 @@ class Sensors(Message, tag="sensors", frozen=True, kw_only=True):
     names: tuple[str, ...]
     values: Array
     run: RunId = ""
-    seed: Annotated[int, msgspec.Meta(ge=0, lt=2**62)] = 0  # the world's: the brain's netlogo order uses seed + a
+    seed: Seed = 0  # the world's: the brain's netlogo order uses seed + a
     checkpoint: bool = False  # the world kept its state at the start of this tick: the brain keeps its own too
     first: AgentIndex = 0  # a shard's slice: the population's index of its first agent (netlogo order: seed + index)
 
@@ -309,9 +310,34 @@ def check_slice(first: int, agents: int, population: int, shards: int, what: str
         )
 
 
-KINDS = (Sensors, Motor, Control, BrainState, BrainLayout, WorldState, WorldMap)
+Name = Annotated[str, msgspec.Meta(max_length=64)]
+Digest = Annotated[str, msgspec.Meta(pattern="^([0-9a-f]{64})?$")]  # a file's SHA-256, "" for no file
+NetLogoSeed = Annotated[int, msgspec.Meta(ge=-(2**31), lt=2**31)]  # NetLogo's random-seed: a Java int
+
+
+class RunTerms(Message, tag="run_terms", frozen=True, kw_only=True):
+    """World shard 1's name for the run (`run`), sent to the other world shards with the options
+    that make one population of their slices: each compares its own before it joins."""
+
+    run: RunId
+    agents: Population
+    world_shards: Population
+    brain_shards: Population
+    seed: Seed
+    ticks: Tick
+    preset: Name
+    learned_after: Tick
+    training: bool
+    netlogo_seed: NetLogoSeed | None = None
+    map: Digest = ""  # the --map file's
+    params: Digest = ""  # the --params file's
+
+
+KINDS = (Sensors, Motor, Control, BrainState, BrainLayout, WorldState, WorldMap, RunTerms)
 _encoder = msgspec.msgpack.Encoder()
-_decoder = msgspec.msgpack.Decoder(Sensors | Motor | Control | BrainState | BrainLayout | WorldState | WorldMap)
+_decoder = msgspec.msgpack.Decoder(
+    Sensors | Motor | Control | BrainState | BrainLayout | WorldState | WorldMap | RunTerms
+)
 
 
 def encode(message: Message) -> bytes:

@@ -183,12 +183,12 @@ def run(config: RecorderConfig, session) -> int:
         bus.close()
         took = max(time.monotonic() - listener.first_at, 1e-9)
         log.info(
-            "recording written to %s (%s): %d messages in %.1f s, %.0f messages/s; ticks missing: %s; rejected: %s",
+            "recording written to %s (%s): %d messages in %.1f s, %s messages/s; ticks missing: %s; rejected: %s",
             listener.current,
             listener.recorder.ticks_held(),
             listener.received,
             took,
-            listener.received / took,
+            f"{listener.received / took:,.{0 if listener.received >= 10 * took else 2}f}",  # a slow stream too
             listener.recorder.missing or "none",
             bus.rejections() or "none",
         )

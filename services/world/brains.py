@@ -138,11 +138,13 @@ class Silence:
             b.sensors[k].put(requests[k])
         now = time.monotonic()
         if now - self.asked_at >= UNANSWERED_S and (self.said_at is None or now - self.said_at >= 60):
-            self.said_at = now  # on the bus, yet silent: most likely it refuses these sensors, and says why
+            self.said_at = now  # on the bus, yet silent: it refuses these sensors and says why, or it is compiling
+            first = b.first_answer_at is None  # a brain's first answer waits for its kernels (compiled once a machine)
             log.warning(
-                "%s on the bus but no answer to tick %d for %.0f s: its log says why (a brain "
+                "%s on the bus but no answer to tick %d for %.0f s: %sits log says why (a brain "
                 "refuses sensors that do not fit its circuit, parameter file or shard)",
                 " and ".join(b.names[k] for k in silent),
                 self.tick,
                 now - self.asked_at,
+                "on a first run on this machine a brain compiles its kernels (a minute or two); else " if first else "",
             )

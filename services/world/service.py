@@ -112,7 +112,14 @@ def run(config: WorldConfig, session) -> int:
     except (MapError, ValueError) as e:
         log.error("%s", e)
         return 2
-    named = shards.follow(session, config.bus.group, config.shard) if config.shard[0] > 1 else None
+    named = None
+    if config.shard[0] > 1:
+        try:
+            mine = shards.terms(config.world, "", config.shard[1], config.shards)
+            named = shards.follow(session, config.bus.group, config.shard, mine)
+        except shards.ShardsDisagree as e:
+            log.error("%s", e)
+            return 2
     bus = Bus(session, config.bus.group, shards.service_name(config.shard))
     bus.watch_others(lambda: f" at tick {world.tick}")
     try:
@@ -133,7 +140,7 @@ def run_on(
     state = bus.outbox(keys.world_state(group), lossy=True) if config.publish_state else None
     run_id = resumed or named or new_run_id()  # the brain answers for this run only; an end names it
     if shard[1] > 1 and shard[0] == 1:
-        shards.lead(bus, world, run_id, shard)
+        shards.lead(bus, shards.terms(config.world, run_id, shard[1], config.shards), shard)
     lead_ended = shards.LeadsEnd(bus, run_id) if shard[0] > 1 else None
     brains.wait()
     stream = None
@@ -165,8 +172,9 @@ def run_on(
             stream.send(final=True)
     elapsed = time.perf_counter() - started
     progress.close(world.tick)
+    lost = []  # world shards that left the bus before their end
     if lead_ended is None:  # a world, or the lead shard: it ends the run
-        shards.end_run(bus, control, shard, Control(tick=world.tick, command="end", run=run_id), interrupted)
+        lost = shards.end_run(bus, control, shard, Control(tick=world.tick, command="end", run=run_id), interrupted)
     result = metrics_of(world, world.tick, elapsed, start)
     result.update(steady_rate(brains, start, world.tick, started, elapsed))
     result["rejected_messages"] = bus.rejections()
@@ -175,6 +183,9 @@ def run_on(
     finish(config, result, trajectory, world.tick)
     if lead_ended is not None:  # its metrics written: the lead may end the run
         shards.finished(bus, shard, lead_ended)
+    if lost:
+        log.error("%s left the bus before the end of its ticks: the run has no result for its insects", ", ".join(lost))
+        return 1
     return 0 if world.tick == ticks else 130
 
 

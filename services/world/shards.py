@@ -1,7 +1,8 @@
 """A sharded world (`world --shard I/N`): N world processes step one population, each its slice.
 
 Shard 1 leads: it names the run (its id, on keys.world_run, until every other shard is on the
-bus), and ends it (Control "end" to the brains and the other shards) once every other shard has
+bus) with the options every shard must share (RunTerms; a shard whose own differ says which and
+does not join), and ends it (Control "end" to the brains and the other shards) once every other shard has
 finished its ticks (said by a liveliness token, world-<I>of<N>-done). Each shard writes
 metrics-<I>of<N>.json to its --out; the lead merges those it finds in its own --out into
 metrics.json (one summary where the shards share a folder). docs/shards.md.
@@ -9,16 +10,17 @@ metrics.json (one summary where the shards share a folder). docs/shards.md.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import time
 from pathlib import Path
 
 from services.bus import keys
-from services.bus.schemas import Array, Control, WorldMap
+from services.bus.schemas import Control, RunTerms
 from services.bus.transport import Bus, Inbox, Outbox
 
-from .world import World
+from .options import WorldOptions
 
 log = logging.getLogger("spikinglab.world")
 SAY_EVERY = 5.0  # seconds between "waiting for ..." lines
@@ -46,56 +48,124 @@ def others(bus: Bus, shard: tuple[int, int], done: bool = False) -> list:
     return [bus.presence(service_name((i, shard[1])) + ("-done" if done else "")) for i in range(2, shard[1] + 1)]
 
 
-def lead(bus: Bus, world: World, run_id: str, shard: tuple[int, int]) -> None:
+def terms(options: WorldOptions, run: str, world_shards: int, brain_shards: int) -> RunTerms:
+    """The options of this shard that every shard of the run must share, with the run's id."""
+
+    def digest(path: Path | None) -> str:
+        return hashlib.sha256(path.read_bytes()).hexdigest() if path else ""
+
+    return RunTerms(
+        tick=0,
+        run=run,
+        agents=options.agents,
+        world_shards=world_shards,
+        brain_shards=brain_shards,
+        seed=options.seed,
+        ticks=options.ticks,
+        preset=options.preset,
+        learned_after=options.learned_after,
+        training=not options.no_training,
+        netlogo_seed=options.netlogo_seed,
+        map=digest(options.map),
+        params=digest(options.params),
+    )
+
+
+OPTION = {  # a RunTerms field -> the option that sets it
+    "agents": "--agents",
+    "world_shards": "N of --shard I/N",
+    "brain_shards": "--shards",
+    "seed": "--seed",
+    "ticks": "--ticks",
+    "preset": "--preset",
+    "learned_after": "--learned-after",
+    "training": "--no-training (training)",
+    "netlogo_seed": "--netlogo-seed",
+    "map": "--map (its file's SHA-256)",
+    "params": "--params (its file's SHA-256)",
+}
+
+
+class ShardsDisagree(ValueError):
+    """This world shard's options differ from the lead's: the shards would not make one population."""
+
+
+def differences(mine: RunTerms, lead: RunTerms) -> list[str]:
+    """Each option on which this shard and the lead differ, as '--seed 7 here, 5 at world shard 1'."""
+
+    def shown(value) -> str:
+        return "none" if value in ("", None) else str(value)
+
+    return [
+        f"{option} {shown(getattr(mine, field))} here, {shown(getattr(lead, field))} at world shard 1"
+        for field, option in OPTION.items()
+        if getattr(mine, field) != getattr(lead, field)
+    ]
+
+
+def lead(bus: Bus, named: RunTerms, shard: tuple[int, int]) -> None:
     """Name the run to the other shards until every one has joined the bus (it joins once it heard it)."""
     outbox, waiting = bus.outbox(keys.world_run(bus.group)), others(bus, shard)
-    named = WorldMap(tick=world.tick, run=run_id, grid=Array.of(world.grid[:1]), x_min=0, y_min=0)
     said = time.monotonic()
     while not all(p.alive for p in waiting):
         outbox.put(named)
         if time.monotonic() - said > SAY_EVERY:
             missing = [p.service for p in waiting if not p.alive]
-            log.info("run %s: waiting for world shard(s) %s to join", run_id, ", ".join(missing))
+            log.info(
+                "run %s: waiting for world shard(s) %s to join (one whose options differ says so and stays off)",
+                named.run,
+                ", ".join(missing),
+            )
             said = time.monotonic()
         time.sleep(0.2)
     outbox.close()
 
 
-def follow(session, group: str, shard: tuple[int, int]) -> str:
-    """The run the lead shard names (before this shard joins the bus)."""
-    inbox = Inbox(session, keys.world_run(group), WorldMap)
+def follow(session, group: str, shard: tuple[int, int], mine: RunTerms) -> str:
+    """The run the lead shard names (before this shard joins the bus); ShardsDisagree where the
+    lead's options differ from `mine`."""
+    inbox = Inbox(session, keys.world_run(group), RunTerms)
     try:
-        while not isinstance(named := inbox.get(timeout=SAY_EVERY), WorldMap):
+        while not isinstance(named := inbox.get(timeout=SAY_EVERY), RunTerms):
             log.info("world shard %d/%d: waiting for world shard 1/%d to name the run", *shard, shard[1])
+        found = differences(mine, named)
+        if found:
+            raise ShardsDisagree(
+                f"world shard {shard[0]}/{shard[1]}: run {named.run} is not this shard's: " + "; ".join(found)
+            )
         log.info("world shard %d/%d: run %s", *shard, named.run)
         return named.run
     finally:
         inbox.close()
 
 
-def end_run(bus: Bus, control: Outbox, shard: tuple[int, int], order: Control, interrupted: bool) -> None:
+def end_run(bus: Bus, control: Outbox, shard: tuple[int, int], order: Control, interrupted: bool) -> list[str]:
     """The lead's (or a whole world's) end of the run: Control "end" once every other shard has
-    finished its ticks; cut short, at once, then a moment for the others to stop at it too."""
+    finished its ticks; cut short, at once, then a moment for the others to stop at it too. The
+    shards that left the bus before they finished (none when cut short: they stop early anyway)."""
+    lost = []
     if shard[1] > 1 and not interrupted:
-        wait_for_others(bus, shard)
+        lost = wait_for_others(bus, shard)
     control.put(order)
     if shard[1] > 1 and interrupted:
         wait_for_others(bus, shard, within=INTERRUPTED_WAIT_S)
+    return lost
 
 
-def wait_for_others(bus: Bus, shard: tuple[int, int], within: float | None = None) -> None:
+def wait_for_others(bus: Bus, shard: tuple[int, int], within: float | None = None) -> list[str]:
     """Until every other shard has finished its ticks (and written its metrics), or left the bus;
-    `within` seconds at most."""
+    `within` seconds at most. The shards that left without finishing."""
     done, there, said = others(bus, shard, done=True), others(bus, shard), time.monotonic()
     for t in there:  # known within a moment of subscribing, unless it has left
         t.wait(timeout=1.0)
     while not all(d.alive or not t.alive for d, t in zip(done, there)):
         if within is not None and time.monotonic() - said > within:
-            return
+            break
         if within is None and time.monotonic() - said > SAY_EVERY:
             log.info("waiting for world shard(s) %s to finish", ", ".join(t.service for t in there if t.alive))
             said = time.monotonic()
         time.sleep(0.05)
+    return [t.service for d, t in zip(done, there) if not d.alive and not t.alive]
 
 
 class LeadsEnd:
@@ -143,7 +213,8 @@ def merged(parts: list[dict]) -> dict:
     colours = parts[0]["collisions_by_colour"]
     whole["collisions_by_colour"] = {c: [v for part in parts for v in part["collisions_by_colour"][c]] for c in colours}
     whole["agents"] = sum(part["agents"] for part in parts)
-    whole["ticks"] = min(part["ticks"] for part in parts)
+    whole["ticks"] = min(part["ticks"] for part in parts)  # a run cut short: the shards stop where each is
+    whole["shard_ticks"] = [part["ticks"] for part in parts]
     whole["partial"] = any(part["partial"] for part in parts)
     for name, slowest in (("elapsed_s", max), ("ticks_per_s", min), ("first_tick_s", max), ("steady_ticks_per_s", min)):
         if all(name in part for part in parts):

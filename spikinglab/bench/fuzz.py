@@ -2,7 +2,7 @@
 
 Four kinds of payload, each thrown at decode() for every kind it may be expected as, and what
 decodes, at the service code that takes it (the brain's answer and end check, the world's and the
-gateway's motor handling, the recorder):
+gateway's motor handling, a world shard's check of the run it is named, the recorder):
   bytes:      arbitrary bytes
   byte:       byte-level mutants of a real message of the kind (bits flipped, bytes set, cut, inserted)
   structure:  a field's value replaced by any msgpack value, a field dropped or added, and the
@@ -40,6 +40,7 @@ from services.bus.schemas import (
     BusError,
     Control,
     Motor,
+    RunTerms,
     Sensors,
     WorldMap,
     WorldState,
@@ -49,6 +50,7 @@ from services.ev3_gateway.service import motor_actions
 from services.options import Parser, at_least
 from services.recorder.recorder import Recorder
 from services.vocabulary import INSECT_ACTIONS, INSECT_SENSORS
+from services.world import shards
 from services.world.brains import actions_from
 
 CIRCUIT = load_circuit("insect")
@@ -61,6 +63,7 @@ KEY_OF = {
     BrainLayout: keys.brain_state("insect"),
     WorldState: keys.world_state("insect"),
     WorldMap: keys.world_map("insect"),
+    RunTerms: keys.world_run("insect"),
 }
 # one real message of each kind, as the services send them for a run of 3 agents
 EXAMPLES = [
@@ -87,6 +90,18 @@ EXAMPLES = [
     ),
     WorldMap(tick=0, run="r1", grid=Array.of(np.zeros((A, 41, 60), np.uint8)), x_min=80, y_min=1),
     layout(CIRCUIT, 0, "r1"),
+    RunTerms(
+        tick=0,
+        run="r1",
+        agents=A,
+        world_shards=2,
+        brain_shards=1,
+        seed=0,
+        ticks=1000,
+        preset="paper",
+        learned_after=5000,
+        training=True,
+    ),
 ]
 
 
@@ -134,6 +149,8 @@ class Services:
             attempt(motor_actions, message, "r1")  # the gateway's, for its one robot
         elif isinstance(message, Control):
             attempt(self.serving.ends, message)
+        elif isinstance(message, RunTerms):  # a world shard's, of the lead's options: it joins only those
+            attempt(lambda m: not shards.differences(example(RunTerms), m), message)
         else:
             attempt(self.recorder.on, message)
             self.recorder.flush()

@@ -17,6 +17,7 @@ from services.bus.schemas import (
     BrainState,
     Control,
     Motor,
+    RunTerms,
     Sensors,
     WorldMap,
     WorldState,
@@ -190,6 +191,25 @@ def control(draw, tick, T, A):
     return Control(tick=tick, command=draw(st.text(max_size=5) | st.just("end")), run=draw(runs))
 
 
+def run_terms(draw, tick, T, A):
+    counts, digests = st.integers(0, 4) | i64, st.sampled_from(["", "0" * 64, "f" * 64]) | st.text(max_size=70)
+    return RunTerms(
+        tick=tick,
+        run=draw(runs),
+        agents=draw(st.just(A) | counts),
+        world_shards=draw(counts),
+        brain_shards=draw(counts),
+        seed=draw(st.integers(0, 2**64 - 1) | st.integers(0, 9)),
+        ticks=draw(ticks),
+        preset=draw(st.sampled_from(["paper", "netlogo"]) | st.text(max_size=70)),
+        learned_after=draw(ticks),
+        training=draw(st.booleans()),
+        netlogo_seed=draw(st.none() | i64),
+        map=draw(digests),
+        params=draw(digests),
+    )
+
+
 BUILDERS = {
     Sensors: sensors,
     Motor: motor,
@@ -198,6 +218,7 @@ BUILDERS = {
     WorldState: world_state,
     WorldMap: world_map,
     Control: control,
+    RunTerms: run_terms,
 }
 
 
