@@ -149,7 +149,7 @@ def test_two_world_shards_and_brain_shards_run_bit_for_bit_as_one_process(tmp_pa
 def test_a_world_shard_whose_options_differ_from_the_leads_says_which_and_stays_off(tmp_path):
     """World shard 2 started with another seed, tick count and map than shard 1: its slice would not
     be of the lead's population, so it names each difference and ends (exit 2) before it joins;
-    the lead keeps waiting for a shard 2 and says so."""
+    the lead keeps waiting for a shard 2 and says so. A second shard 1 is refused too."""
     made = options(tmp_path)
     own_map = tmp_path / "own.map"
     own_map.write_text("#####\n#S..#\n#####\n")
@@ -175,6 +175,11 @@ def test_a_world_shard_whose_options_differ_from_the_leads_says_which_and_stays_
             "the lead to say whom it waits for",
         )
         assert lead.poll() is None
+        again = start(
+            "world", *bus, *common, "--seed", 5, "--ticks", 2000, "--shard", "1/2", log=tmp_path / "again.log"
+        )
+        assert finish(again, 60, tmp_path / "again.log") == 2  # a second lead would name a second run
+        assert "world shard 1/2 is on the bus of group wd already" in (tmp_path / "again.log").read_text()
     finally:
         for process in (lead, follower, router):
             process.kill()

@@ -112,6 +112,13 @@ def run(config: WorldConfig, session) -> int:
     except (MapError, ValueError) as e:
         log.error("%s", e)
         return 2
+    if config.shard[1] > 1 and shards.already_on_the_bus(session, config.bus.group, config.shard):
+        log.error(
+            "world shard %d/%d is on the bus of group %s already: each shard is one process",
+            *config.shard,
+            config.bus.group,
+        )
+        return 2
     named = None
     if config.shard[0] > 1:
         try:

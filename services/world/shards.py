@@ -103,6 +103,13 @@ def differences(mine: RunTerms, lead: RunTerms) -> list[str]:
     ]
 
 
+def already_on_the_bus(session, group: str, shard: tuple[int, int]) -> bool:
+    """Whether a process is alive as this world shard already (one started twice would step its
+    slice twice, and a second lead would name a second run): asked of the bus, within a second."""
+    replies = session.liveliness().get(keys.alive(group, service_name(shard)), timeout=1.0)
+    return any(reply.ok is not None for reply in replies)
+
+
 def lead(bus: Bus, named: RunTerms, shard: tuple[int, int]) -> None:
     """Name the run to the other shards until every one has joined the bus (it joins once it heard it)."""
     outbox, waiting = bus.outbox(keys.world_run(bus.group)), others(bus, shard)
