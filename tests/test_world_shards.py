@@ -205,6 +205,28 @@ def test_a_world_shard_lost_mid_run_ends_the_lead_with_an_error(tmp_path):
             process.kill()
 
 
+def test_the_lead_lost_mid_run_ends_the_once_brains_that_served_it(tmp_path):
+    """kill -9 of world shard 1: a sharded world keeps no checkpoints, so no run comes back to go
+    on; each `--once` brain shard keeps its learning so far, says so and ends (exit 1), not waits."""
+    made = options(tmp_path)
+    bus = ("--group", "wk", "--connect", endpoint(tmp_path, "router"))
+    router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
+    worlds, shards = start_shards(tmp_path, bus, made, 2, "--ticks", 20_000)
+    try:
+        for log in (tmp_path / "brain1.log", tmp_path / "brain2.log"):  # each has answered
+            wait_for(lambda log=log: "brain for" in log.read_text(), 120, f"{log.name} to say it serves")
+        time.sleep(0.5)
+        worlds[0].kill()
+        for j, brain in enumerate(shards, 1):
+            assert finish(brain, 30, tmp_path / f"brain{j}.log") == 1
+            log = (tmp_path / f"brain{j}.log").read_text()
+            assert "its world kept no checkpoint of it to resume from; --once ends here" in log
+            assert re.search(r"weights so far saved to \S+weights\d-\w+-tick\d+\.npz", log)
+    finally:
+        for process in (*worlds, *shards, router):
+            process.kill()
+
+
 def test_every_world_shard_is_recorded_as_one_population(tmp_path):
     """2 world shards publish their slices' state, the recorder makes one recording of the 7 insects:
     every tick's poses are the one-process closed loop's, agent 4 (world shard 2's) the detail agent

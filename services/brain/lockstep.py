@@ -46,6 +46,11 @@ class LockStep:
         """The node of the first piece served (the only one unless the world is sharded)."""
         return self.nodes[min(self.nodes)] if self.nodes else self.idle
 
+    def resumable(self) -> bool:
+        """Whether the world of the run served kept a checkpoint of it, so that it may come back
+        to go on (the same command resumes it) rather than start a run anew."""
+        return any(n.run and n.kept_by_world == n.run for n in self.nodes.values())
+
     def where(self) -> str:
         """The tick this brain has reached, for the news of others joining or leaving."""
         return f" at tick {self.node.last_tick + 1} of run {self.node.run}" if self.node.run else ""
@@ -91,6 +96,12 @@ class LockStep:
                     return 0
                 if message is None and self.unsaved() and not self.world.alive:  # gone without an end
                     self.keep_learning("its world left the bus")
+                    if self.config.once and not self.resumable():
+                        log.error(
+                            "run %s cannot go on: its world kept no checkpoint of it to resume from; --once ends here",
+                            self.node.run,
+                        )
+                        return 1
         except KeyboardInterrupt:  # Ctrl-C or SIGTERM mid-run: the learning so far is kept
             if self.unsaved():
                 self.keep_learning("the brain was interrupted")

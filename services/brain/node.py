@@ -62,6 +62,7 @@ class BrainNode:
         self.run: str | None = None  # the run served, as its sensor messages name it
         self.last_answer: Motor | None = None
         self.warned = False  # said that the world keeps checkpoints and this brain does not
+        self.kept_by_world = ""  # the last run whose world said it keeps a checkpoint (one it may resume)
         self.quiet_s, self.heard_at = quiet_s, 0.0  # when the run served last asked (monotonic)
 
     @property
@@ -175,6 +176,7 @@ class BrainNode:
         if self.last_tick >= 0 and message.tick != self.last_tick + 1:
             log.info("joined at tick %d (last seen %d)", message.tick, self.last_tick)
         if message.checkpoint:
+            self.kept_by_world = message.run
             self.keep_checkpoint(message.tick)
         actions = self.running.step(values)
         self.last_tick, self.stepped = message.tick, True
