@@ -48,10 +48,10 @@ def one_run(ticks: int, record: bool, folder: Path) -> dict:
             recorder.wait(300)
             result["lag_s"] = round(time.monotonic() - world_done, 2)
             line = (folder / "recorder.log").read_text()
-            found = re.search(r"(\d+) messages in ([\d.]+) s, (\d+) messages/s", line)
+            found = re.search(r"(\d+) messages in ([\d.]+) s, ([\d,.]+) messages/s", line)
             if found is None:
                 raise SystemExit(f"the recorder did not say how many messages it took: {line[-500:]}")
-            result["messages"], result["messages_per_s"] = int(found.group(1)), int(found.group(3))
+            result["messages"], result["messages_per_s"] = int(found.group(1)), float(found.group(3).replace(",", ""))
             result["file_mb"] = round((folder / "recording.rrd").stat().st_size / 1e6, 2)
     return result
 
