@@ -220,7 +220,7 @@ def test_the_lead_lost_mid_run_ends_the_once_brains_that_served_it(tmp_path):
         for j, brain in enumerate(shards, 1):
             assert finish(brain, 30, tmp_path / f"brain{j}.log") == 1
             log = (tmp_path / f"brain{j}.log").read_text()
-            assert "its world kept no checkpoint of it to resume from; --once ends here" in log
+            assert "its world left the bus 5 s ago and kept no checkpoint of it to resume from; --once ends here" in log
             assert re.search(r"weights so far saved to \S+weights\d-\w+-tick\d+\.npz", log)
     finally:
         for process in (*worlds, *shards, router):

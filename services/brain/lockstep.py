@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import logging
+import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -22,6 +23,7 @@ if TYPE_CHECKING:  # the service module, which starts this one
     from .service import BrainConfig
 
 log = logging.getLogger("spikinglab.brain")
+GONE_S = 5.0  # on a router without its world (which kept no checkpoint) this long: a --once brain ends
 
 
 class LockStep:
@@ -33,6 +35,7 @@ class LockStep:
         self.nodes: dict[int, BrainNode] = {}  # by the first agent of the piece each serves
         self.idle = new_node()  # what `node` is before a run's first piece
         self.kept: tuple | None = None  # (run, ticks) whose learning was saved when the run stopped without its end
+        self.router_since: float | None = None  # on a router, its world gone, since (world_gone_for_good)
         group = bus.group
         self.sensors = bus.inbox(keys.sensors(group, config.shard), Sensors)
         self.control = bus.inbox(keys.control(group), Control)
@@ -46,10 +49,21 @@ class LockStep:
         """The node of the first piece served (the only one unless the world is sharded)."""
         return self.nodes[min(self.nodes)] if self.nodes else self.idle
 
-    def resumable(self) -> bool:
-        """Whether the world of the run served kept a checkpoint of it, so that it may come back
-        to go on (the same command resumes it) rather than start a run anew."""
-        return any(n.run and n.kept_by_world == n.run for n in self.nodes.values())
+    def world_gone_for_good(self) -> bool:
+        """Whether the world of the run served left the bus and cannot come back to go on: it kept
+        no checkpoint of the run, and this brain has been on a router without it for GONE_S. A
+        world behind a router that died comes back with the router, so the time counts from when
+        this brain last reached a router; peers only (the world its link), it may come back too."""
+        node = self.node
+        if self.world.alive or not node.run or node.kept_by_world == node.run or self.kept != self.progress():
+            self.router_since = None
+            return False
+        if not list(self.bus.session.info.routers_zid()):
+            self.router_since = None
+            return False
+        if self.router_since is None:
+            self.router_since = time.monotonic()
+        return time.monotonic() - self.router_since >= GONE_S
 
     def where(self) -> str:
         """The tick this brain has reached, for the news of others joining or leaving."""
@@ -96,12 +110,14 @@ class LockStep:
                     return 0
                 if message is None and self.unsaved() and not self.world.alive:  # gone without an end
                     self.keep_learning("its world left the bus")
-                    if self.config.once and not self.resumable():
-                        log.error(
-                            "run %s cannot go on: its world kept no checkpoint of it to resume from; --once ends here",
-                            self.node.run,
-                        )
-                        return 1
+                if self.config.once and self.world_gone_for_good():
+                    log.error(
+                        "run %s cannot go on: its world left the bus %.0f s ago and kept no checkpoint of it "
+                        "to resume from; --once ends here",
+                        self.node.run,
+                        GONE_S,
+                    )
+                    return 1
         except KeyboardInterrupt:  # Ctrl-C or SIGTERM mid-run: the learning so far is kept
             if self.unsaved():
                 self.keep_learning("the brain was interrupted")

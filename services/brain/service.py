@@ -62,14 +62,7 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--load", type=Path, help="start from the weights in this checkpoint (.npz)")
     p.add_argument("--save", type=Path, help="write the final weights here (.npz) when the run ends")
-    p.add_argument(
-        "--once",
-        action="store_true",
-        help=(
-            "exit after one run ends (default: serve the next run); exit 1 when its world left the bus "
-            "before the end and kept no checkpoint to resume the run from"
-        ),
-    )
+    p.add_argument("--once", action="store_true", help="exit after one run ends (default: serve the next run)")
     p.add_argument(
         "--shard",
         type=shard,
