@@ -2,8 +2,8 @@
 
 Shard 1 leads: it names the run (its id, on keys.world_run, until every other shard is on the
 bus) with the options every shard must share (RunTerms; a shard whose own differ says which and
-does not join), and ends it (Control "end" to the brains and the other shards) once every other shard has
-finished its ticks (said by a liveliness token, world-<I>of<N>-done). Each shard writes
+does not join), and ends it (Control "end" to the brains and the other shards) once every other
+shard has finished its ticks (said by a liveliness token, world-<I>of<N>-done). Each shard writes
 metrics-<I>of<N>.json to its --out; the lead merges those it finds in its own --out into
 metrics.json (one summary where the shards share a folder). docs/shards.md.
 """
@@ -18,12 +18,13 @@ from pathlib import Path
 
 from services.bus import keys
 from services.bus.schemas import Control, RunTerms
-from services.bus.transport import Bus, Inbox, Outbox
+from services.bus.transport import Bus, Inbox, Outbox, Presence
 
 from .options import WorldOptions
 
 log = logging.getLogger("spikinglab.world")
 SAY_EVERY = 5.0  # seconds between "waiting for ..." lines
+DUPLICATE_S = 2.0  # how long a starting shard watches for another process alive as that shard
 INTERRUPTED_WAIT_S = 3.0  # a run cut short: how long the lead waits for the others to stop at its end
 
 # per-agent lists of metrics.json, in the population's order when the shards' are joined
@@ -93,11 +94,11 @@ class ShardsDisagree(ValueError):
 def differences(mine: RunTerms, lead: RunTerms) -> list[str]:
     """Each option on which this shard and the lead differ, as '--seed 7 here, 5 at world shard 1'."""
 
-    def shown(value) -> str:
-        return "none" if value in ("", None) else str(value)
+    def shown(field: str, value) -> str:  # a digest by its first 12 digits, as git shows a commit
+        return "none" if value in ("", None) else str(value)[:12] if field in ("map", "params") else str(value)
 
     return [
-        f"{option} {shown(getattr(mine, field))} here, {shown(getattr(lead, field))} at world shard 1"
+        f"{option} {shown(field, getattr(mine, field))} here, {shown(field, getattr(lead, field))} at world shard 1"
         for field, option in OPTION.items()
         if getattr(mine, field) != getattr(lead, field)
     ]
@@ -105,9 +106,13 @@ def differences(mine: RunTerms, lead: RunTerms) -> list[str]:
 
 def already_on_the_bus(session, group: str, shard: tuple[int, int]) -> bool:
     """Whether a process is alive as this world shard already (one started twice would step its
-    slice twice, and a second lead would name a second run): asked of the bus, within a second."""
-    replies = session.liveliness().get(keys.alive(group, service_name(shard)), timeout=1.0)
-    return any(reply.ok is not None for reply in replies)
+    slice twice, and a second lead would name a second run): the tokens on the bus come to a new
+    watch within moments, not at once (a liveliness query just after joining missed one in six)."""
+    watch = Presence(session, group, service_name(shard))
+    try:
+        return watch.wait(timeout=DUPLICATE_S)
+    finally:
+        watch.close()
 
 
 def lead(bus: Bus, named: RunTerms, shard: tuple[int, int]) -> None:
