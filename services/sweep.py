@@ -24,7 +24,8 @@ from services.learning import PAPER, all_definitions, noxious_ticks, plot_table1
 from services.loop import population
 from services.options import Parser, add_netlogo_seed, at_least, positive
 from services.world.netlogo_setup import spikinglab_setup
-from services.world.world import BIN, PRESETS, params_for
+from services.world.options import add_learned_after, add_preset
+from services.world.world import BIN, params_for
 
 
 def sweep(
@@ -262,19 +263,8 @@ def parser() -> Parser:
         default=150_000,
         help=f"ticks per seed, at least one bin of {BIN:,} (default 150,000)",
     )
-    p.add_argument(
-        "--preset",
-        choices=sorted(PRESETS),
-        default="paper",
-        help="the insect's steps: the paper's, or the NetLogo source's (default paper)",
-    )
-    p.add_argument(
-        "--learned-after",
-        type=at_least(1),
-        default=5000,
-        metavar="TICKS",
-        help="learned: this many ticks in a row off noxious patches (default 5,000; docs/world.md)",
-    )
+    add_preset(p)
+    add_learned_after(p)
     add_netlogo_seed(
         p,
         "every insect in the arena and first heading of the SpikingLab source's setup after "

@@ -16,18 +16,34 @@ from .netlogo_setup import spikinglab_setup
 from .world import PRESETS, World, map_world, params_for
 
 
+def add_preset(p) -> None:
+    """--preset, the world's and the sweep's."""
+    p.add_argument(
+        "--preset",
+        choices=sorted(PRESETS),
+        default="paper",
+        help="rotation and move steps: paper (5 deg, 1 patch, default) or netlogo (4 deg, 0.4 patch)",
+    )
+
+
+def add_learned_after(p) -> None:
+    """--learned-after, the world's and the sweep's."""
+    p.add_argument(
+        "--learned-after",
+        type=at_least(1),
+        default=5000,
+        metavar="TICKS",
+        help="collision-free ticks that count as learned (default 5,000; docs/world.md)",
+    )
+
+
 def add_world_args(p: argparse.ArgumentParser) -> None:
     w = p.add_argument_group("world")
     w.add_argument("--ticks", type=at_least(1), default=40_000, help="ticks to run (default %(default)s)")
     w.add_argument("--seed", type=at_least(0), default=0, help="world seed: maps and headings (agent a uses seed + a)")
     w.add_argument("--agents", type=at_least(1), default=1, help="insects stepped together (default 1)")
     w.add_argument("--shared", action="store_true", help="all agents share one arena (default: one each)")
-    w.add_argument(
-        "--preset",
-        choices=sorted(PRESETS),
-        default="paper",
-        help="rotation and move steps: paper (5 deg, 1 patch, default) or netlogo (4 deg, 0.4 patch)",
-    )
+    add_preset(w)
     w.add_argument("--map", type=Path, help="a text map file instead of the generated arena (docs/world.md)")
     add_netlogo_seed(
         w,
@@ -35,12 +51,7 @@ def add_world_args(p: argparse.ArgumentParser) -> None:
         "(its own: 7850), for every agent (docs/netlogo-random.md)",
     )
     w.add_argument("--no-training", action="store_true", help="no push on noxious patches (test mode)")
-    w.add_argument(
-        "--learned-after",
-        type=at_least(1),
-        default=5000,
-        help="collision-free ticks that count as learned (default 5,000)",
-    )
+    add_learned_after(w)
     w.add_argument(
         "--params",
         type=Path,
