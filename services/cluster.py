@@ -58,7 +58,7 @@ def connected(address: str):
         from distributed import Client
     except ImportError:
         raise ClusterError("a cluster needs Dask distributed: pip install 'spikinglab[cluster]'") from None
-    greets(address, found[1].strip("[]"), int(found[2]))
+    require_scheduler(address, found[1].strip("[]"), int(found[2]))
     try:
         client = Client(address, timeout=CONNECT_S, set_as_default=False)
     except (OSError, TimeoutError) as e:
@@ -71,7 +71,7 @@ def connected(address: str):
         yield client
 
 
-def greets(address: str, host: str, port: int) -> None:
+def require_scheduler(address: str, host: str, port: int) -> None:
     """ClusterError unless a Dask scheduler at host:port says who it is within CONNECT_S: the
     client's connect waits for Dask's greeting without end (a silent port, such as the scheduler's
     dashboard given for the scheduler, would hang a study), reads any other server's bytes as

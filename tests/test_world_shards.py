@@ -192,8 +192,8 @@ def test_a_world_shard_lost_mid_run_ends_the_lead_with_an_error(tmp_path):
     bus = ("--group", "wl", "--connect", endpoint(tmp_path, "router"))
     router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
     worlds, shards = start_shards(tmp_path, bus, made, 1, "--ticks", 20_000)
-    try:
-        wait_for(lambda: " run " in (tmp_path / "world2.log").read_text(), 120, "the run to start")
+    try:  # the lead says the run's ticks and seed once every shard has joined
+        wait_for(lambda: " ticks, seed " in (tmp_path / "world1.log").read_text(), 120, "the run to start")
         time.sleep(0.5)
         worlds[1].kill()
         assert finish(worlds[0], 120, tmp_path / "world1.log") == 1
@@ -207,7 +207,8 @@ def test_a_world_shard_lost_mid_run_ends_the_lead_with_an_error(tmp_path):
 
 def test_the_lead_lost_mid_run_ends_the_once_brains_that_served_it(tmp_path):
     """kill -9 of world shard 1: a sharded world keeps no checkpoints, so no run comes back to go
-    on; each `--once` brain shard keeps its learning so far, says so and ends (exit 1), not waits."""
+    on; each `--once` brain shard keeps its learning so far, says so and ends (exit 1), not waits,
+    and world shard 2 runs its ticks, then ends with exit 1: no lead ended the run."""
     made = options(tmp_path)
     bus = ("--group", "wk", "--connect", endpoint(tmp_path, "router"))
     router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
@@ -217,10 +218,12 @@ def test_the_lead_lost_mid_run_ends_the_once_brains_that_served_it(tmp_path):
             wait_for(lambda log=log: "brain for" in log.read_text(), 120, f"{log.name} to say it serves")
         time.sleep(0.5)
         worlds[0].kill()
+        assert finish(worlds[1], 120, tmp_path / "world2.log") == 1
+        assert "world shard 1 left the bus before it ended the run" in (tmp_path / "world2.log").read_text()
         for j, brain in enumerate(shards, 1):
-            assert finish(brain, 30, tmp_path / f"brain{j}.log") == 1
+            assert finish(brain, 60, tmp_path / f"brain{j}.log") == 1
             log = (tmp_path / f"brain{j}.log").read_text()
-            assert "its world left the bus 5 s ago and kept no checkpoint of it to resume from; --once ends here" in log
+            assert "kept no checkpoint of it to resume from and has not come back in 15 s; --once ends here" in log
             assert re.search(r"weights so far saved to \S+weights\d-\w+-tick\d+\.npz", log)
     finally:
         for process in (*worlds, *shards, router):

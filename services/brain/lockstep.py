@@ -23,7 +23,7 @@ if TYPE_CHECKING:  # the service module, which starts this one
     from .service import BrainConfig
 
 log = logging.getLogger("spikinglab.brain")
-GONE_S = 5.0  # on a router without its world (which kept no checkpoint) this long: a --once brain ends
+GONE_S = 15.0  # on a router without its world (which kept no checkpoint) this long: a --once brain ends
 
 
 class LockStep:
@@ -51,11 +51,13 @@ class LockStep:
 
     def world_gone_for_good(self) -> bool:
         """Whether the world of the run served left the bus and cannot come back to go on: it kept
-        no checkpoint of the run, and this brain has been on a router without it for GONE_S. A
+        no checkpoint of the run, and this brain has been on a router without it for GONE_S (a
+        gateway's run, with no world seen, never is). A
         world behind a router that died comes back with the router, so the time counts from when
         this brain last reached a router; peers only (the world its link), it may come back too."""
         node = self.node
-        if self.world.alive or not node.run or node.kept_by_world == node.run or self.kept != self.progress():
+        stopped = node.run and self.kept == self.progress()  # its learning kept: it stopped without its end
+        if self.world.alive or not self.world.seen or not stopped or node.kept_by_world == node.run:
             self.router_since = None
             return False
         if not list(self.bus.session.info.routers_zid()):
@@ -112,8 +114,8 @@ class LockStep:
                     self.keep_learning("its world left the bus")
                 if self.config.once and self.world_gone_for_good():
                     log.error(
-                        "run %s cannot go on: its world left the bus %.0f s ago and kept no checkpoint of it "
-                        "to resume from; --once ends here",
+                        "run %s cannot go on: its world left the bus, kept no checkpoint of it to resume from "
+                        "and has not come back in %.0f s; --once ends here",
                         self.node.run,
                         GONE_S,
                     )

@@ -310,7 +310,8 @@ def check_slice(first: int, agents: int, population: int, shards: int, what: str
         )
 
 
-Name = Annotated[str, msgspec.Meta(max_length=64)]
+Preset = Annotated[str, msgspec.Meta(max_length=64)]  # a world preset's name
+ShardCount = Annotated[int, msgspec.Meta(ge=1, lt=2**31)]
 Digest = Annotated[str, msgspec.Meta(pattern="^([0-9a-f]{64})?$")]  # a file's SHA-256, "" for no file
 NetLogoSeed = Annotated[int, msgspec.Meta(ge=-(2**31), lt=2**31)]  # NetLogo's random-seed: a Java int
 
@@ -321,11 +322,11 @@ class RunTerms(Message, tag="run_terms", frozen=True, kw_only=True):
 
     run: RunId
     agents: Population
-    world_shards: Population
-    brain_shards: Population
+    world_shards: ShardCount
+    brain_shards: ShardCount
     seed: Seed
     ticks: Tick
-    preset: Name
+    preset: Preset
     learned_after: Tick
     training: bool
     netlogo_seed: NetLogoSeed | None = None

@@ -187,9 +187,10 @@ def run_on(
     result["rejected_messages"] = bus.rejections()
     result["partial"] = world.tick < ticks
     log.info("%d ticks in %.1f s (%.0f ticks/s); %s", world.tick, elapsed, result["ticks_per_s"], outcome(result))
-    finish(config, result, trajectory, world.tick)
-    if lead_ended is not None:  # its metrics written: the lead may end the run
-        shards.finished(bus, shard, lead_ended)
+    finish(config, result, trajectory, world.tick, lost)
+    if lead_ended is not None and not shards.finished(bus, shard, lead_ended):  # its metrics written: the lead may end
+        log.error("world shard 1 left the bus before it ended the run: the run has no whole result")
+        return 1
     if lost:
         log.error("%s left the bus before the end of its ticks: the run has no result for its insects", ", ".join(lost))
         return 1
@@ -247,8 +248,8 @@ def steady_rate(brains: Brains, start: int, done: int, started: float, elapsed: 
     }
 
 
-def finish(config: WorldConfig, result: dict, trajectory: Trajectory, done: int) -> None:
-    """The checkpoints settled and the results written (--out)."""
+def finish(config: WorldConfig, result: dict, trajectory: Trajectory, done: int, lost: list[str]) -> None:
+    """The checkpoints settled and the results written (--out); `lost`: world shards lost (the lead's)."""
     folder, out = config.checkpoint, config.out
     if folder and done == config.world.ticks:
         checkpoint.forget(folder)
@@ -260,7 +261,7 @@ def finish(config: WorldConfig, result: dict, trajectory: Trajectory, done: int)
         if shard[1] > 1:
             (out / f"metrics-{keys.shard_name(shard)}.json").write_text(json.dumps(result))
             if shard[0] == 1:  # the others have finished and left: theirs are written
-                shards.merge_metrics(out, shard[1])
+                shards.merge_metrics(out, shard[1], lost)
         else:
             (out / "metrics.json").write_text(json.dumps(result))
         if done and shard[0] == 1:  # agent 0's path

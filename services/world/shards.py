@@ -193,20 +193,28 @@ class LeadsEnd:
         return self.came
 
 
-def finished(bus: Bus, shard: tuple[int, int], lead_ended: LeadsEnd) -> None:
-    """Another shard's end of the run: say it has finished, and wait for the lead to end the run
-    (or to leave the bus)."""
+def finished(bus: Bus, shard: tuple[int, int], lead_ended: LeadsEnd) -> bool:
+    """Another shard's end of the run: say it has finished, and wait for the lead to end the run;
+    False when the lead left the bus without ending it."""
     lead = bus.presence("world")
     token = bus.session.liveliness().declare_token(keys.alive(bus.group, service_name(shard) + "-done"))
     try:
         while not lead_ended() and lead.wait(timeout=1.0):  # (its token known within a moment of subscribing)
             time.sleep(0.02)
+        last_word = time.monotonic() + 1.0  # an end sent as the lead left may come just after its token went
+        while not lead_ended() and time.monotonic() < last_word:
+            time.sleep(0.02)
+        return lead_ended()
     finally:
         token.undeclare()
 
 
-def merge_metrics(out: Path, shards: int) -> None:
-    """metrics.json of the whole population from the shards' metrics-<I>of<N>.json in `out`."""
+def merge_metrics(out: Path, shards: int, lost: list[str]) -> None:
+    """metrics.json of the whole population from the shards' metrics-<I>of<N>.json in `out`; none
+    where a shard was `lost` (a file of its in `out` is an earlier run's)."""
+    if lost:
+        (out / "metrics.json").unlink(missing_ok=True)
+        return
     paths = [out / f"metrics-{keys.shard_name((i, shards))}.json" for i in range(1, shards + 1)]
     missing = [p.name for p in paths if not p.exists()]
     if missing:
