@@ -254,6 +254,7 @@ def test_kill_9_then_the_same_commands_resume_the_run_tick_for_tick(tmp_path, vi
     try:
         kept = tmp_path / "world-kept" / "world.npz"
         wait_for(lambda: kept.exists() and snapshots.read(kept)[1]["tick"] >= 2 * every, 120, "a second checkpoint")
+        time.sleep(0.1)  # the brain past the checkpoint, so a brain that lives has to go back to it
         for victim in victims:
             processes[victim].kill()
             processes[victim].wait()
@@ -269,7 +270,11 @@ def test_kill_9_then_the_same_commands_resume_the_run_tick_for_tick(tmp_path, vi
             process.kill()
     assert f"resumed at tick {resumed_at}" in (tmp_path / "world2.log").read_text()
     brain_log = (tmp_path / f"brain{len(victims)}.log").read_text()
-    assert f"resumed at tick {resumed_at}" in brain_log and "afresh" not in brain_log
+    assert "afresh" not in brain_log
+    # a brain that lives goes back unless the kill came just as it answered the checkpoint's tick
+    # (the world asks that tick again, the brain answers it as before); a new one always loads it
+    went_back = f"resumed at tick {resumed_at}" in brain_log
+    assert went_back or (victims == ("world",) and "resumed at tick" not in brain_log), brain_log
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["resumed_at"] == resumed_at
     undisturbed = metrics_of(world, ticks, 1.0)
