@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import datetime
 import json
+import signal
 import sys
+from contextlib import contextmanager
 from functools import partial
 from pathlib import Path
 
@@ -290,39 +292,80 @@ def parser() -> Parser:
 
 def main(argv=None) -> int:
     p = parser()
-    args = p.parse_args(argv)
     try:
-        check_seeds_differ(args.netlogo_seed, args.semantics, args.order)
-        if args.device != "cpu":
-            check_device(args.device, args.cluster)
-        if args.netlogo_seed is not None:
-            spikinglab_setup(args.netlogo_seed, params_for(args.preset))  # its range and arena, before any run
-    except (ValueError, RuntimeError) as e:
-        p.error(str(e))
+        args = p.parse_args(argv)
+        try:
+            check_seeds_differ(args.netlogo_seed, args.semantics, args.order)
+            if args.device != "cpu":
+                check_device(args.device, args.cluster)
+            if args.netlogo_seed is not None:
+                spikinglab_setup(args.netlogo_seed, params_for(args.preset))  # its range and arena, before any run
+        except (ValueError, RuntimeError) as e:
+            p.error(str(e))
+    except KeyboardInterrupt:
+        print("spikinglab sweep: interrupted, no table written", file=sys.stderr)
+        return 130
+    return run_into_folder(args)
+
+
+RESULTS = ("table.md", "table.json", "learning.png", "table1.png")  # a sweep's files in its folder
+
+
+def run_into_folder(args) -> int:
+    """The sweep, its table and figures written to its folder all together or not at all: each under
+    a temporary name first (a figure keeps its suffix, which names its format), then renamed."""
     folder = args.runs / (args.id or f"sweep-{datetime.datetime.now():%Y%m%d-%H%M%S}")
     created = not folder.exists()
-    folder.mkdir(parents=True, exist_ok=True)
+    unfinished = {name: folder / f".partial-{name}" for name in RESULTS}
+    written = False
+    on_ctrl_c = signal.getsignal(signal.SIGINT)
     try:
+        folder.mkdir(parents=True, exist_ok=True)
         rows = run_with_progress(args)
-    except (ClusterError, KeyboardInterrupt) as e:
-        if created:
-            folder.rmdir()
-        if isinstance(e, KeyboardInterrupt):  # Ctrl-C: the population's table comes at its end only
-            print("spikinglab sweep: interrupted, no table written", file=sys.stderr)
-            return 130
+        text = table(rows, args.learned_after)
+        unfinished["table.md"].write_text(text + "\n")
+        unfinished["table.json"].write_text(json.dumps(rows, indent=1))
+        plot(rows, unfinished["learning.png"])
+        plot_table1(rows, "project", unfinished["table1.png"])
+        with ctrl_c_held():  # one rename cannot be cut in half, four can
+            for name, path in unfinished.items():
+                path.replace(folder / name)
+            written = True
+        print(text)
+        print(
+            f"\nwritten to {folder}/: table.md, table.json, learning.png (collisions over time), "
+            f"table1.png (against the paper)"
+        )
+        return 0
+    except ClusterError as e:
         print(f"spikinglab sweep: {e}", file=sys.stderr)
         return 1
-    text = table(rows, args.learned_after)
-    (folder / "table.md").write_text(text + "\n")
-    (folder / "table.json").write_text(json.dumps(rows, indent=1))
-    plot(rows, folder / "learning.png")
-    plot_table1(rows, "project", folder / "table1.png")
-    print(text)
-    print(
-        f"\nwritten to {folder}/: table.md, table.json, learning.png (collisions over time), "
-        f"table1.png (against the paper)"
-    )
-    return 0
+    except KeyboardInterrupt:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut the ending short
+        said = f"the table is written to {folder}/" if written else "no table written"
+        print(f"spikinglab sweep: interrupted, {said}", file=sys.stderr)
+        return 130
+    finally:
+        if not written:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            for path in unfinished.values():
+                path.unlink(missing_ok=True)
+            if created and folder.exists():
+                folder.rmdir()
+        signal.signal(signal.SIGINT, on_ctrl_c)
+
+
+@contextmanager
+def ctrl_c_held():
+    """Ctrl-C within the block raises KeyboardInterrupt at its end, not inside it."""
+    came: list[int] = []
+    on_ctrl_c = signal.signal(signal.SIGINT, lambda signum, frame: came.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, on_ctrl_c)
+    if came:
+        raise KeyboardInterrupt
 
 
 if __name__ == "__main__":

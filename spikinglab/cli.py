@@ -57,6 +57,9 @@ def main(argv: list[str] | None = None) -> None:
             file=sys.stderr,
         )
         sys.exit(2)
+    except KeyboardInterrupt:  # Ctrl-C while the command's modules load: nothing of it has begun
+        print(f"spikinglab {name}: interrupted", file=sys.stderr)
+        sys.exit(130)
     code = command.main(rest)
     sys.exit(code if isinstance(code, int) else 0)  # benchmarks return their figures
 

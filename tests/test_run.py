@@ -15,7 +15,7 @@ from services.bus.batching import state_batch
 from services.run_report import learning_rate, paper_time, rates_text
 from spikinglab.bench.fuzz import KEY_OF
 
-from .processes import ROOT, running_with, wait_for_ticks
+from .processes import ROOT, running_with, wait_for, wait_for_ticks
 
 
 def spikinglab(*args, timeout=180):
@@ -130,6 +130,28 @@ def test_sweep_writes_the_table(tmp_path):
     assert [r["a_plus"] for r in rows] == [0.02, 0.04] and all(len(r["learning_time"]) == 2 for r in rows)
     assert "| 0.04 | 7,000 |" in (tmp_path / "s" / "table.md").read_text()
     assert (tmp_path / "s" / "learning.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_ctrl_c_while_the_sweep_writes_leaves_its_table_whole_or_absent(tmp_path):
+    """Ctrl-C as the sweep's first file appears (its figures take some tenths of a second more): one
+    line and exit 130, and the folder holds the whole table and figures or none of them."""
+    args = ("sweep", "--a-plus", "0.02", "--seeds", "1", "--ticks", "1000", "--runs", tmp_path, "--id", "s")
+    sweep = subprocess.Popen(
+        [sys.executable, "-m", "spikinglab", *map(str, args)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    folder = tmp_path / "s"
+    wait_for(lambda: folder.exists() and any(folder.iterdir()), 180, "the sweep to write its first file")
+    sweep.send_signal(signal.SIGINT)
+    _, err = sweep.communicate(timeout=60)
+    said = err.decode()
+    assert sweep.returncode == 130, said
+    assert "Traceback" not in said
+    assert said.splitlines()[-1] in (
+        "spikinglab sweep: interrupted, no table written",
+        f"spikinglab sweep: interrupted, the table is written to {folder}/",
+    )
+    found = sorted(p.name for p in folder.iterdir()) if folder.exists() else []
+    assert found in ([], ["learning.png", "table.json", "table.md", "table1.png"])
 
 
 def test_benchmarks_run_and_end_with_json():
