@@ -20,11 +20,23 @@ class UsageError(Exception):
 class Parser(argparse.ArgumentParser):
     """argparse, but a usage error is one line naming the option and what was wrong (exit 2), and
     options are spelled out (no abbreviations: `--tick` is not silently `--ticks`). With
-    exit_on_error = False, errors raise (argparse.ArgumentError or UsageError) instead."""
+    exit_on_error = False, errors raise (argparse.ArgumentError or UsageError) instead. `together`:
+    checks of the parsed options that raise ValueError, naming the option, where values that are
+    each fine do not go together (`--shard 1/9` of `--agents 4`): usage errors too."""
 
-    def __init__(self, *args, **kwargs):
+    def __init__(self, *args, together: typing.Sequence[typing.Callable[[argparse.Namespace], None]] = (), **kwargs):
         kwargs.setdefault("allow_abbrev", False)
         super().__init__(*args, **kwargs)
+        self.together = together
+
+    def parse_known_args(self, args=None, namespace=None):  # parse_args' too
+        parsed, extras = super().parse_known_args(args, namespace)
+        for check in self.together:
+            try:
+                check(parsed)
+            except ValueError as e:
+                self.error(str(e))
+        return parsed, extras
 
     def error(self, message: str):
         if not self.exit_on_error:

@@ -29,6 +29,7 @@ def files(tmp_path_factory):
     (folder / "not.rrd").write_text("not a recording\n")
     (folder / "typo.toml").write_text("[world]\ntick = 2000\n")
     (folder / "badvalue.toml").write_text("[world]\nticks = 0\n")
+    (folder / "manyshards.toml").write_text('[world]\nagents = 2\nshard = "1/3"\n')
     (folder / "noservice.toml").write_text("[mind]\nonce = true\n")
     (folder / "broken.toml").write_text("[world\nticks = 2000\n")
     (folder / "broken.json5").write_text('{mode: "client",, }\n')
@@ -115,6 +116,20 @@ ARGUMENTS = [
         2,
         "argument --shard: must be I/N with 1 <= I <= N (e.g. 2/3), got '4/3'",
     ),
+    ("world shard of no shards", "world --shard 1/0", 2, "argument --shard: must be I/N with 1 <= I <= N"),
+    ("world shard not I/N", "world --shard 2of3", 2, "argument --shard: must be I/N with 1 <= I <= N"),
+    (
+        "more world shards than agents",
+        "world --shard 1/9 --agents 4",
+        2,
+        "argument --shard: 9 world shards of 4 agents (--agents), got '1/9': at most one shard per agent",
+    ),
+    (
+        "more brain shards than agents",
+        "world --shards 3 --agents 2",
+        2,
+        "argument --shards: 3 brain shards of 2 agents (--agents): at most one shard per agent",
+    ),
     (
         "zenoh config missing",
         "world --zenoh-config certs/world.json5",
@@ -185,7 +200,6 @@ CASES = [
         2,
         "a sharded brain serves a world in lock-step and does not publish its state",
     ),
-    ("more shards than agents", "world --shards 3 --agents 2", 2, "--shards 3: more brain shards than agents (2)"),
     ("port in use", "brain --listen tcp/127.0.0.1:{busy}", 1, "Address already in use"),
     ("zenoh config Zenoh refuses", "brain --zenoh-config {f}/badmode.json5", 1, "badmode.json5: "),
     ("certs where a file is", "certs {f}/occupied", 2, "occupied is a file, not a folder for the certificates"),
@@ -196,6 +210,12 @@ CASES = [
         "launch {f}/badvalue.toml",
         2,
         "badvalue.toml, [world]: argument --ticks: must be at least 1, got 0",
+    ),
+    (
+        "launch more world shards than agents",
+        "launch {f}/manyshards.toml",
+        2,
+        "manyshards.toml, [world]: argument --shard: 3 world shards of 2 agents (--agents), got '1/3'",
     ),
     (
         "launch brain params for other agents",

@@ -62,6 +62,25 @@ def add_world_args(p: argparse.ArgumentParser) -> None:
     )
 
 
+def check_shard_counts(agents: int, brain_shards: int, world_shard: tuple[int, int]) -> None:
+    """ValueError, naming the option, where a brain or world shard would have no agent of its own."""
+    if brain_shards > agents:
+        raise ValueError(
+            f"argument --shards: {brain_shards} brain shards of {agents:,} agents (--agents): "
+            "at most one shard per agent"
+        )
+    if world_shard[1] > agents:
+        raise ValueError(
+            f"argument --shard: {world_shard[1]} world shards of {agents:,} agents (--agents), got "
+            f"'{world_shard[0]}/{world_shard[1]}': at most one shard per agent"
+        )
+
+
+def shards_fit_agents(args: argparse.Namespace) -> None:
+    """The world command's check of --shards and --shard against --agents (Parser's `together`)."""
+    check_shard_counts(args.agents, args.shards, args.shard)
+
+
 @dataclass(frozen=True)
 class WorldOptions:
     """add_world_args' options, in the world's config (services.options.config_from; `run` makes
@@ -85,10 +104,7 @@ def world_from(options: WorldOptions, shards: int = 1, shard: tuple[int, int] = 
     insect (arena, heading, parameters) as in the world of the whole population."""
     if options.ticks < 1 or options.agents < 1:
         raise ValueError("--ticks and --agents must be >= 1")
-    if shards > options.agents:
-        raise ValueError(f"--shards {shards}: more brain shards than agents ({options.agents})")
-    if shard[1] > options.agents:
-        raise ValueError(f"--shard {shard[0]}/{shard[1]}: more world shards than agents ({options.agents})")
+    check_shard_counts(options.agents, shards, shard)
     if shard[1] > 1 and options.shared:
         raise ValueError("--shard: the insects of a --shared arena meet, so one world steps them all: drop --shard")
     params = params_for(options.preset, learned_after=options.learned_after)

@@ -32,7 +32,7 @@ from services.runtime import service_main
 from . import checkpoint, shards
 from .brains import Brains
 from .checkpoint import CHECKPOINT, PENDING, resume
-from .options import WorldOptions, add_world_args, world_from
+from .options import WorldOptions, add_world_args, shards_fit_agents, world_from
 from .results import Progress, Trajectory, metrics_of, outcome
 from .state import StateStream, world_map
 from .world import MapError, World
@@ -41,7 +41,7 @@ log = logging.getLogger("spikinglab.world")
 
 
 def parser() -> argparse.ArgumentParser:
-    p = Parser(prog="spikinglab world", description="The insect's world, on the bus.")
+    p = Parser(prog="spikinglab world", description="The insect's world, on the bus.", together=[shards_fit_agents])
     add_world_args(p)
     p.add_argument("--out", type=Path, help="write metrics.json (collisions over time, learning time, ...) here")
     p.add_argument(
