@@ -43,9 +43,10 @@ PUTS = {
 }
 # role -> the liveliness tokens (below spikinglab/<group>/alive/) its process may hold; a role not
 # named holds the one of its name. $* is any text within a chunk: the shards' tokens, "world-2of3"
-# (and "world-2of3-done" once it has run its ticks), "brain-2of3"
+# (and "world-2of3-done" once it has run its ticks, "world-2of3-waiting-<session id>" until it has
+# joined), "brain-2of3"
 TOKENS = {
-    "world": ("world", "world-$*of$*", "world-$*of$*-done"),
+    "world": ("world", "world-$*of$*", "world-$*of$*-done", "world-$*of$*-waiting-$*"),
     "brain": ("brain", "brain-$*of$*"),
 }
 EVERY_GROUP = f"{keys.PREFIX}/*"

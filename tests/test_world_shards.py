@@ -185,6 +185,42 @@ def test_a_world_shard_whose_options_differ_from_the_leads_says_which_and_stays_
             process.kill()
 
 
+def test_a_second_copy_of_a_world_shard_waiting_for_its_lead_stays_off(tmp_path):
+    """World shard 2 started twice before the lead: the copy finds the first waiting for the lead to
+    name the run and ends (exit 2) before it joins, where both would have joined; the first joins
+    the lead's run, which runs to its end with a result for every insect."""
+    made = options(tmp_path)
+    bus = ("--group", "wt", "--connect", endpoint(tmp_path, "router"))
+    router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
+    world = ("--ticks", TICKS, "--seed", SEED, "--agents", AGENTS, "--params", made.params, "--shards", 1)
+    first = start("world", *bus, *world, "--shard", "2/2", "--out", tmp_path, log=tmp_path / "world2.log")
+    processes = [router, first]
+    try:
+        wait_for(
+            lambda: "waiting for world shard 1/2 to name the run" in (tmp_path / "world2.log").read_text(),
+            60,
+            "world shard 2 to wait for its lead",
+        )
+        copy = start("world", *bus, *world, "--shard", "2/2", "--out", tmp_path, log=tmp_path / "copy.log")
+        processes.append(copy)
+        assert finish(copy, 60, tmp_path / "copy.log") == 2
+        said = (tmp_path / "copy.log").read_text()
+        assert "world shard 2/2 is on the bus of group wt already, waiting to join: each shard is one process" in said
+        lead = start("world", *bus, *world, "--shard", "1/2", "--out", tmp_path, log=tmp_path / "world1.log")
+        brain = start("brain", *bus, "--world-shards", 2, "--once", "--params", made.params, log=tmp_path / "brain.log")
+        processes += [lead, brain]
+        assert finish(lead, 120, tmp_path / "world1.log") == 0
+        assert finish(first, 60, tmp_path / "world2.log") == 0
+        assert finish(brain, 30, tmp_path / "brain.log") == 0
+    finally:
+        for process in processes:
+            process.kill()
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["agents"] == AGENTS and metrics["ticks"] == TICKS and not metrics["partial"]
+    for log in ("world1.log", "brain.log"):  # a shard's waiting token is no service coming or leaving
+        assert "-waiting-" not in (tmp_path / log).read_text()
+
+
 def test_a_world_shard_lost_mid_run_ends_the_lead_with_an_error(tmp_path):
     """kill -9 of world shard 2 mid-run: the lead runs its own slice to the end, then names the lost
     shard and exits 1 (no metrics.json: half the population has no result), not 0."""

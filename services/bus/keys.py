@@ -6,6 +6,9 @@ A insects stepped together (one message carries the whole batch). Default group:
 
 PREFIX = "spikinglab"
 DEFAULT_GROUP = "insect"
+# in a liveliness token's name, <service>-waiting-<session id>: a process that is to be that service
+# once it joins the bus (a world shard waiting for its lead), not on the bus as it yet
+WAITING = "-waiting-"
 
 
 def _check(group: str) -> str:

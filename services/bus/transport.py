@@ -13,6 +13,7 @@ import queue
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 
 import zenoh
 
@@ -249,6 +250,18 @@ class Presence:
         with self._changed:
             return self._changed.wait_for(lambda: bool(self._alive), timeout)
 
+    def first(self, which: Callable[[str], bool], timeout: float | None = None) -> str | None:
+        """Wait until a service whose name `which` accepts is alive (a watch of "*"); its name, or None."""
+        found: list[str] = []
+
+        def seen() -> bool:
+            found[:] = [name for name in (key.rsplit("/", 1)[-1] for key in self._alive) if which(name)]
+            return bool(found)
+
+        with self._changed:
+            self._changed.wait_for(seen, timeout)
+        return min(found) if found else None
+
     def close(self) -> None:
         self._sub.undeclare()
 
@@ -294,7 +307,7 @@ class Bus:
 
         def on_change(change: str, key: str) -> None:
             service = key.rsplit("/", 1)[-1]
-            if service == self.service:
+            if service == self.service or keys.WAITING in service:  # one waiting is said when it joins
                 return
             try:
                 context = where()

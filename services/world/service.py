@@ -112,22 +112,16 @@ def run(config: WorldConfig, session) -> int:
     except (MapError, ValueError) as e:
         log.error("%s", e)
         return 2
-    if config.shard[1] > 1 and shards.already_on_the_bus(session, config.bus.group, config.shard):
-        log.error(
-            "world shard %d/%d is on the bus of group %s already: each shard is one process",
-            *config.shard,
-            config.bus.group,
-        )
-        return 2
     named = None
-    if config.shard[0] > 1:
+    if config.shard[1] > 1:
         try:
             mine = shards.terms(config.world, "", config.shard[1], config.shards)
-            named = shards.follow(session, config.bus.group, config.shard, mine)
-        except shards.ShardsDisagree as e:
+            bus, named = shards.join(session, config.bus.group, config.shard, mine)
+        except (shards.ShardTwice, shards.ShardsDisagree) as e:
             log.error("%s", e)
             return 2
-    bus = Bus(session, config.bus.group, shards.service_name(config.shard))
+    else:
+        bus = Bus(session, config.bus.group, shards.service_name(config.shard))
     bus.watch_others(lambda: f" at tick {world.tick}")
     try:
         return run_on(bus, config, world, trajectory, resumed, named)

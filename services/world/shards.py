@@ -3,7 +3,9 @@
 Shard 1 leads: it names the run (its id, on keys.world_run, until every other shard is on the
 bus) with the options every shard must share (RunTerms; a shard whose own differ says which and
 does not join), and ends it (Control "end" to the brains and the other shards) once every other
-shard has finished its ticks (said by a liveliness token, world-<I>of<N>-done). Each shard writes
+shard has finished its ticks (said by a liveliness token, world-<I>of<N>-done). Until it has
+joined, each shard holds a token world-<I>of<N>-waiting-<session id>, and one that finds another
+process as its shard, on the bus or waiting to join, stays off. Each shard writes
 metrics-<I>of<N>.json to its --out; the lead merges those it finds in its own --out into
 metrics.json (one summary where the shards share a folder). docs/shards.md.
 """
@@ -24,7 +26,7 @@ from .options import WorldOptions
 
 log = logging.getLogger("spikinglab.world")
 SAY_EVERY = 5.0  # seconds between "waiting for ..." lines
-DUPLICATE_S = 2.0  # how long a starting shard watches for another process alive as that shard
+DUPLICATE_S = 2.0  # how long a starting shard watches for another process as that shard
 INTERRUPTED_WAIT_S = 3.0  # a run cut short: how long the lead waits for the others to stop at its end
 
 # per-agent lists of metrics.json, in the population's order when the shards' are joined
@@ -104,13 +106,51 @@ def differences(mine: RunTerms, lead: RunTerms) -> list[str]:
     ]
 
 
-def already_on_the_bus(session, group: str, shard: tuple[int, int]) -> bool:
-    """Whether a process is alive as this world shard already (one started twice would step its
-    slice twice, and a second lead would name a second run): the tokens on the bus come to a new
-    watch within moments, not at once (a liveliness query just after joining missed one in six)."""
-    watch = Presence(session, group, service_name(shard))
+class ShardTwice(ValueError):
+    """Another process is this world shard already, on the bus or waiting to join it."""
+
+
+def waiting_name(shard: tuple[int, int], session) -> str:
+    """The name a world shard holds from its start until it has joined: world-<I>of<N>-waiting-<its
+    session's id>, its own even beside a copy of it."""
+    return f"world-{keys.shard_name(shard)}{keys.WAITING}{session.info.zid()}"
+
+
+def join(session, group: str, shard: tuple[int, int], mine: RunTerms) -> tuple[Bus, str | None]:
+    """This world shard on the bus, and the run the lead names (None for the lead itself, which names
+    it; `mine`: this shard's RunTerms). ShardTwice where another process is this shard already (one
+    started twice would step its slice twice, and a second lead would name a second run);
+    ShardsDisagree where the lead's options differ. A shard other than the lead joins only once the
+    lead has named the run, so until it has joined it holds a waiting token, which a copy started
+    meanwhile finds as it would find the shard on the bus."""
+    waiting = session.liveliness().declare_token(keys.alive(group, waiting_name(shard, session)))
     try:
-        return watch.wait(timeout=DUPLICATE_S)
+        found = another_copy(session, group, shard)
+        if found is not None:
+            raise ShardTwice(
+                f"world shard {shard[0]}/{shard[1]} is on the bus of group {group} already"
+                f"{'' if found == service_name(shard) else ', waiting to join'}: each shard is one process"
+            )
+        named = follow(session, group, shard, mine) if shard[0] > 1 else None
+        return Bus(session, group, service_name(shard)), named
+    finally:  # joined, its own name says it from here on
+        waiting.undeclare()
+
+
+def another_copy(session, group: str, shard: tuple[int, int]) -> str | None:
+    """The name of another process that is this world shard (on the bus, or waiting to join), if one
+    is alive within DUPLICATE_S: the tokens on the bus come to a new watch within moments, not at once
+    (a liveliness query just after joining missed one in six). Each copy declares its waiting token
+    before it watches, so that of two started together each finds the other (and both end)."""
+    joined, own = service_name(shard), waiting_name(shard, session)
+    copies = own.rpartition("-")[0]  # its waiting name but for the session's id
+
+    def copy(name: str) -> bool:
+        return name == joined or (name.rpartition("-")[0] == copies and name != own)
+
+    watch = Presence(session, group, "*")
+    try:
+        return watch.first(copy, DUPLICATE_S)
     finally:
         watch.close()
 
@@ -138,8 +178,10 @@ def follow(session, group: str, shard: tuple[int, int], mine: RunTerms) -> str:
     lead's options differ from `mine`."""
     inbox = Inbox(session, keys.world_run(group), RunTerms)
     try:
-        while not isinstance(named := inbox.get(timeout=SAY_EVERY), RunTerms):
+        named = inbox.get(timeout=1.0)  # a lead on the bus names the run every 0.2 s
+        while not isinstance(named, RunTerms):
             log.info("world shard %d/%d: waiting for world shard 1/%d to name the run", *shard, shard[1])
+            named = inbox.get(timeout=SAY_EVERY)
         found = differences(mine, named)
         if found:
             raise ShardsDisagree(

@@ -245,6 +245,7 @@ TRIED_TOKENS = (
     "world",
     "world-2of3",
     "world-2of3-done",
+    "world-2of3-waiting-1f2e3d",
     "world-x",
     "brain",
     "brain-2of3",
@@ -255,7 +256,7 @@ TRIED_TOKENS = (
 ARRIVES = {
     "world": (
         {"sensors", "sensors/2of3", "control", "state/world", "state/map", "world/run"},
-        {"world", "world-2of3", "world-2of3-done"},
+        {"world", "world-2of3", "world-2of3-done", "world-2of3-waiting-1f2e3d"},
     ),
     "brain": ({"motor", "state/brain"}, {"brain", "brain-2of3"}),
     "gateway": ({"sensors", "control"}, {"gateway"}),
