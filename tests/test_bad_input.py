@@ -131,6 +131,18 @@ ARGUMENTS = [
         "argument --shards: 3 brain shards of 2 agents (--agents): at most one shard per agent",
     ),
     (
+        "world shard of a shared arena",
+        "world --shard 1/2 --agents 4 --shared",
+        2,
+        "argument --shard: got '1/2' with --shared: the insects of a shared arena meet",
+    ),
+    (
+        "world shard with checkpoints",
+        "world --shard 1/2 --agents 4 --checkpoint kept",
+        2,
+        "argument --shard: got '1/2' with --checkpoint: a sharded world keeps no checkpoints",
+    ),
+    (
         "zenoh config missing",
         "world --zenoh-config certs/world.json5",
         2,

@@ -22,7 +22,11 @@ SERVICES = {
     ),
     "gateway": (gateway.parser, gateway.GatewayConfig, ["--backend", "sim", "--sim-map", "m.txt", "--host", "00:16"]),
     "recorder": (recorder.parser, recorder.RecorderConfig, ["--detail", "0,3", "--viewer", "rerun+http://h:1/proxy"]),
-    "world": (world.parser, world.WorldConfig, ["--map", "m.txt", "--shards", "2", "--checkpoint", "c", "--out", "o"]),
+    "world": (
+        world.parser,
+        world.WorldConfig,
+        ["--map", "m.txt", "--agents", "2", "--shards", "2", "--checkpoint", "c", "--out", "o"],
+    ),
 }
 
 

@@ -71,7 +71,7 @@ def test_world_and_brain_shards_meet_in_pieces_that_cover_each_slice_once(agents
 
 
 def test_a_shared_arena_is_not_sharded(tmp_path):
-    with pytest.raises(ValueError, match="--shared arena meet"):
+    with pytest.raises(ValueError, match="with --shared: the insects of a shared arena meet"):
         world_from(options(tmp_path, shared=True), shard=(1, 2))
     with pytest.raises(ValueError, match="at most one shard per agent"):
         world_from(options(tmp_path, agents=2), shard=(1, 3))

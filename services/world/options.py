@@ -76,9 +76,25 @@ def check_shard_counts(agents: int, brain_shards: int, world_shard: tuple[int, i
         )
 
 
-def shards_fit_agents(args: argparse.Namespace) -> None:
-    """The world command's check of --shards and --shard against --agents (Parser's `together`)."""
+def check_shard_fits(shard: tuple[int, int], shared: bool) -> None:
+    """ValueError, naming the option, where a world shard cannot step its slice alone."""
+    if shard[1] > 1 and shared:
+        raise ValueError(
+            f"argument --shard: got '{shard[0]}/{shard[1]}' with --shared: the insects of a shared arena "
+            "meet, so one world steps them all: drop --shard"
+        )
+
+
+def shards_fit(args: argparse.Namespace) -> None:
+    """The world command's check of --shards and --shard against --agents and --shared, and of
+    --shard against --checkpoint (Parser's `together`)."""
     check_shard_counts(args.agents, args.shards, args.shard)
+    check_shard_fits(args.shard, args.shared)
+    if args.shard[1] > 1 and args.checkpoint:
+        raise ValueError(
+            f"argument --shard: got '{args.shard[0]}/{args.shard[1]}' with --checkpoint: a sharded world "
+            "keeps no checkpoints: drop --checkpoint"
+        )
 
 
 @dataclass(frozen=True)
@@ -105,8 +121,7 @@ def world_from(options: WorldOptions, shards: int = 1, shard: tuple[int, int] = 
     if options.ticks < 1 or options.agents < 1:
         raise ValueError("--ticks and --agents must be >= 1")
     check_shard_counts(options.agents, shards, shard)
-    if shard[1] > 1 and options.shared:
-        raise ValueError("--shard: the insects of a --shared arena meet, so one world steps them all: drop --shard")
+    check_shard_fits(shard, options.shared)
     params = params_for(options.preset, learned_after=options.learned_after)
     grid = None
     if options.map:

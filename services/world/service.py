@@ -32,7 +32,7 @@ from services.runtime import service_main
 from . import checkpoint, shards
 from .brains import Brains
 from .checkpoint import CHECKPOINT, PENDING, resume
-from .options import WorldOptions, add_world_args, shards_fit_agents, world_from
+from .options import WorldOptions, add_world_args, shards_fit, world_from
 from .results import Progress, Trajectory, metrics_of, outcome
 from .state import StateStream, world_map
 from .world import MapError, World
@@ -41,7 +41,7 @@ log = logging.getLogger("spikinglab.world")
 
 
 def parser() -> argparse.ArgumentParser:
-    p = Parser(prog="spikinglab world", description="The insect's world, on the bus.", together=[shards_fit_agents])
+    p = Parser(prog="spikinglab world", description="The insect's world, on the bus.", together=[shards_fit])
     add_world_args(p)
     p.add_argument("--out", type=Path, help="write metrics.json (collisions over time, learning time, ...) here")
     p.add_argument(
@@ -100,9 +100,6 @@ class WorldConfig:
 
 
 def run(config: WorldConfig, session) -> int:
-    if config.shard[1] > 1 and config.checkpoint:
-        log.error("--shard %d/%d: a sharded world keeps no checkpoints: drop --checkpoint", *config.shard)
-        return 2
     try:
         world = world_from(config.world, config.shards, config.shard)
         trajectory = Trajectory(world, config.world.ticks)
