@@ -11,11 +11,12 @@ from services.launch import shipped
 
 from .processes import free_port
 
-READY = {  # lines that say a launch file's services are all up and at work
-    "simulation": ("tick/s", "recording group"),
-    "sharded-simulation": ("tick/s",),
-    "sharded-worlds": ("tick/s",),
-    "secure-simulation": ("tick/s", "recording group"),
+TICKING = r"\d[kMG]?tick/s"  # a progress bar's rate once ticks are done ("?tick/s" before the first)
+READY = {  # patterns of lines that say a launch file's services are all up and at work
+    "simulation": (TICKING, "recording group"),
+    "sharded-simulation": (TICKING,),
+    "sharded-worlds": (TICKING,),
+    "secure-simulation": (TICKING, "recording group"),
     "robot": ("first reading published", "brain is on the bus", "recording group"),
     "secure-robot": ("first reading published", "brain is on the bus", "recording group"),
     "remote-world": ("waiting for a brain", "recording group"),  # its world waits for a brain from elsewhere

@@ -128,7 +128,7 @@ def launched(tmp_path: Path, name: str, ports: dict[str, int]) -> Launched:
                 names = process_names(file, run.pid)
                 running.update(names.values())
                 seen.update((names.get(s.pid, "?"), s) for s in listeners(run.pid))
-                if settled_at is None and all(line in log.read_text() for line in READY[name]):
+                if settled_at is None and all(re.search(line, log.read_text()) for line in READY[name]):
                     settled_at = time.monotonic() + SETTLE_S
                 time.sleep(0.1)
             services = process_tree(run.pid)[1:]
