@@ -2,6 +2,7 @@
 
 import json
 import re
+import signal
 import subprocess
 import sys
 import time
@@ -243,8 +244,10 @@ def test_a_world_shard_lost_mid_run_ends_the_lead_with_an_error(tmp_path):
 
 def test_the_lead_lost_mid_run_ends_the_once_brains_that_served_it(tmp_path):
     """kill -9 of world shard 1: a sharded world keeps no checkpoints, so no run comes back to go
-    on; each `--once` brain shard keeps its learning so far, says so and ends (exit 1), not waits,
-    and world shard 2 runs its ticks, then ends with exit 1: no lead ended the run."""
+    on; each `--once` brain shard keeps its learning so far once, says so and ends (exit 1), not
+    waits, and world shard 2 runs its ticks, then ends with exit 1: no lead ended the run. World
+    shard 2 freezes a moment after the lead is lost: a pause of a shard still on the bus is not the
+    run's stop, so no brain shard keeps its learning then and again at the end."""
     made = options(tmp_path)
     bus = ("--group", "wk", "--connect", endpoint(tmp_path, "router"))
     router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
@@ -254,6 +257,11 @@ def test_the_lead_lost_mid_run_ends_the_once_brains_that_served_it(tmp_path):
             wait_for(lambda log=log: "brain for" in log.read_text(), 120, f"{log.name} to say it serves")
         time.sleep(0.5)
         worlds[0].kill()
+        time.sleep(0.5)
+        worlds[1].send_signal(signal.SIGSTOP)
+        time.sleep(1.0)  # four of a brain's quarter-second waits for sensors
+        assert " ticks in " not in (tmp_path / "world2.log").read_text()  # frozen mid-run, not at its end
+        worlds[1].send_signal(signal.SIGCONT)
         assert finish(worlds[1], 120, tmp_path / "world2.log") == 1
         assert "world shard 1 left the bus before it ended the run" in (tmp_path / "world2.log").read_text()
         for j, brain in enumerate(shards, 1):
@@ -261,6 +269,7 @@ def test_the_lead_lost_mid_run_ends_the_once_brains_that_served_it(tmp_path):
             log = (tmp_path / f"brain{j}.log").read_text()
             assert "kept no checkpoint of it to resume from and has not come back in 15 s; --once ends here" in log
             assert re.search(r"weights so far saved to \S+weights\d-\w+-tick\d+\.npz", log)
+            assert log.count("without its end") == 1 and len(list(tmp_path.glob(f"weights{j}-*-tick*.npz"))) == 1
     finally:
         for process in (*worlds, *shards, router):
             process.kill()

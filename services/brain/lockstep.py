@@ -41,7 +41,10 @@ class LockStep:
         self.control = bus.inbox(keys.control(group), Control)
         self.motor = bus.outbox(keys.motor(group))
         self.state = bus.outbox(keys.brain_state(group), lossy=True) if config.publish_state else None
-        self.world = bus.presence("world")
+        # every world shard of the run, the lead first: one of them still on the bus may still send,
+        # so a pause in its sensors is not the run's stop (its learning is kept once, when all have gone)
+        shards = config.world_shards
+        self.worlds = [bus.presence(keys.world_service((i, shards))) for i in range(1, shards + 1)]
         bus.watch_others(self.where)
 
     @property
@@ -49,15 +52,20 @@ class LockStep:
         """The node of the first piece served (the only one unless the world is sharded)."""
         return self.nodes[min(self.nodes)] if self.nodes else self.idle
 
+    def world_alive(self) -> bool:
+        """Whether the world of the run served, or a shard of it, is on the bus."""
+        return any(world.alive for world in self.worlds)
+
     def world_gone_for_good(self) -> bool:
-        """Whether the world of the run served left the bus and cannot come back to go on: it kept
-        no checkpoint of the run, and this brain has been on a router without it for GONE_S (a
-        gateway's run, with no world seen, never is). A
-        world behind a router that died comes back with the router, so the time counts from when
-        this brain last reached a router; peers only (the world its link), it may come back too."""
+        """Whether the world of the run served (every shard of it) left the bus and cannot come back
+        to go on: it kept no checkpoint of the run, and this brain has been on a router without it
+        for GONE_S (a gateway's run, with no world seen, never is). A world behind a router that
+        died comes back with the router, so the time counts from when this brain last reached a
+        router; peers only (the world its link), it may come back too."""
         node = self.node
         stopped = node.run and self.kept == self.progress()  # its learning kept: it stopped without its end
-        if self.world.alive or not self.world.seen or not stopped or node.kept_by_world == node.run:
+        seen = any(world.seen for world in self.worlds)
+        if self.world_alive() or not seen or not stopped or node.kept_by_world == node.run:
             self.router_since = None
             return False
         if not list(self.bus.session.info.routers_zid()):
@@ -110,7 +118,7 @@ class LockStep:
                     self.serve(message)
                 if self.take_orders():
                     return 0
-                if message is None and self.unsaved() and not self.world.alive:  # gone without an end
+                if message is None and self.unsaved() and not self.world_alive():  # gone without an end
                     self.keep_learning("its world left the bus")
                 if self.config.once and self.world_gone_for_good():
                     log.error(

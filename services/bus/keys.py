@@ -70,6 +70,12 @@ def alive(group: str, service: str) -> str:
     return f"{PREFIX}/{_check(group)}/alive/{service if service == '*' else _check(service)}"
 
 
+def world_service(shard: tuple[int, int]) -> str:
+    """The name a world is alive under: "world" (a whole world, or world shard 1, which leads the
+    others), or "world-2of3" for world shard 2 of 3."""
+    return "world" if shard[0] == 1 else f"world-{shard_name(shard)}"
+
+
 def brain_service(shard: tuple[int, int]) -> str:
     """The name a brain is alive under: "brain", or "brain-2of3" for shard 2 of 3."""
     return "brain" if shard[1] == 1 else f"brain-{shard_name(shard)}"

@@ -118,7 +118,7 @@ def run(config: WorldConfig, session) -> int:
             log.error("%s", e)
             return 2
     else:
-        bus = Bus(session, config.bus.group, shards.service_name(config.shard))
+        bus = Bus(session, config.bus.group, keys.world_service(config.shard))
     bus.watch_others(lambda: f" at tick {world.tick}")
     try:
         return run_on(bus, config, world, trajectory, resumed, named)

@@ -41,14 +41,9 @@ PER_AGENT = (
 )
 
 
-def service_name(shard: tuple[int, int]) -> str:
-    """The name a world is alive under: "world" (a whole world, or the lead shard), or "world-2of3"."""
-    return "world" if shard[0] == 1 else f"world-{keys.shard_name(shard)}"
-
-
 def others(bus: Bus, shard: tuple[int, int], done: bool = False) -> list:
     """The presences of the shards the lead waits for (`done`: their token of having finished)."""
-    return [bus.presence(service_name((i, shard[1])) + ("-done" if done else "")) for i in range(2, shard[1] + 1)]
+    return [bus.presence(keys.world_service((i, shard[1])) + ("-done" if done else "")) for i in range(2, shard[1] + 1)]
 
 
 def terms(options: WorldOptions, run: str, world_shards: int, brain_shards: int) -> RunTerms:
@@ -129,10 +124,10 @@ def join(session, group: str, shard: tuple[int, int], mine: RunTerms) -> tuple[B
         if found is not None:
             raise ShardTwice(
                 f"world shard {shard[0]}/{shard[1]} is on the bus of group {group} already"
-                f"{'' if found == service_name(shard) else ', waiting to join'}: each shard is one process"
+                f"{'' if found == keys.world_service(shard) else ', waiting to join'}: each shard is one process"
             )
         named = follow(session, group, shard, mine) if shard[0] > 1 else None
-        return Bus(session, group, service_name(shard)), named
+        return Bus(session, group, keys.world_service(shard)), named
     finally:  # joined, its own name says it from here on
         waiting.undeclare()
 
@@ -142,7 +137,7 @@ def another_copy(session, group: str, shard: tuple[int, int]) -> str | None:
     is alive within DUPLICATE_S: the tokens on the bus come to a new watch within moments, not at once
     (a liveliness query just after joining missed one in six). Each copy declares its waiting token
     before it watches, so that of two started together each finds the other (and both end)."""
-    joined, own = service_name(shard), waiting_name(shard, session)
+    joined, own = keys.world_service(shard), waiting_name(shard, session)
     copies = own.rpartition("-")[0]  # its waiting name but for the session's id
 
     def copy(name: str) -> bool:
@@ -239,7 +234,7 @@ def finished(bus: Bus, shard: tuple[int, int], lead_ended: LeadsEnd) -> bool:
     """Another shard's end of the run: say it has finished, and wait for the lead to end the run;
     False when the lead left the bus without ending it."""
     lead = bus.presence("world")
-    token = bus.session.liveliness().declare_token(keys.alive(bus.group, service_name(shard) + "-done"))
+    token = bus.session.liveliness().declare_token(keys.alive(bus.group, keys.world_service(shard) + "-done"))
     try:
         while not lead_ended() and lead.wait(timeout=1.0):  # (its token known within a moment of subscribing)
             time.sleep(0.02)
