@@ -275,6 +275,40 @@ def test_the_lead_lost_mid_run_ends_the_once_brains_that_served_it(tmp_path):
             process.kill()
 
 
+def test_ctrl_c_at_the_lead_ends_the_run_at_every_brain_shard(tmp_path):
+    """Ctrl-C at world shard 1 once world shard 2 is ahead of it (the shards are not in step; here
+    the lead froze a moment): the lead's end names its own tick, before the last that brain shards
+    2 and 3 answered world shard 2, which stops at its next tick. Every brain shard ends the run with
+    that end, its weights saved to --save and exit 0, not kept as a run that stopped without it."""
+    made = options(tmp_path)
+    bus = ("--group", "wc", "--connect", endpoint(tmp_path, "router"))
+    router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
+    worlds, shards = start_shards(tmp_path, bus, made, 3, "--ticks", 200_000)
+    try:
+        for j in (1, 2, 3):  # each has answered
+            log = tmp_path / f"brain{j}.log"
+            wait_for(lambda log=log: "brain for" in log.read_text(), 120, f"{log.name} to say it serves")
+        time.sleep(0.5)
+        worlds[0].send_signal(signal.SIGSTOP)
+        time.sleep(1.0)  # world shard 2 goes on alone
+        worlds[0].send_signal(signal.SIGINT)  # taken as it goes on
+        worlds[0].send_signal(signal.SIGCONT)
+        for i, process in enumerate(worlds, 1):
+            assert finish(process, 60, tmp_path / f"world{i}.log") == 130  # cut short, with a result
+        for j, process in enumerate(shards, 1):
+            assert finish(process, 30, tmp_path / f"brain{j}.log") == 0
+    finally:
+        for process in (*worlds, *shards, router):
+            process.kill()
+    lead, other = json.loads((tmp_path / "metrics.json").read_text())["shard_ticks"]
+    assert other > lead  # world shard 2 was ahead when the lead ended the run
+    for j in (1, 2, 3):
+        log = (tmp_path / f"brain{j}.log").read_text()
+        assert f"run ended at tick {lead}" in log and "without its end" not in log
+        assert (tmp_path / f"weights{j}.npz").exists()
+    assert not list(tmp_path.glob("weights*-tick*.npz"))
+
+
 def test_every_world_shard_is_recorded_as_one_population(tmp_path):
     """2 world shards publish their slices' state, the recorder makes one recording of the 7 insects:
     every tick's poses are the one-process closed loop's, agent 4 (world shard 2's) the detail agent

@@ -1,6 +1,7 @@
 """The brain in lock-step with a world, run after run: each Sensors message answered by one Motor
 message; on Control "end" the brain saves its weights (--save) and its stats (--stats), then serves
-the next run (or exits, --once). A run that stops without its end keeps its learning so far."""
+the next run (or exits, --once); a sharded world's end once every shard of it has stopped. A run
+that stops without its end keeps its learning so far."""
 
 from __future__ import annotations
 
@@ -35,6 +36,7 @@ class LockStep:
         self.nodes: dict[int, BrainNode] = {}  # by the first agent of the piece each serves
         self.idle = new_node()  # what `node` is before a run's first piece
         self.kept: tuple | None = None  # (run, ticks) whose learning was saved when the run stopped without its end
+        self.ending: Control | None = None  # the end of the run served, taken while a world shard still steps it
         self.router_since: float | None = None  # on a router, its world gone, since (world_gone_for_good)
         group = bus.group
         self.sensors = bus.inbox(keys.sensors(group, config.shard), Sensors)
@@ -87,12 +89,16 @@ class LockStep:
         """Whether there is learning of a run that has not ended, not kept yet."""
         return self.node.brain is not None and self.kept != self.progress()
 
-    def node_for(self, message: Sensors) -> BrainNode:
-        """The node serving the piece `message` starts at. Sensors that start a new run (every
-        node's run gone quiet) start it with no node of the last; another piece of the run served,
-        from another of --world-shards N world shards, gets a node of its own (N at most); any
-        other message goes to the node served, whose answer says why it does not fit."""
-        if self.nodes and all(n.brain is not None and n.starts_run(message) for n in self.nodes.values()):
+    def starts_run(self, message: Sensors) -> bool:
+        """Whether `message` starts a new run: every node's run has gone quiet (BrainNode.starts_run)."""
+        return bool(self.nodes) and all(n.brain is not None and n.starts_run(message) for n in self.nodes.values())
+
+    def node_for(self, message: Sensors, new_run: bool) -> BrainNode:
+        """The node serving the piece `message` starts at. Sensors that start a new run (`new_run`)
+        start it with no node of the last; another piece of the run served, from another of
+        --world-shards N world shards, gets a node of its own (N at most); any other message goes
+        to the node served, whose answer says why it does not fit."""
+        if new_run:
             if self.unsaved():
                 self.keep_learning(f"run {message.run} starts before it ended")
             self.nodes = {}
@@ -115,7 +121,10 @@ class LockStep:
             while True:
                 message = self.sensors.get(timeout=0.25)
                 if isinstance(message, Sensors):
-                    self.serve(message)
+                    new_run = self.starts_run(message)  # asked once: the answer changes as time passes
+                    if new_run and self.ending is not None and self.finish_run(self.ending):
+                        return 0  # the run served had its end, and --once serves no other
+                    self.serve(message, new_run)
                 if self.take_orders():
                     return 0
                 if message is None and self.unsaved() and not self.world_alive():  # gone without an end
@@ -129,14 +138,16 @@ class LockStep:
                     )
                     return 1
         except KeyboardInterrupt:  # Ctrl-C or SIGTERM mid-run: the learning so far is kept
-            if self.unsaved():
+            if self.ending is not None:  # its end came: the wait for a world shard to stop is cut short
+                self.end_run(self.ending)
+            elif self.unsaved():
                 self.keep_learning("the brain was interrupted")
             raise
 
-    def serve(self, message: Sensors) -> None:
+    def serve(self, message: Sensors, new_run: bool) -> None:
         """Answer one Sensors message: the Motor first, then the recorder's share."""
         try:
-            node, state = self.node_for(message), self.state
+            node, state = self.node_for(message, new_run), self.state
             if state is not None and node.last_tick < 0:
                 wait_for_subscriber(state, "a recorder")
                 state.put(layout(node.circuit, message.tick, message.run))
@@ -163,10 +174,28 @@ class LockStep:
             except BusError as e:
                 self.control.refuse(e)
                 continue
-            self.end_run(order)
-            if self.config.once:
+            self.ending = order
+            if (due := self.due_end()) and self.finish_run(due):
                 return True
-            self.nodes = {}
+        return bool((due := self.due_end()) and self.finish_run(due))
+
+    def due_end(self) -> Control | None:
+        """The end of the run served if it ends the run now. A sharded world's waits until every
+        shard has left the bus: the lead's end names its own tick, and the other shards, not in
+        step with it, each stop at their next; until then their pieces are answered, so that each
+        shard gets the answers to the ticks it steps, and an end (a forged one too) cannot cut a
+        live run short."""
+        if self.config.world_shards > 1 and self.world_alive():
+            return None
+        return self.ending
+
+    def finish_run(self, order: Control) -> bool:
+        """End the run served at `order`; True when this brain is done (--once)."""
+        self.ending = None
+        self.end_run(order)
+        if self.config.once:
+            return True
+        self.nodes = {}
         return False
 
     def end_run(self, order: Control) -> None:
@@ -174,7 +203,11 @@ class LockStep:
         config, node = self.config, self.node
         if self.state is not None and node.brain is not None:
             self.state.put(node.state_message(final=True))
-        log.info("run ended at tick %d; rejected messages: %s", order.tick, self.bus.rejections() or "none")
+        pieces = ""
+        if config.world_shards > 1:  # the end's tick is the lead shard's; the others stopped at their own
+            ticks = ", ".join(map(str, self.progress()[1]))
+            pieces = f" (world shard 1's; the last tick of each piece served: {ticks})"
+        log.info("run ended at tick %d%s; rejected messages: %s", order.tick, pieces, self.bus.rejections() or "none")
         if config.stats:
             config.stats.write_text(
                 json.dumps({"ticks": node.last_tick + 1, "rejected_messages": self.bus.rejections()})

@@ -95,6 +95,17 @@ def test_only_an_end_of_the_run_served_ends_it():
     assert node.ends(Control(tick=10, command="end", run="r1"))
 
 
+def test_a_piece_of_a_sharded_world_takes_its_runs_end_at_the_lead_shards_tick():
+    """The lead world shard's end names its own tick; the shard that sends this piece, not in step
+    with the lead, may be past it. Another run's end is still refused."""
+    node = BrainNode(CIRCUIT, world_shards=2)
+    for t in range(10):
+        node.answer(sensors(t))
+    with pytest.raises(BusError, match="does not fit the run"):
+        node.ends(Control(tick=10, command="end", run="r2"))
+    assert node.ends(Control(tick=3, command="end", run="r1"))
+
+
 def test_tick_zero_of_another_run_is_a_new_run_once_the_run_served_is_quiet():
     node = BrainNode(CIRCUIT, quiet_s=0.3)
     fresh = [actions(answered(node, sensors(t))) for t in range(200)]

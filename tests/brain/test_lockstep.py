@@ -1,0 +1,142 @@
+"""The lock-step brain's view of its world on a real bus, in this process: when a sharded world's
+end of the run is taken (lockstep.py)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+import zenoh
+
+from services.brain.checkpoint import load_weights
+from services.brain.circuit import load_circuit
+from services.brain.lockstep import LockStep
+from services.brain.node import BrainNode
+from services.brain.service import BrainConfig, parser
+from services.bus import keys
+from services.bus.config import make_config
+from services.bus.schemas import Array, Control, Sensors, encode
+from services.bus.transport import Bus
+from services.options import config_from
+from services.vocabulary import INSECT_SENSORS
+
+from ..processes import endpoint, start, wait_for
+
+GROUP = "ls"
+CIRCUIT = load_circuit("insect")
+
+
+@pytest.fixture
+def router(tmp_path):
+    at = endpoint(tmp_path, "router")
+    process = start("router", "--listen", at, log=tmp_path / "router.log")
+    yield at
+    process.kill()
+    process.wait()
+
+
+class Sessions:
+    """Zenoh sessions of this test and the brains' buses on them, closed at its end."""
+
+    def __init__(self):
+        self.opened: list[zenoh.Session] = []
+        self.buses: list[Bus] = []
+
+    def open(self, connect=(), listen=()) -> zenoh.Session:
+        session = zenoh.open(make_config(connect=connect, listen=listen))
+        self.opened.append(session)
+        return session
+
+    def brain(self, connect=(), listen=(), options=()) -> LockStep:
+        """A lock-step brain (--once, with `options`) on a session of its own, as the brain service makes it."""
+        args = parser().parse_args(["--once", "--group", GROUP, *map(str, options)])
+        config = config_from(args, BrainConfig)
+        bus = Bus(self.open(connect, listen), config.bus.group, keys.brain_service(config.shard))
+        self.buses.append(bus)
+        return LockStep(config, bus, lambda: BrainNode(CIRCUIT, world_shards=config.world_shards))
+
+
+@pytest.fixture
+def sessions():
+    made = Sessions()
+    yield made
+    for bus in made.buses:
+        bus.close()  # its inboxes' threads first, then its session
+    for session in made.opened:
+        if not session.is_closed():
+            session.close()
+
+
+class World:
+    """What a world is to the brain: its liveliness token (as `service`), which can leave and come
+    back, and what it puts on the control key."""
+
+    def __init__(self, session: zenoh.Session, service: str = "world"):
+        self.session, self.service, self.token = session, service, None
+        self.control = session.declare_publisher(keys.control(GROUP))
+
+    def join(self) -> None:
+        self.token = self.session.liveliness().declare_token(keys.alive(GROUP, self.service))
+
+    def leave(self) -> None:
+        assert self.token is not None
+        self.token.undeclare()
+        self.token = None
+
+    def end(self, run: str, tick: int) -> None:
+        self.control.put(encode(Control(tick=tick, command="end", run=run)), attachment=b"world@1")
+
+
+def serve(brain: LockStep, ticks: range, first: int = 0, run: str = "r1", checkpoint: bool = False) -> None:
+    """Sensors of one agent (agent `first` of the population) for each of `ticks`, answered."""
+    for tick in ticks:
+        message = Sensors(
+            tick=tick,
+            names=INSECT_SENSORS,
+            values=Array.of(np.full((1, len(INSECT_SENSORS)), np.nan)),
+            run=run,
+            first=first,
+            checkpoint=checkpoint,
+        )
+        brain.serve(message, brain.starts_run(message))
+    assert brain.progress()[0] == run
+
+
+def stays_false(check, seconds: float) -> bool:
+    """Whether `check()` stays false for `seconds`, asked as the brain's loop asks it."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        if check():
+            return False
+        time.sleep(0.02)
+    return True
+
+
+def test_a_sharded_worlds_end_is_taken_once_every_world_shard_has_left(router, sessions, tmp_path, caplog):
+    """The lead's end of the run names its own tick, before the last of the piece that world shard
+    2 sends: the brain holds it, answers world shard 2's next tick, and ends the run with it once
+    both shards have left the bus, its weights saved to --save. Another run's end is refused."""
+    served = sessions.brain(connect=[router], options=["--world-shards", 2, "--save", tmp_path / "weights.npz"])
+    lead = World(sessions.open(connect=[router]))
+    other = World(sessions.open(connect=[router]), "world-2of2")
+    for world in (lead, other):
+        world.join()
+    wait_for(lambda: all(w.alive for w in served.worlds), 10, "the brain to see both world shards")
+    serve(served, range(10), first=0)
+    serve(served, range(20), first=1)  # world shard 2 is ahead
+    lead.end("r2", 30)
+    lead.end("r1", 9)
+    assert stays_false(served.take_orders, 0.5)  # both world shards are on the bus
+    assert served.control.rejections() == {keys.control(GROUP): {"does not fit the run": 1}}  # r2's only
+    lead.leave()
+    wait_for(lambda: not served.worlds[0].alive, 10, "the brain to see the lead leave")
+    assert stays_false(served.take_orders, 0.5)  # world shard 2 is still on the bus
+    serve(served, range(20, 21), first=1)  # and its next tick is answered
+    assert served.progress() == ("r1", (9, 20)) and not (tmp_path / "weights.npz").exists()
+    other.leave()
+    with caplog.at_level("INFO", logger="spikinglab.brain"):
+        wait_for(served.take_orders, 10, "the brain to end the run")
+    assert "run ended at tick 9 (world shard 1's; the last tick of each piece served: 9, 20)" in caplog.text
+    assert load_weights(tmp_path / "weights.npz", CIRCUIT).shape[0] == 2  # both pieces' agents
+    assert not list(tmp_path.glob("weights-*"))  # not kept as a run that stopped without its end
