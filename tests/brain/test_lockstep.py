@@ -1,5 +1,5 @@
-"""The lock-step brain's view of its world on a real bus, in this process: when a sharded world's
-end of the run is taken (lockstep.py)."""
+"""The lock-step brain's view of its world on a real bus, in this process: when a --once brain gives
+up on a world gone for good, and when a sharded world's end of the run is taken (lockstep.py)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import zenoh
 
+import services.brain.lockstep as lockstep
 from services.brain.checkpoint import load_weights
 from services.brain.circuit import load_circuit
 from services.brain.lockstep import LockStep
@@ -24,6 +25,7 @@ from services.vocabulary import INSECT_SENSORS
 from ..processes import endpoint, start, wait_for
 
 GROUP = "ls"
+GONE_S = 0.3  # lockstep.GONE_S here: the wait itself is what is tested, not its length
 CIRCUIT = load_circuit("insect")
 
 
@@ -111,6 +113,73 @@ def stays_false(check, seconds: float) -> bool:
             return False
         time.sleep(0.02)
     return True
+
+
+def test_a_once_brain_gives_up_on_a_world_gone_for_good_only_after_gone_s_on_a_router(router, sessions, monkeypatch):
+    """Not while there is no run, nor while the world is on the bus, nor while the run's learning is
+    not kept; then after GONE_S on a router; a world back on the bus resets the wait."""
+    monkeypatch.setattr(lockstep, "GONE_S", GONE_S)
+    served = sessions.brain(connect=[router])
+    world = World(sessions.open(connect=[router]))
+    wait_for(lambda: list(served.bus.session.info.routers_zid()), 10, "the brain to reach the router")
+    world.join()
+    wait_for(served.world_alive, 10, "the brain to see the world")
+    assert not served.world_gone_for_good()  # no run yet
+    serve(served, range(5))
+    assert stays_false(served.world_gone_for_good, 2 * GONE_S)  # the world is on the bus
+    world.leave()
+    wait_for(lambda: not served.world_alive(), 10, "the brain to see the world leave")
+    assert stays_false(served.world_gone_for_good, 2 * GONE_S)  # its learning not kept: not known to have stopped
+    served.keep_learning("its world left the bus")
+    gone_at = time.monotonic()
+    wait_for(served.world_gone_for_good, 10, "the brain to give up on its world")
+    assert time.monotonic() - gone_at >= GONE_S
+    world.join()  # it came back: the wait starts again once it leaves again
+    wait_for(served.world_alive, 10, "the brain to see the world back")
+    assert not served.world_gone_for_good()
+    world.leave()
+    wait_for(lambda: not served.world_alive(), 10, "the brain to see the world leave")
+    gone_at = time.monotonic()
+    wait_for(served.world_gone_for_good, 10, "the brain to give up on its world again")
+    assert time.monotonic() - gone_at >= GONE_S
+
+
+def test_a_once_brain_waits_for_a_world_that_kept_a_checkpoint_and_for_one_it_never_saw(router, sessions, monkeypatch):
+    """A world that keeps checkpoints of the run may resume it; a run with no world seen (a
+    gateway's) has no world to give up on."""
+    monkeypatch.setattr(lockstep, "GONE_S", GONE_S)
+    resumable = sessions.brain(connect=[router])
+    world = World(sessions.open(connect=[router]))
+    wait_for(lambda: list(resumable.bus.session.info.routers_zid()), 10, "the brain to reach the router")
+    world.join()
+    wait_for(resumable.world_alive, 10, "the brain to see the world")
+    serve(resumable, range(5))
+    serve(resumable, range(5, 6), checkpoint=True)  # the world kept a checkpoint at tick 5
+    world.leave()
+    wait_for(lambda: not resumable.world_alive(), 10, "the brain to see the world leave")
+    resumable.keep_learning("its world left the bus")
+    assert stays_false(resumable.world_gone_for_good, 3 * GONE_S)
+
+    unseen = sessions.brain(connect=[router], options=["--group", "ls-gateway"])
+    wait_for(lambda: list(unseen.bus.session.info.routers_zid()), 10, "the brain to reach the router")
+    serve(unseen, range(5))
+    unseen.keep_learning("its world left the bus")
+    assert stays_false(unseen.world_gone_for_good, 3 * GONE_S)
+
+
+def test_a_once_brain_of_peers_only_waits_for_its_world(tmp_path, sessions, monkeypatch):
+    """With no router, the world is the brain's link to the bus: it may come back, so no wait ends."""
+    monkeypatch.setattr(lockstep, "GONE_S", GONE_S)
+    at = endpoint(tmp_path, "brain")
+    served = sessions.brain(listen=[at])
+    world = World(sessions.open(connect=[at]))
+    world.join()
+    wait_for(served.world_alive, 10, "the brain to see the world")
+    serve(served, range(5))
+    world.leave()
+    wait_for(lambda: not served.world_alive(), 10, "the brain to see the world leave")
+    served.keep_learning("its world left the bus")
+    assert stays_false(served.world_gone_for_good, 3 * GONE_S)
 
 
 def test_a_sharded_worlds_end_is_taken_once_every_world_shard_has_left(router, sessions, tmp_path, caplog):
