@@ -36,7 +36,7 @@ class LockStep:
         self.nodes: dict[int, BrainNode] = {}  # by the first agent of the piece each serves
         self.idle = new_node()  # what `node` is before a run's first piece
         self.kept: tuple | None = None  # (run, ticks) whose learning was saved when the run stopped without its end
-        self.ending: Control | None = None  # the end of the run served, taken while a world shard still steps it
+        self.ending: Control | None = None  # an end of the run served, held until it is due (due_end)
         self.router_since: float | None = None  # on a router, its world gone, since (world_gone_for_good)
         group = bus.group
         self.sensors = bus.inbox(keys.sensors(group, config.shard), Sensors)
@@ -166,7 +166,8 @@ class LockStep:
 
     def take_orders(self) -> bool:
         """Every control message waiting (a flood on the control key must not pile up while the run
-        goes on); an "end" of the run served ends it. True when this brain is done (--once)."""
+        goes on); an "end" of the run served ends it once it is due (due_end). True when this brain
+        is done (--once)."""
         while isinstance(order := self.control.get(timeout=0), Control):
             try:
                 for node in list(self.nodes.values()) or [self.node]:

@@ -3,6 +3,7 @@ up on a world gone for good, and when a sharded world's end of the run is taken 
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -17,8 +18,8 @@ from services.brain.node import BrainNode
 from services.brain.service import BrainConfig, parser
 from services.bus import keys
 from services.bus.config import make_config
-from services.bus.schemas import Array, Control, Sensors, encode
-from services.bus.transport import Bus
+from services.bus.schemas import Array, Control, Message, Motor, Sensors, decode, encode
+from services.bus.transport import QUIET_S, Bus
 from services.options import config_from
 from services.vocabulary import INSECT_SENSORS
 
@@ -50,13 +51,14 @@ class Sessions:
         self.opened.append(session)
         return session
 
-    def brain(self, connect=(), listen=(), options=()) -> LockStep:
-        """A lock-step brain (--once, with `options`) on a session of its own, as the brain service makes it."""
+    def brain(self, connect=(), listen=(), options=(), quiet_s: float = QUIET_S) -> LockStep:
+        """A lock-step brain (--once, with `options`) on a session of its own, as the brain service
+        makes it; `quiet_s`: how long the run served must be silent before another may start."""
         args = parser().parse_args(["--once", "--group", GROUP, *map(str, options)])
         config = config_from(args, BrainConfig)
         bus = Bus(self.open(connect, listen), config.bus.group, keys.brain_service(config.shard))
         self.buses.append(bus)
-        return LockStep(config, bus, lambda: BrainNode(CIRCUIT, world_shards=config.world_shards))
+        return LockStep(config, bus, lambda: BrainNode(CIRCUIT, world_shards=config.world_shards, quiet_s=quiet_s))
 
 
 @pytest.fixture
@@ -90,17 +92,16 @@ class World:
         self.control.put(encode(Control(tick=tick, command="end", run=run)), attachment=b"world@1")
 
 
+def reading(tick: int, first: int = 0, run: str = "r1", checkpoint: bool = False) -> Sensors:
+    """Sensors of one agent, agent `first` of the population, sensing nothing."""
+    values = Array.of(np.full((1, len(INSECT_SENSORS)), np.nan))
+    return Sensors(tick=tick, names=INSECT_SENSORS, values=values, run=run, first=first, checkpoint=checkpoint)
+
+
 def serve(brain: LockStep, ticks: range, first: int = 0, run: str = "r1", checkpoint: bool = False) -> None:
-    """Sensors of one agent (agent `first` of the population) for each of `ticks`, answered."""
+    """The reading of agent `first` for each of `ticks`, answered."""
     for tick in ticks:
-        message = Sensors(
-            tick=tick,
-            names=INSECT_SENSORS,
-            values=Array.of(np.full((1, len(INSECT_SENSORS)), np.nan)),
-            run=run,
-            first=first,
-            checkpoint=checkpoint,
-        )
+        message = reading(tick, first, run, checkpoint)
         brain.serve(message, brain.starts_run(message))
     assert brain.progress()[0] == run
 
@@ -209,3 +210,37 @@ def test_a_sharded_worlds_end_is_taken_once_every_world_shard_has_left(router, s
     assert "run ended at tick 9 (world shard 1's; the last tick of each piece served: 9, 20)" in caplog.text
     assert load_weights(tmp_path / "weights.npz", CIRCUIT).shape[0] == 2  # both pieces' agents
     assert not list(tmp_path.glob("weights-*"))  # not kept as a run that stopped without its end
+
+
+def test_a_held_end_is_taken_when_another_run_starts_and_a_once_brain_serves_no_other(
+    router, sessions, tmp_path, caplog
+):
+    """World shard 2 stays on the bus, silent (stuck): the lead's end of the run is held until the
+    first sensors of another run come, the run served gone quiet; the run ends with it then, and a
+    --once brain ends there, the other run unanswered."""
+    options = ["--world-shards", 2, "--save", tmp_path / "weights.npz"]
+    served = sessions.brain(connect=[router], options=options, quiet_s=0.2)
+    lead = World(sessions.open(connect=[router]))
+    other = World(sessions.open(connect=[router]), "world-2of2")
+    for world in (lead, other):
+        world.join()
+    wait_for(lambda: all(w.alive for w in served.worlds), 10, "the brain to see both world shards")
+    serve(served, range(10), first=0)
+    serve(served, range(20), first=1)
+    lead.end("r1", 9)
+    lead.leave()
+    answers: list[Message] = []
+    watch = other.session.declare_subscriber(keys.motor(GROUP), lambda s: answers.append(decode(s.payload.to_bytes())))
+    returned: list[int] = []
+    brain = threading.Thread(target=lambda: returned.append(served.run()), daemon=True)
+    with caplog.at_level("INFO", logger="spikinglab.brain"):
+        brain.start()
+        time.sleep(0.5)  # the run served goes quiet
+        assert brain.is_alive() and not (tmp_path / "weights.npz").exists()  # its end held: world shard 2 is on
+        other.session.put(keys.sensors(GROUP), encode(reading(0, run="r2")))
+        brain.join(10)
+    assert returned == [0] and "run ended at tick 9" in caplog.text
+    assert load_weights(tmp_path / "weights.npz", CIRCUIT).shape[0] == 2
+    time.sleep(0.3)
+    assert not [a for a in answers if isinstance(a, Motor) and a.run == "r2"]
+    watch.undeclare()
