@@ -183,7 +183,4 @@ def test_a_launch_file_listens_only_where_docs_launch_md_says_and_ends_at_once_o
     if name == "sharded-worlds":  # every brain shard ended the run with the lead's end, whatever tick it was at
         folder, saved = tmp_path / "runs" / "launch-sharded-worlds", [f"weights-{j}of3.npz" for j in (1, 2, 3)]
         weights = sorted(p.name for p in folder.glob("weights*.npz"))
-        assert set(weights) <= set(saved), weights  # none kept as learning of a run that stopped without its end
-        metrics = folder / "metrics.json"  # both world shards stepped: every brain shard served (kernels compiled)
-        if metrics.exists() and json.loads(metrics.read_text())["ticks"] > 0:
-            assert weights == saved
+        assert weights == saved, weights  # none kept as learning of a run that stopped without its end
