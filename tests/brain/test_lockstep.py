@@ -116,15 +116,21 @@ def stays_false(check, seconds: float) -> bool:
     return True
 
 
+def brain_and_world(sessions, router) -> tuple[LockStep, World]:
+    """A brain on `router` and a world that joined it, each seen by the other."""
+    brain = sessions.brain(connect=[router])
+    world = World(sessions.open(connect=[router]))
+    wait_for(lambda: list(brain.bus.session.info.routers_zid()), 10, "the brain to reach the router")
+    world.join()
+    wait_for(brain.world_alive, 10, "the brain to see the world")
+    return brain, world
+
+
 def test_a_once_brain_gives_up_on_a_world_gone_for_good_only_after_gone_s_on_a_router(router, sessions, monkeypatch):
     """Not while there is no run, nor while the world is on the bus, nor while the run's learning is
     not kept; then after GONE_S on a router; a world back on the bus resets the wait."""
     monkeypatch.setattr(lockstep, "GONE_S", GONE_S)
-    served = sessions.brain(connect=[router])
-    world = World(sessions.open(connect=[router]))
-    wait_for(lambda: list(served.bus.session.info.routers_zid()), 10, "the brain to reach the router")
-    world.join()
-    wait_for(served.world_alive, 10, "the brain to see the world")
+    served, world = brain_and_world(sessions, router)
     assert not served.world_gone_for_good()  # no run yet
     serve(served, range(5))
     assert stays_false(served.world_gone_for_good, 2 * GONE_S)  # the world is on the bus
@@ -149,11 +155,7 @@ def test_a_once_brain_waits_for_a_world_that_kept_a_checkpoint_and_for_one_it_ne
     """A world that keeps checkpoints of the run may resume it; a run with no world seen (a
     gateway's) has no world to give up on."""
     monkeypatch.setattr(lockstep, "GONE_S", GONE_S)
-    resumable = sessions.brain(connect=[router])
-    world = World(sessions.open(connect=[router]))
-    wait_for(lambda: list(resumable.bus.session.info.routers_zid()), 10, "the brain to reach the router")
-    world.join()
-    wait_for(resumable.world_alive, 10, "the brain to see the world")
+    resumable, world = brain_and_world(sessions, router)
     serve(resumable, range(5))
     serve(resumable, range(5, 6), checkpoint=True)  # the world kept a checkpoint at tick 5
     world.leave()
@@ -183,18 +185,25 @@ def test_a_once_brain_of_peers_only_waits_for_its_world(tmp_path, sessions, monk
     assert stays_false(served.world_gone_for_good, 3 * GONE_S)
 
 
-def test_a_sharded_worlds_end_is_taken_once_every_world_shard_has_left(router, sessions, tmp_path, caplog):
-    """The lead's end of the run names its own tick, before the last of the piece that world shard
-    2 sends: the brain holds it, answers world shard 2's next tick, and ends the run with it once
-    both shards have left the bus, its weights saved to --save. Another run's end is refused."""
-    served = sessions.brain(connect=[router], options=["--world-shards", 2, "--save", tmp_path / "weights.npz"])
+def sharded_run(sessions, router, options: list, **brain) -> tuple[LockStep, World, World]:
+    """A brain of --world-shards 2 (and `options`) on `router`, world shards 1 and 2 joined, run r1
+    served to tick 9 of the lead's piece (agent 0) and tick 19 of world shard 2's (agent 1), ahead."""
+    served = sessions.brain(connect=[router], options=["--world-shards", 2, *options], **brain)
     lead = World(sessions.open(connect=[router]))
     other = World(sessions.open(connect=[router]), "world-2of2")
     for world in (lead, other):
         world.join()
     wait_for(lambda: all(w.alive for w in served.worlds), 10, "the brain to see both world shards")
     serve(served, range(10), first=0)
-    serve(served, range(20), first=1)  # world shard 2 is ahead
+    serve(served, range(20), first=1)
+    return served, lead, other
+
+
+def test_a_sharded_worlds_end_is_taken_once_every_world_shard_has_left(router, sessions, tmp_path, caplog):
+    """The lead's end of the run names its own tick, before the last of the piece that world shard
+    2 sends: the brain holds it, answers world shard 2's next tick, and ends the run with it once
+    both shards have left the bus, its weights saved to --save. Another run's end is refused."""
+    served, lead, other = sharded_run(sessions, router, ["--save", tmp_path / "weights.npz"])
     lead.end("r2", 30)
     lead.end("r1", 9)
     assert stays_false(served.take_orders, 0.5)  # both world shards are on the bus
@@ -218,15 +227,7 @@ def test_a_held_end_is_taken_when_another_run_starts_and_a_once_brain_serves_no_
     """World shard 2 stays on the bus, silent (stuck): the lead's end of the run is held until the
     first sensors of another run come, the run served gone quiet; the run ends with it then, and a
     --once brain ends there, the other run unanswered."""
-    options = ["--world-shards", 2, "--save", tmp_path / "weights.npz"]
-    served = sessions.brain(connect=[router], options=options, quiet_s=0.2)
-    lead = World(sessions.open(connect=[router]))
-    other = World(sessions.open(connect=[router]), "world-2of2")
-    for world in (lead, other):
-        world.join()
-    wait_for(lambda: all(w.alive for w in served.worlds), 10, "the brain to see both world shards")
-    serve(served, range(10), first=0)
-    serve(served, range(20), first=1)
+    served, lead, other = sharded_run(sessions, router, ["--save", tmp_path / "weights.npz"], quiet_s=0.2)
     lead.end("r1", 9)
     lead.leave()
     answers: list[Message] = []
