@@ -291,8 +291,8 @@ def parser() -> Parser:
 
 
 def main(argv=None) -> int:
-    p = parser()
     try:
+        p = parser()
         args = p.parse_args(argv)
         try:
             check_seeds_differ(args.netlogo_seed, args.semantics, args.order)
@@ -350,7 +350,7 @@ def run_into_folder(args) -> int:
             signal.signal(signal.SIGINT, signal.SIG_IGN)
             for path in unfinished.values():
                 path.unlink(missing_ok=True)
-            if created and folder.exists():
+            if created and folder.exists() and not any(folder.iterdir()):  # a failed rename's files stay
                 folder.rmdir()
         signal.signal(signal.SIGINT, on_ctrl_c)
 

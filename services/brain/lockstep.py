@@ -36,7 +36,8 @@ class LockStep:
         self.nodes: dict[int, BrainNode] = {}  # by the first agent of the piece each serves
         self.idle = new_node()  # what `node` is before a run's first piece
         self.kept: tuple | None = None  # (run, ticks) whose learning was saved when the run stopped without its end
-        self.ending: Control | None = None  # an end of the run served, held until it is due (due_end)
+        self.ending: Control | None = None  # the end of the run served, held until it is due (due_end)
+        self.heard_at = time.monotonic()  # when the last sensors came
         self.router_since: float | None = None  # on a router, its world gone, since (world_gone_for_good)
         group = bus.group
         self.sensors = bus.inbox(keys.sensors(group, config.shard), Sensors)
@@ -47,6 +48,7 @@ class LockStep:
         # so a pause in its sensors is not the run's stop (its learning is kept once, when all have gone)
         shards = config.world_shards
         self.worlds = [bus.presence(keys.world_service((i, shards))) for i in range(1, shards + 1)]
+        self.done = [bus.presence(keys.world_service((i, shards)) + "-done") for i in range(2, shards + 1)]
         bus.watch_others(self.where)
 
     @property
@@ -146,6 +148,7 @@ class LockStep:
 
     def serve(self, message: Sensors, new_run: bool) -> None:
         """Answer one Sensors message: the Motor first, then the recorder's share."""
+        self.heard_at = time.monotonic()
         try:
             node, state = self.node_for(message, new_run), self.state
             if state is not None and node.last_tick < 0:
@@ -175,25 +178,29 @@ class LockStep:
             except BusError as e:
                 self.control.refuse(e)
                 continue
-            self.ending = order
+            self.ending = self.ending or order  # the first: a replay or forgery after it changes nothing
             if (due := self.due_end()) and self.finish_run(due):
                 return True
         return bool((due := self.due_end()) and self.finish_run(due))
 
     def due_end(self) -> Control | None:
         """The end of the run served if it ends the run now. A sharded world's waits until every
-        shard has left the bus: the lead's end names its own tick, and the other shards, not in
-        step with it, each stop at their next; until then their pieces are answered, so that each
-        shard gets the answers to the ticks it steps, and an end (a forged one too) cannot cut a
-        live run short."""
-        if self.config.world_shards > 1 and self.world_alive():
+        other shard has stopped (its -done token) or left the bus: the lead's end names its own
+        tick, and the other shards, not in step with it, each stop at their next; until then their
+        pieces are answered, so that each shard gets the answers to the ticks it steps, and an end
+        (a forged one too) cannot cut a live run short. A shard on the bus that sends nothing for
+        GONE_S (stuck, or a forged token) holds it no longer."""
+        if self.ending is None or self.config.world_shards == 1:
+            return self.ending
+        stepping = any(world.alive and not done.alive for world, done in zip(self.worlds[1:], self.done))
+        if stepping and time.monotonic() - self.heard_at < GONE_S:
             return None
         return self.ending
 
     def finish_run(self, order: Control) -> bool:
         """End the run served at `order`; True when this brain is done (--once)."""
-        self.ending = None
         self.end_run(order)
+        self.ending = None  # only now: a SIGTERM while the end is saved saves it again (run's except)
         if self.config.once:
             return True
         self.nodes = {}

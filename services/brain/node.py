@@ -251,8 +251,9 @@ class BrainNode:
     def ends(self, order: Control) -> bool:
         """Whether `order` ends this node's run: an "end" for the run it serves, not before its last
         tick. A sharded world's end names its lead shard's tick, and a piece of another shard,
-        not in step with the lead, may be past it: for a piece, the run is checked, not the tick."""
-        stale = order.tick < self.last_tick and self.world_shards == 1
+        not in step with the lead, may be past it: there the run is checked, not the tick, but for
+        the piece from agent 0, which the lead itself sends."""
+        stale = order.tick < self.last_tick and (self.world_shards == 1 or self.first == 0)
         if self.brain is None or order.run != self.run or stale:
             raise BusError(
                 f"does not fit the run: end of run {order.run!r} at tick {order.tick}, the brain serves "

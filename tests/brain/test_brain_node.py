@@ -16,10 +16,10 @@ AGENTS = 3
 CIRCUIT = load_circuit("insect")
 
 
-def sensors(tick, agents=AGENTS, names=INSECT_SENSORS, seed=5, run="r1") -> Sensors:
+def sensors(tick, agents=AGENTS, names=INSECT_SENSORS, seed=5, run="r1", first=0) -> Sensors:
     values = np.full((agents, len(names)), np.nan)
     values[:, 0] = 1.0 + (tick % 4)  # a wall ahead, at a distance that changes
-    return Sensors(tick=tick, names=names, values=Array.of(values), seed=seed, run=run)
+    return Sensors(tick=tick, names=names, values=Array.of(values), seed=seed, run=run, first=first)
 
 
 def answered(node: BrainNode, message: Sensors) -> Motor:
@@ -96,14 +96,20 @@ def test_only_an_end_of_the_run_served_ends_it():
 
 
 def test_a_piece_of_a_sharded_world_takes_its_runs_end_at_the_lead_shards_tick():
-    """The lead world shard's end names its own tick; the shard that sends this piece, not in step
-    with the lead, may be past it. Another run's end is still refused."""
-    node = BrainNode(CIRCUIT, world_shards=2)
+    """The lead world shard's end names its own tick; the shard that sends a piece from another
+    agent than 0, not in step with the lead, may be past it. Another run's end is still refused, and
+    so is one before the last tick of the piece from agent 0, which the lead itself sends."""
+    lead, other = BrainNode(CIRCUIT, world_shards=2), BrainNode(CIRCUIT, world_shards=2)
     for t in range(10):
-        node.answer(sensors(t))
+        lead.answer(sensors(t))
+        other.answer(sensors(t, first=AGENTS))
+    for node in (lead, other):
+        with pytest.raises(BusError, match="does not fit the run"):
+            node.ends(Control(tick=10, command="end", run="r2"))
+    assert other.ends(Control(tick=3, command="end", run="r1"))
     with pytest.raises(BusError, match="does not fit the run"):
-        node.ends(Control(tick=10, command="end", run="r2"))
-    assert node.ends(Control(tick=3, command="end", run="r1"))
+        lead.ends(Control(tick=3, command="end", run="r1"))
+    assert lead.ends(Control(tick=10, command="end", run="r1"))
 
 
 def test_tick_zero_of_another_run_is_a_new_run_once_the_run_served_is_quiet():

@@ -3,15 +3,17 @@ up on a world gone for good, and when a sharded world's end of the run is taken 
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 import zenoh
 
 import services.brain.lockstep as lockstep
-from services.brain.checkpoint import load_weights
+from services.brain.checkpoint import load_weights, save_weights
 from services.brain.circuit import load_circuit
 from services.brain.lockstep import LockStep
 from services.brain.node import BrainNode
@@ -199,26 +201,50 @@ def sharded_run(sessions, router, options: list, **brain) -> tuple[LockStep, Wor
     return served, lead, other
 
 
-def test_a_sharded_worlds_end_is_taken_once_every_world_shard_has_left(router, sessions, tmp_path, caplog):
+@pytest.mark.parametrize("stops", ["done", "leaves"])
+def test_a_sharded_worlds_end_is_taken_once_every_other_world_shard_has_stopped(
+    router, sessions, tmp_path, caplog, stops
+):
     """The lead's end of the run names its own tick, before the last of the piece that world shard
     2 sends: the brain holds it, answers world shard 2's next tick, and ends the run with it once
-    both shards have left the bus, its weights saved to --save. Another run's end is refused."""
+    that shard has finished its ticks (its -done token) or left the bus, its weights saved to
+    --save. Another run's end is refused; a second end of the run changes nothing."""
     served, lead, other = sharded_run(sessions, router, ["--save", tmp_path / "weights.npz"])
     lead.end("r2", 30)
     lead.end("r1", 9)
-    assert stays_false(served.take_orders, 0.5)  # both world shards are on the bus
+    lead.end("r1", 12)
+    ended: list[bool] = []  # what take_orders said each time: True would end the run
+    wait_for(lambda: ended.append(served.take_orders()) or served.control.rejections(), 10, "r2's end refused")
+    assert not any(ended) and not served.take_orders()  # world shard 2 is stepping
     assert served.control.rejections() == {keys.control(GROUP): {"does not fit the run": 1}}  # r2's only
     lead.leave()
     wait_for(lambda: not served.worlds[0].alive, 10, "the brain to see the lead leave")
-    assert stays_false(served.take_orders, 0.5)  # world shard 2 is still on the bus
+    assert not served.take_orders()  # world shard 2 is still stepping
     serve(served, range(20, 21), first=1)  # and its next tick is answered
     assert served.progress() == ("r1", (9, 20)) and not (tmp_path / "weights.npz").exists()
-    other.leave()
+    done = World(other.session, "world-2of2-done")  # kept: a token dropped is undeclared
+    if stops == "done":
+        done.join()
+    else:
+        other.leave()
     with caplog.at_level("INFO", logger="spikinglab.brain"):
         wait_for(served.take_orders, 10, "the brain to end the run")
     assert "run ended at tick 9 (world shard 1's; the last tick of each piece served: 9, 20)" in caplog.text
     assert load_weights(tmp_path / "weights.npz", CIRCUIT).shape[0] == 2  # both pieces' agents
     assert not list(tmp_path.glob("weights-*"))  # not kept as a run that stopped without its end
+
+
+def test_a_world_shard_on_the_bus_that_sends_nothing_for_gone_s_holds_the_end_no_longer(
+    router, sessions, tmp_path, monkeypatch
+):
+    """World shard 2 stuck (or a forged token of it): on the bus, never done, silent."""
+    monkeypatch.setattr(lockstep, "GONE_S", GONE_S)
+    served, lead, other = sharded_run(sessions, router, ["--save", tmp_path / "weights.npz"])
+    heard_at = time.monotonic()
+    lead.end("r1", 9)
+    wait_for(served.take_orders, 10, "the brain to end the run")
+    assert time.monotonic() - heard_at >= GONE_S and other.token is not None
+    assert load_weights(tmp_path / "weights.npz", CIRCUIT).shape[0] == 2
 
 
 def test_a_held_end_is_taken_when_another_run_starts_and_a_once_brain_serves_no_other(
@@ -245,3 +271,26 @@ def test_a_held_end_is_taken_when_another_run_starts_and_a_once_brain_serves_no_
     time.sleep(0.3)
     assert not [a for a in answers if isinstance(a, Motor) and a.run == "r2"]
     watch.undeclare()
+
+
+def test_an_interrupt_while_the_end_is_saved_saves_it_again(router, sessions, tmp_path, monkeypatch):
+    """SIGTERM (as launch sends it) lands while the run's end writes --save: the end is saved once
+    more on the way out, not kept as learning of a run that stopped without its end."""
+    served, world = brain_and_world(sessions, router)
+    served.config = dataclasses.replace(served.config, save=tmp_path / "weights.npz")
+    serve(served, range(5))
+    saves: list[Path] = []
+
+    def interrupted_once(path, *args, **kwargs):
+        saves.append(path)
+        if len(saves) == 1:
+            raise KeyboardInterrupt
+        save_weights(path, *args, **kwargs)
+
+    monkeypatch.setattr(lockstep, "save_weights", interrupted_once)
+    world.end("r1", 5)
+    with pytest.raises(KeyboardInterrupt):
+        served.run()
+    assert saves == [tmp_path / "weights.npz"] * 2
+    assert load_weights(tmp_path / "weights.npz", CIRCUIT).shape[0] == 1
+    assert not list(tmp_path.glob("weights-*"))
