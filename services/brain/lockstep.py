@@ -187,9 +187,10 @@ class LockStep:
         """The end of the run served if it ends the run now. A sharded world's waits until every
         other shard has stopped (its -done token) or left the bus: the lead's end names its own
         tick, and the other shards, not in step with it, each stop at their next; until then their
-        pieces are answered, so that each shard gets the answers to the ticks it steps, and an end
-        (a forged one too) cannot cut a live run short. A shard on the bus that sends nothing for
-        GONE_S (stuck, or a forged token) holds it no longer."""
+        pieces are answered, so that each shard gets the answers to the ticks it steps (an end forged
+        mid-run is held as long; one past the lead's tick ends the lead's piece as it would end one
+        world's run). A shard on the bus that sends nothing for GONE_S (stuck, or a forged token)
+        holds it no longer."""
         if self.ending is None or self.config.world_shards == 1:
             return self.ending
         stepping = any(world.alive and not done.alive for world, done in zip(self.worlds[1:], self.done))
