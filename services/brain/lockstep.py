@@ -48,7 +48,7 @@ class LockStep:
         # so a pause in its sensors is not the run's stop (its learning is kept once, when all have gone)
         shards = config.world_shards
         self.worlds = [bus.presence(keys.world_service((i, shards))) for i in range(1, shards + 1)]
-        self.done = [bus.presence(keys.world_service((i, shards)) + "-done") for i in range(2, shards + 1)]
+        self.done = [bus.presence(keys.world_done((i, shards))) for i in range(2, shards + 1)]
         bus.watch_others(self.where)
 
     @property

@@ -76,6 +76,11 @@ def world_service(shard: tuple[int, int]) -> str:
     return "world" if shard[0] == 1 else f"world-{shard_name(shard)}"
 
 
+def world_done(shard: tuple[int, int]) -> str:
+    """The name of the token world shard I of N holds once it has run its ticks: "world-2of3-done"."""
+    return world_service(shard) + "-done"
+
+
 def brain_service(shard: tuple[int, int]) -> str:
     """The name a brain is alive under: "brain", or "brain-2of3" for shard 2 of 3."""
     return "brain" if shard[1] == 1 else f"brain-{shard_name(shard)}"

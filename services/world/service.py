@@ -23,7 +23,7 @@ from pathlib import Path
 
 from services.bus import keys
 from services.bus.config import BusConfig, add_bus_args
-from services.bus.schemas import Control, Sensors, new_run_id
+from services.bus.schemas import Control, RunTerms, Sensors, new_run_id
 from services.bus.transport import Bus, wait_for_subscriber
 from services.options import Parser, at_least
 from services.options import shard as shard_of_n
@@ -109,7 +109,7 @@ def run(config: WorldConfig, session) -> int:
     except (MapError, ValueError) as e:
         log.error("%s", e)
         return 2
-    named = None
+    mine, named = None, None
     if config.shard[1] > 1:
         try:
             mine = shards.terms(config.world, "", config.shard[1], config.shards)
@@ -121,24 +121,31 @@ def run(config: WorldConfig, session) -> int:
         bus = Bus(session, config.bus.group, keys.world_service(config.shard))
     bus.watch_others(lambda: f" at tick {world.tick}")
     try:
-        return run_on(bus, config, world, trajectory, resumed, named)
+        return run_on(bus, config, world, trajectory, resumed, named, mine)
     finally:
         bus.close()
 
 
 def run_on(
-    bus: Bus, config: WorldConfig, world: World, trajectory: Trajectory, resumed: str | None, named: str | None = None
+    bus: Bus,
+    config: WorldConfig,
+    world: World,
+    trajectory: Trajectory,
+    resumed: str | None,
+    named: str | None = None,
+    mine: RunTerms | None = None,
 ) -> int:
     """The run on the bus, from the tick `world` is at: 0 when it ran to its end, 130 when cut short.
-    `resumed`: the run kept in the checkpoint; `named`: the run the lead world shard named."""
+    `resumed`: the run kept in the checkpoint; `named`: the run the lead world shard named; `mine`:
+    a world shard's terms of the run (shards.terms), which the lead names it with."""
     start, ticks, group, shard = world.tick, config.world.ticks, bus.group, config.shard
     brains = Brains(bus, group, config.world.agents, config.shards, shard)
     control = bus.outbox(keys.control(group))
     # lossy: a recorder that falls behind or freezes must not hold the run back (it counts the gap)
     state = bus.outbox(keys.world_state(group), lossy=True) if config.publish_state else None
     run_id = resumed or named or new_run_id()  # the brain answers for this run only; an end names it
-    if shard[1] > 1 and shard[0] == 1:
-        shards.lead(bus, shards.terms(config.world, run_id, shard[1], config.shards), shard)
+    if mine is not None and shard[0] == 1:
+        shards.lead(bus, mine, run_id, shard)
     lead_ended = shards.LeadsEnd(bus, run_id) if shard[0] > 1 else None
     brains.wait()
     stream = None

@@ -18,6 +18,8 @@ import logging
 import time
 from pathlib import Path
 
+import msgspec
+
 from services.bus import keys
 from services.bus.schemas import Control, RunTerms
 from services.bus.transport import Bus, Inbox, Outbox, Presence
@@ -43,7 +45,8 @@ PER_AGENT = (
 
 def others(bus: Bus, shard: tuple[int, int], done: bool = False) -> list:
     """The presences of the shards the lead waits for (`done`: their token of having finished)."""
-    return [bus.presence(keys.world_service((i, shard[1])) + ("-done" if done else "")) for i in range(2, shard[1] + 1)]
+    name = keys.world_done if done else keys.world_service
+    return [bus.presence(name((i, shard[1]))) for i in range(2, shard[1] + 1)]
 
 
 def terms(options: WorldOptions, run: str, world_shards: int, brain_shards: int) -> RunTerms:
@@ -150,8 +153,10 @@ def another_copy(session, group: str, shard: tuple[int, int]) -> str | None:
         watch.close()
 
 
-def lead(bus: Bus, named: RunTerms, shard: tuple[int, int]) -> None:
-    """Name the run to the other shards until every one has joined the bus (it joins once it heard it)."""
+def lead(bus: Bus, mine: RunTerms, run_id: str, shard: tuple[int, int]) -> None:
+    """Name the run to the other shards until every one has joined the bus (it joins once it heard
+    it), with this shard's terms (`mine`)."""
+    named = msgspec.structs.replace(mine, run=run_id)
     outbox, waiting = bus.outbox(keys.world_run(bus.group)), others(bus, shard)
     said = time.monotonic()
     while not all(p.alive for p in waiting):
@@ -234,7 +239,7 @@ def finished(bus: Bus, shard: tuple[int, int], lead_ended: LeadsEnd) -> bool:
     """Another shard's end of the run: say it has finished, and wait for the lead to end the run;
     False when the lead left the bus without ending it."""
     lead = bus.presence("world")
-    token = bus.session.liveliness().declare_token(keys.alive(bus.group, keys.world_service(shard) + "-done"))
+    token = bus.session.liveliness().declare_token(keys.alive(bus.group, keys.world_done(shard)))
     try:
         while not lead_ended() and lead.wait(timeout=1.0):  # (its token known within a moment of subscribing)
             time.sleep(0.02)
