@@ -147,6 +147,13 @@ def test_two_world_shards_and_brain_shards_run_bit_for_bit_as_one_process(tmp_pa
         assert "keeps checkpoints" not in (tmp_path / f"brain{j}.log").read_text()  # no shard's first tick says so
 
 
+def serving(tmp_path, brains: int) -> None:
+    """Until each of the brain shards, logging to brain<j>.log in `tmp_path`, serves its first piece."""
+    for j in range(1, brains + 1):
+        log = tmp_path / f"brain{j}.log"
+        wait_for(lambda log=log: "brain for" in log.read_text(), 120, f"{log.name} to say it serves")
+
+
 def test_a_world_shard_whose_options_differ_from_the_leads_says_which_and_stays_off(tmp_path):
     """World shard 2 started with another seed, tick count and map than shard 1: its slice would not
     be of the lead's population, so it names each difference and ends (exit 2) before it joins;
@@ -253,8 +260,7 @@ def test_the_lead_lost_mid_run_ends_the_once_brains_that_served_it(tmp_path):
     router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
     worlds, shards = start_shards(tmp_path, bus, made, 2, "--ticks", 20_000)
     try:
-        for log in (tmp_path / "brain1.log", tmp_path / "brain2.log"):  # each has answered
-            wait_for(lambda log=log: "brain for" in log.read_text(), 120, f"{log.name} to say it serves")
+        serving(tmp_path, 2)
         time.sleep(0.5)
         worlds[0].kill()
         time.sleep(0.5)
@@ -285,9 +291,7 @@ def test_ctrl_c_at_the_lead_ends_the_run_at_every_brain_shard(tmp_path):
     router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
     worlds, shards = start_shards(tmp_path, bus, made, 3, "--ticks", 200_000)
     try:
-        for j in (1, 2, 3):  # each has answered
-            log = tmp_path / f"brain{j}.log"
-            wait_for(lambda log=log: "brain for" in log.read_text(), 120, f"{log.name} to say it serves")
+        serving(tmp_path, 3)
         time.sleep(0.5)
         worlds[0].send_signal(signal.SIGSTOP)
         time.sleep(1.0)  # world shard 2 goes on alone
