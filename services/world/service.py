@@ -109,11 +109,11 @@ def run(config: WorldConfig, session) -> int:
     except (MapError, ValueError) as e:
         log.error("%s", e)
         return 2
-    mine, named = None, None
+    terms = None
     if config.shard[1] > 1:
         try:
             mine = shards.terms(config.world, "", config.shard[1], config.shards)
-            bus, named = shards.join(session, config.bus.group, config.shard, mine)
+            bus, terms = shards.join(session, config.bus.group, config.shard, mine)
         except (shards.ShardTwice, shards.ShardsDisagree) as e:
             log.error("%s", e)
             return 2
@@ -121,31 +121,24 @@ def run(config: WorldConfig, session) -> int:
         bus = Bus(session, config.bus.group, keys.world_service(config.shard))
     bus.watch_others(lambda: f" at tick {world.tick}")
     try:
-        return run_on(bus, config, world, trajectory, resumed, named, mine)
+        return run_on(bus, config, world, trajectory, resumed, terms)
     finally:
         bus.close()
 
 
 def run_on(
-    bus: Bus,
-    config: WorldConfig,
-    world: World,
-    trajectory: Trajectory,
-    resumed: str | None,
-    named: str | None = None,
-    mine: RunTerms | None = None,
+    bus: Bus, config: WorldConfig, world: World, trajectory: Trajectory, resumed: str | None, terms: RunTerms | None
 ) -> int:
     """The run on the bus, from the tick `world` is at: 0 when it ran to its end, 130 when cut short.
-    `resumed`: the run kept in the checkpoint; `named`: the run the lead world shard named; `mine`:
-    a world shard's terms of the run (shards.terms), which the lead names it with."""
+    `resumed`: the run kept in the checkpoint; `terms`: a world shard's (shards.join)."""
     start, ticks, group, shard = world.tick, config.world.ticks, bus.group, config.shard
     brains = Brains(bus, group, config.world.agents, config.shards, shard)
     control = bus.outbox(keys.control(group))
     # lossy: a recorder that falls behind or freezes must not hold the run back (it counts the gap)
     state = bus.outbox(keys.world_state(group), lossy=True) if config.publish_state else None
-    run_id = resumed or named or new_run_id()  # the brain answers for this run only; an end names it
-    if mine is not None and shard[0] == 1:
-        shards.lead(bus, mine, run_id, shard)
+    run_id = resumed or (terms.run if terms else "") or new_run_id()  # what the brain answers and an end names
+    if terms is not None and shard[0] == 1:
+        shards.lead(bus, terms, run_id, shard)
     lead_ended = shards.LeadsEnd(bus, run_id) if shard[0] > 1 else None
     brains.wait()
     stream = None

@@ -114,13 +114,13 @@ def waiting_name(shard: tuple[int, int], session) -> str:
     return f"world-{keys.shard_name(shard)}{keys.WAITING}{session.info.zid()}"
 
 
-def join(session, group: str, shard: tuple[int, int], mine: RunTerms) -> tuple[Bus, str | None]:
-    """This world shard on the bus, and the run the lead names (None for the lead itself, which names
-    it; `mine`: this shard's RunTerms). ShardTwice where another process is this shard already (one
-    started twice would step its slice twice, and a second lead would name a second run);
-    ShardsDisagree where the lead's options differ. A shard other than the lead joins only once the
-    lead has named the run, so until it has joined it holds a waiting token, which a copy started
-    meanwhile finds as it would find the shard on the bus."""
+def join(session, group: str, shard: tuple[int, int], mine: RunTerms) -> tuple[Bus, RunTerms]:
+    """This world shard on the bus, and the run's terms: as the lead named them, or for the lead
+    itself `mine` (this shard's, its run still to be named: ""). ShardTwice where another process is
+    this shard already (one started twice would step its slice twice, and a second lead would name a
+    second run); ShardsDisagree where the lead's options differ. A shard other than the lead joins
+    only once the lead has named the run, so until it has joined it holds a waiting token, which a
+    copy started meanwhile finds as it would find the shard on the bus."""
     waiting = session.liveliness().declare_token(keys.alive(group, waiting_name(shard, session)))
     try:
         found = another_copy(session, group, shard)
@@ -129,8 +129,8 @@ def join(session, group: str, shard: tuple[int, int], mine: RunTerms) -> tuple[B
                 f"world shard {shard[0]}/{shard[1]} is on the bus of group {group} already"
                 f"{'' if found == keys.world_service(shard) else ', waiting to join'}: each shard is one process"
             )
-        named = follow(session, group, shard, mine) if shard[0] > 1 else None
-        return Bus(session, group, keys.world_service(shard)), named
+        terms = follow(session, group, shard, mine) if shard[0] > 1 else mine
+        return Bus(session, group, keys.world_service(shard)), terms
     finally:  # joined, its own name says it from here on
         waiting.undeclare()
 
@@ -173,7 +173,7 @@ def lead(bus: Bus, mine: RunTerms, run_id: str, shard: tuple[int, int]) -> None:
     outbox.close()
 
 
-def follow(session, group: str, shard: tuple[int, int], mine: RunTerms) -> str:
+def follow(session, group: str, shard: tuple[int, int], mine: RunTerms) -> RunTerms:
     """The run the lead shard names (before this shard joins the bus); ShardsDisagree where the
     lead's options differ from `mine`."""
     inbox = Inbox(session, keys.world_run(group), RunTerms)
@@ -188,7 +188,7 @@ def follow(session, group: str, shard: tuple[int, int], mine: RunTerms) -> str:
                 f"world shard {shard[0]}/{shard[1]}: run {named.run} is not this shard's: " + "; ".join(found)
             )
         log.info("world shard %d/%d: run %s", *shard, named.run)
-        return named.run
+        return named
     finally:
         inbox.close()
 
