@@ -29,7 +29,7 @@ from .options import WorldOptions
 log = logging.getLogger("spikinglab.world")
 SAY_EVERY = 5.0  # seconds between "waiting for ..." lines
 DUPLICATE_S = 2.0  # how long a starting shard watches for another process as that shard
-INTERRUPTED_WAIT_S = 3.0  # a run cut short: how long the lead waits for the others to stop at its end
+INTERRUPTED_WAIT_S = 10.0  # a run cut short: how long the lead waits at most for the others to stop at its end
 
 # per-agent lists of metrics.json, in the population's order when the shards' are joined
 PER_AGENT = (
@@ -209,13 +209,14 @@ def end_run(bus: Bus, control: Outbox, shard: tuple[int, int], order: Control, i
 def wait_for_others(bus: Bus, shard: tuple[int, int], within: float | None = None) -> list[str]:
     """Until every other shard has finished its ticks (and written its metrics), or left the bus;
     `within` seconds at most. The shards that left without finishing."""
-    done, there, said = others(bus, shard, done=True), others(bus, shard), time.monotonic()
+    done, there = others(bus, shard, done=True), others(bus, shard)
+    since = said = time.monotonic()
     for t in there:  # known within a moment of subscribing, unless it has left
         t.wait(timeout=1.0)
     while not all(d.alive or not t.alive for d, t in zip(done, there)):
-        if within is not None and time.monotonic() - said > within:
+        if within is not None and time.monotonic() - since > within:
             break
-        if within is None and time.monotonic() - said > SAY_EVERY:
+        if time.monotonic() - said > SAY_EVERY:
             log.info("waiting for world shard(s) %s to finish", ", ".join(t.service for t in there if t.alive))
             said = time.monotonic()
         time.sleep(0.05)
