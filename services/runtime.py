@@ -15,6 +15,7 @@ import threading
 from services.bus.config import BusConfigError, open_session
 from services.bus.transport import close_session
 from services.commands import PARENT
+from services.interrupts import take_interrupts
 from services.options import config_from
 
 log = logging.getLogger("spikinglab")
@@ -77,7 +78,7 @@ def process_main(name: str, parser: argparse.ArgumentParser, run, argv=None, int
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     os.environ.setdefault("GOMP_SPINCOUNT", "1000")
     args = parser.parse_args(argv)
-    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    take_interrupts(signal.SIGTERM)
     guard_threads()
     try:
         end_with_parent()

@@ -7,6 +7,7 @@ import importlib
 import sys
 
 from services.commands import BENCHMARKS, COMMANDS
+from services.interrupts import take_interrupts
 
 
 def version() -> str:
@@ -35,6 +36,7 @@ def main(argv: list[str] | None = None) -> None:
     if argv[0] == "--version":
         print(f"spikinglab {version()}")
         return
+    take_interrupts()  # Ctrl-C: KeyboardInterrupt, but never inside a kernel's compile
     name, rest = argv[0], argv[1:]
     if name == "bench":
         if not rest or rest[0] not in BENCHMARKS:
