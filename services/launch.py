@@ -38,6 +38,7 @@ from importlib import resources
 from pathlib import Path
 
 from services.commands import ENDLESS, PARENT, SERVICES
+from services.interrupts import ctrl_c_held
 from services.options import Parser, UsageError
 from services.params import file_for_agents
 
@@ -199,8 +200,9 @@ class Launcher:
         if process.name in self.children:
             raise LaunchError(f"two processes named {process.name!r}")
         output = process.log or (None if process.raw else subprocess.PIPE)
-        popen = spawn(process.service, process.argv(), output)
-        self.children[process.name] = Child(process, popen, next(self._colours), self.logs)
+        with ctrl_c_held():  # a process started is one watched, and stopped with the others
+            popen = spawn(process.service, process.argv(), output)
+            self.children[process.name] = Child(process, popen, next(self._colours), self.logs)
         return popen
 
     def watch(self, until: str | None = None, poll_s: float = 0.1, optional: tuple = ()) -> str | None:

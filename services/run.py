@@ -280,7 +280,10 @@ def launch(run: RunProcesses, folder: Path, view) -> tuple[int | None, bool, int
         except KeyboardInterrupt:
             interrupted, dead = True, None
             log.warning("\ninterrupted: ending the run at the ticks done (Ctrl-C again to stop at once)")
-            launcher.stop("world")  # as Ctrl-C: the world writes what it has and tells the brain to save
+            if "world" in launcher.children:  # as Ctrl-C: the world writes what it has, the brain saves
+                launcher.stop("world")
+            if not (folder / "metrics.json").exists():  # no run began: brain and recorder wait for none
+                return None, interrupted, None
         if dead is not None:
             launcher.stop_all(timeout=STOP_S)  # the world writes its ticks done, the brain its learning
             failed(folder, dead)

@@ -12,7 +12,6 @@ import datetime
 import json
 import signal
 import sys
-from contextlib import contextmanager
 from functools import partial
 from pathlib import Path
 
@@ -22,6 +21,7 @@ from services.brain.engine import DEFAULT_SEMANTICS
 from services.brain.engine_options import add_engine_args
 from services.cluster import ClusterError, address_option
 from services.gpu import DEVICES, check_device
+from services.interrupts import ctrl_c_held
 from services.learning import PAPER, all_definitions, noxious_ticks, plot_table1, quarter_collisions, stats
 from services.loop import population
 from services.options import Parser, add_netlogo_seed, at_least, positive
@@ -353,19 +353,6 @@ def run_into_folder(args) -> int:
             if created and folder.exists() and not any(folder.iterdir()):  # a failed rename's files stay
                 folder.rmdir()
         signal.signal(signal.SIGINT, on_ctrl_c)
-
-
-@contextmanager
-def ctrl_c_held():
-    """Ctrl-C within the block raises KeyboardInterrupt at its end, not inside it."""
-    came: list[int] = []
-    on_ctrl_c = signal.signal(signal.SIGINT, lambda signum, frame: came.append(signum))
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, on_ctrl_c)
-    if came:
-        raise KeyboardInterrupt
 
 
 if __name__ == "__main__":

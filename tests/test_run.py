@@ -282,3 +282,18 @@ def test_a_circuit_whose_rates_differ_is_named_with_both_and_not_given_the_paper
     assert rates_text({"a_plus": 0.02, "a_minus": 0.02}) == "A+ = A- = 0.02"
     assert paper_time({"a_plus": 0.04, "a_minus": 0.04}) == 7_000
     assert paper_time({"a_plus": 0.04, "a_minus": 0.05}) is None  # Table 1 sets both to one A
+
+
+def test_sigterm_before_the_run_begins_ends_every_process_at_once(tmp_path):
+    """SIGTERM to `spikinglab run` alone (not its process group, as a terminal's Ctrl-C would),
+    as its services start: the world ends before its run began, so brain and recorder, which wait
+    for a run, are stopped rather than waited for; one line names it, exit 130, nothing left."""
+    run = start_run(tmp_path, "--ticks", 200_000)
+    wait_for(lambda: (tmp_path / "r" / "brain.log").exists(), 60, "the services to start")
+    run.send_signal(signal.SIGTERM)
+    sent = time.monotonic()
+    _, err = run.communicate(timeout=100)
+    assert run.returncode == 130, err
+    assert time.monotonic() - sent < 30  # the brain's and recorder's stop, not FINISH_S's 120 s
+    assert "Traceback" not in err and "interrupted before the first tick" in err
+    assert not running_with(str(tmp_path))
