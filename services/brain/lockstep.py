@@ -88,8 +88,9 @@ class LockStep:
         return self.node.run, tuple(self.nodes[k].last_tick for k in sorted(self.nodes))
 
     def unsaved(self) -> bool:
-        """Whether there is learning of a run that has not ended, not kept yet."""
-        return self.node.brain is not None and self.kept != self.progress()
+        """Whether there is learning of a run that has not ended, not kept yet (none before the
+        first step: an interrupt waits for the compile that builds the brain, then lands there)."""
+        return self.node.brain is not None and self.node.last_tick >= 0 and self.kept != self.progress()
 
     def starts_run(self, message: Sensors) -> bool:
         """Whether `message` starts a new run: every node's run has gone quiet (BrainNode.starts_run)."""

@@ -294,3 +294,14 @@ def test_an_interrupt_while_the_end_is_saved_saves_it_again(router, sessions, tm
     assert saves == [tmp_path / "weights.npz"] * 2
     assert load_weights(tmp_path / "weights.npz", CIRCUIT).shape[0] == 1
     assert not list(tmp_path.glob("weights-*"))
+
+
+def test_a_brain_built_for_a_run_but_not_stepped_has_no_learning_to_keep(sessions, tmp_path):
+    """Ctrl-C as the brain compiles its engine for a run's first sensors is taken once the compile
+    is over (services/interrupts.py), before the run's first step: nothing was learnt, so nothing
+    is kept (it was saved as weights-None-tick0.npz, of no run)."""
+    brain = sessions.brain(options=["--save", tmp_path / "weights.npz"])
+    brain.node.start(reading(0))  # answer() builds the brain, then names the run and steps
+    assert not brain.unsaved()
+    serve(brain, range(1))
+    assert brain.unsaved()
