@@ -62,7 +62,11 @@ def main(argv: list[str] | None = None) -> None:
     except KeyboardInterrupt:  # Ctrl-C while the command's modules load: nothing of it has begun
         print(f"spikinglab {name}: interrupted", file=sys.stderr)
         sys.exit(130)
-    code = command.main(rest)
+    try:
+        code = command.main(rest)
+    except KeyboardInterrupt:  # one the command does not take itself: a line, not a traceback
+        print(f"spikinglab {name}: interrupted", file=sys.stderr)
+        sys.exit(130)
     sys.exit(code if isinstance(code, int) else 0)  # benchmarks return their figures
 
 

@@ -10,8 +10,11 @@ import time
 
 import numpy as np
 import psutil
+import pytest
 
+import services.launch
 from services.launch import Launcher, Process, local_endpoints, shipped
+from spikinglab import cli
 
 from .launching import READY, launch, launch_file
 from .processes import free_port, running_with, wait_for
@@ -162,3 +165,17 @@ def test_finish_stops_what_did_not_end_in_time_and_then_the_endless_services(tmp
         launcher.stop_all()
         folder.cleanup()
     assert ended == {"router": 0, "brick": 0, "gateway": 0}, ended  # each stopped the clean way (SIGTERM)
+
+
+def test_ctrl_c_while_the_launch_file_is_read_is_one_line(monkeypatch, capsys):
+    """Ctrl-C as launch reads its file (importing each service's options takes about a second),
+    before any process started: one line and exit 130, not a traceback."""
+
+    def interrupted(path):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(services.launch, "read_launch_file", interrupted)
+    with pytest.raises(SystemExit) as ended:
+        cli.main(["launch", "simulation"])
+    assert ended.value.code == 130
+    assert capsys.readouterr().err == "spikinglab launch: interrupted\n"
