@@ -141,6 +141,7 @@ class LockStep:
                     )
                     return 1
         except KeyboardInterrupt:  # Ctrl-C or SIGTERM mid-run: the learning so far is kept
+            self.read_orders()  # an end that came while the brain was busy (a kernel compiling) is taken
             if self.ending is not None:  # its end came: the wait for a world shard to stop is cut short
                 self.end_run(self.ending)
             elif self.unsaved():
@@ -169,9 +170,14 @@ class LockStep:
                     state.put(node.state_message())
 
     def take_orders(self) -> bool:
+        """Every control message waiting; an "end" of the run served ends it once it is due
+        (due_end). True when this brain is done (--once)."""
+        self.read_orders()
+        return bool((due := self.due_end()) and self.finish_run(due))
+
+    def read_orders(self) -> None:
         """Every control message waiting (a flood on the control key must not pile up while the run
-        goes on); an "end" of the run served ends it once it is due (due_end). True when this brain
-        is done (--once)."""
+        goes on); the first "end" of the run served is held in `ending`."""
         while isinstance(order := self.control.get(timeout=0), Control):
             try:
                 for node in list(self.nodes.values()) or [self.node]:
@@ -180,9 +186,6 @@ class LockStep:
                 self.control.refuse(e)
                 continue
             self.ending = self.ending or order  # the first: a replay or forgery after it changes nothing
-            if (due := self.due_end()) and self.finish_run(due):
-                return True
-        return bool((due := self.due_end()) and self.finish_run(due))
 
     def due_end(self) -> Control | None:
         """The end of the run served if it ends the run now. A sharded world's waits until every

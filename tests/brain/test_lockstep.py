@@ -305,3 +305,25 @@ def test_a_brain_built_for_a_run_but_not_stepped_has_no_learning_to_keep(session
     assert not brain.unsaved()
     serve(brain, range(1))
     assert brain.unsaved()
+
+
+def test_an_end_that_came_while_the_brain_was_busy_is_taken_when_it_is_interrupted(
+    router, sessions, tmp_path, monkeypatch
+):
+    """The world ends the run while the brain is busy (compiling a kernel, which an interrupt waits
+    for), then launch stops the brain: the end waiting in its inbox is taken, its weights saved to
+    --save, not kept as the learning of a run that stopped without its end."""
+    served, world = brain_and_world(sessions, router)
+    served.config = dataclasses.replace(served.config, save=tmp_path / "weights.npz")
+    serve(served, range(5))
+    world.end("r1", 5)
+
+    def busy_then_interrupted(timeout=None):
+        time.sleep(0.5)  # the end reaches the brain meanwhile
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(served.sensors, "get", busy_then_interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        served.run()
+    assert load_weights(tmp_path / "weights.npz", CIRCUIT).shape[0] == 1
+    assert not list(tmp_path.glob("weights-*"))
