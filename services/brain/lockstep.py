@@ -141,7 +141,8 @@ class LockStep:
                     )
                     return 1
         except KeyboardInterrupt:  # Ctrl-C or SIGTERM mid-run: the learning so far is kept
-            self.read_orders()  # an end that came while the brain was busy (a kernel compiling) is taken
+            if self.unsaved():  # an end that came while the brain was busy (a kernel compiling) is taken
+                self.read_orders()
             if self.ending is not None:  # its end came: the wait for a world shard to stop is cut short
                 self.end_run(self.ending)
             elif self.unsaved():
