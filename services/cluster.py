@@ -12,10 +12,11 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import logging
 import re
 import socket
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import CancelledError, ThreadPoolExecutor
 from contextlib import contextmanager
 from functools import partial
 from typing import cast
@@ -67,8 +68,14 @@ def connected(address: str):
         ) from None
     except Exception as e:  # it speaks Dask's protocol, or seemed to, but is no scheduler
         raise ClusterError(f"{address} answered, but not as a Dask scheduler ({type(e).__name__})") from None
-    with client:
-        yield client
+    quiet = logging.getLogger("distributed.client")  # its reconnect's traceback: the study's error says it
+    level = quiet.level
+    quiet.setLevel(logging.CRITICAL)
+    try:
+        with client:
+            yield client
+    finally:
+        quiet.setLevel(level)
 
 
 def require_scheduler(address: str, host: str, port: int) -> None:
@@ -92,9 +99,9 @@ def require_scheduler(address: str, host: str, port: int) -> None:
                 f"something at {address} accepts connections but does not answer as Dask does within "
                 f"{CONNECT_S} s: not a Dask scheduler (its dashboard's port?)"
             ) from None
-        except Exception as e:  # another protocol's bytes read as Dask's frames: any error
+        except Exception:  # another protocol's bytes read as Dask's frames: any error (a MemoryError too)
             raise ClusterError(
-                f"something at {address} answered, but not as a Dask scheduler ({type(e).__name__})"
+                f"something at {address} answered, but not in Dask's protocol: not a Dask scheduler"
             ) from None
     if kind != "Scheduler":
         raise ClusterError(f"{address} is a Dask {kind}, not a scheduler: give the scheduler's address")
@@ -137,11 +144,22 @@ def in_blocks(
     result) as each block finishes. `task` is pickled: a module-level function or a partial of one."""
     with connected(address) as client:
         from distributed import as_completed  # after connected(): it says when the extra is missing
+        from distributed.scheduler import KilledWorker
 
         threads = sum(cast(dict, client.nthreads()).values())  # a dict: the client is synchronous
         futures = {client.submit(task, s, j, pure=False): (s, j) for s, j in blocks(settings, seeds, threads)}
-        for future in as_completed(futures, loop=client.loop):
-            yield (*futures[future], future.result())
+        done = 0
+        try:
+            for future in as_completed(futures, loop=client.loop):
+                yield (*futures[future], future.result())
+                done += 1
+        except CancelledError as e:  # every block cancelled: the scheduler lost, as a rule
+            raise ClusterError(
+                f"the study on {address} was cancelled after {done} of {len(futures)} blocks "
+                f"({getattr(e, 'reason', 'no reason given')}): start the cluster again, then the study"
+            ) from None
+        except KilledWorker as e:  # the scheduler gave up on a block whose workers all died running it
+            raise ClusterError(f"the study on {address} stopped after {done} of {len(futures)} blocks: {e}") from None
 
 
 def settings_of(params: Mapping, chosen: range) -> dict:

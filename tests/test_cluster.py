@@ -42,18 +42,24 @@ def worker(address: str, name: str, folder) -> subprocess.Popen:
     )
 
 
+def start_scheduler(folder) -> tuple[subprocess.Popen, str]:
+    """A scheduler on the loopback, its log in `folder`; (its process, its address)."""
+    file = folder / "scheduler.json"
+    args = ("scheduler", "--host", "127.0.0.1", "--port", "0", "--scheduler-file", str(file))
+    process = dask(*args, log=open(folder / "scheduler.log", "w"))
+    started = time.monotonic()
+    while not file.exists() and process.poll() is None and time.monotonic() - started < 60:
+        time.sleep(0.1)
+    return process, json.loads(file.read_text())["address"]
+
+
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
     """A scheduler on the loopback and two workers, each a process; (address, folder of their logs)."""
     folder = tmp_path_factory.mktemp("cluster")
-    file = folder / "scheduler.json"
-    args = ("scheduler", "--host", "127.0.0.1", "--port", "0", "--scheduler-file", str(file))
-    processes = [dask(*args, log=open(folder / "scheduler.log", "w"))]
+    scheduler, address = start_scheduler(folder)
+    processes = [scheduler]
     try:
-        started = time.monotonic()
-        while not file.exists() and processes[0].poll() is None and time.monotonic() - started < 60:
-            time.sleep(0.1)
-        address = json.loads(file.read_text())["address"]
         processes += [worker(address, f"worker-{k}", folder) for k in range(2)]
         with Client(address, timeout=30) as client:
             client.wait_for_workers(2, timeout=120)
@@ -143,6 +149,28 @@ def test_a_worker_killed_mid_study_leaves_the_result_identical(cluster, one_proc
         victim.wait(30)
 
 
+def test_a_scheduler_lost_mid_study_is_one_error_that_says_so(tmp_path):
+    """kill -9 of the scheduler once its worker holds the study's block: a ClusterError saying the
+    study was cancelled and why, not Dask's traceback (its client's log of the reconnect is quiet)."""
+    scheduler, address = start_scheduler(tmp_path)
+    alone = worker(address, "alone", tmp_path)
+    try:
+        with ThreadPoolExecutor(1) as pool:
+            with Client(address, timeout=30) as client:
+                client.wait_for_workers(1, timeout=120)
+                study = pool.submit(evaluate, PARAMS, **OPTIONS | {"ticks": 2_000_000}, cluster=address)
+                while not study.done() and not any(client.processing().values()):
+                    time.sleep(0.02)
+            scheduler.kill()
+            lost = r"the study on tcp://\S+ was cancelled after 0 of 1 blocks \(scheduler-connection-lost\)"
+            with pytest.raises(ClusterError, match=lost):
+                study.result(timeout=120)
+    finally:
+        for process in (alone, scheduler):
+            process.kill()
+            process.wait(30)
+
+
 def test_the_sweep_on_the_cluster_writes_the_one_process_table(cluster, tmp_path, capsys):
     address, _ = cluster
     args = ["--a-plus", "0.02", "0.04", "--seeds", "3", "--ticks", "3000", "--learned-after", "500"]
@@ -216,7 +244,7 @@ def test_an_address_that_is_not_a_scheduler_is_named_in_one_line(cluster, tmp_pa
             cases = {
                 a_worker: f"{a_worker} is a Dask Worker, not a scheduler: give the scheduler's address",
                 f"tcp://127.0.0.1:{ports['silent']}": "accepts connections but does not answer as Dask does within 5 s",
-                f"tcp://127.0.0.1:{ports['chatty']}": "answered, but not as a Dask scheduler",
+                f"tcp://127.0.0.1:{ports['chatty']}": "answered, but not in Dask's protocol",
                 "tcp://nosuchhost.invalid:8786": "no host 'nosuchhost.invalid' (in tcp://nosuchhost.invalid:8786): "
                 "the name does not resolve",
             }
