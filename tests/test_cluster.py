@@ -27,6 +27,7 @@ from .processes import ROOT
 PARAMS = {"a_plus": [0.02, 0.04], "a_minus": [0.02, 0.04], "w_max": 15}
 SEEDS = [5, 0, 7]
 OPTIONS: dict = dict(ticks=3000, seeds=SEEDS, learned_after=500)
+LONG: dict = OPTIONS | {"ticks": 2_000_000}  # a block that is still running when its scheduler is lost
 
 
 def dask(*args: str, log) -> subprocess.Popen:
@@ -158,8 +159,8 @@ def test_a_scheduler_lost_mid_study_is_one_error_that_says_so(tmp_path):
         with ThreadPoolExecutor(1) as pool:
             with Client(address, timeout=30) as client:
                 client.wait_for_workers(1, timeout=120)
-                study = pool.submit(evaluate, PARAMS, **OPTIONS | {"ticks": 2_000_000}, cluster=address)
-                while not study.done() and not any(client.processing().values()):
+                study = pool.submit(evaluate, PARAMS, **LONG, cluster=address)
+                while not study.done() and not any(cast(dict, client.processing()).values()):
                     time.sleep(0.02)
             scheduler.kill()
             lost = r"the study on tcp://\S+ was cancelled after 0 of 1 blocks \(scheduler-connection-lost\)"
