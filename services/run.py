@@ -266,7 +266,7 @@ def launch(run: RunProcesses, folder: Path, view) -> tuple[int | None, bool, int
     """Start the services (and the live view), watch them until the world has ended, and end them
     together. Returns the exit code of a run that has no result (None: world and brain wrote
     theirs), whether it was interrupted (Ctrl-C or SIGTERM), and the recorder's exit code."""
-    launcher = Launcher()
+    launcher, begun = Launcher(), time.time()
     sigterm = signal.signal(signal.SIGTERM, signal.default_int_handler)  # SIGTERM ends the run as Ctrl-C does
     interrupted = False
     try:
@@ -282,7 +282,8 @@ def launch(run: RunProcesses, folder: Path, view) -> tuple[int | None, bool, int
             log.warning("\ninterrupted: ending the run at the ticks done (Ctrl-C again to stop at once)")
             if "world" in launcher.children:  # as Ctrl-C: the world writes what it has, the brain saves
                 launcher.stop("world")
-            if not (folder / "metrics.json").exists():  # no run began: brain and recorder wait for none
+            metrics = folder / "metrics.json"  # a resumed run's folder holds the last one
+            if not metrics.exists() or metrics.stat().st_mtime < begun:  # no run began: nothing to wait for
                 return None, interrupted, None
         if dead is not None:
             launcher.stop_all(timeout=STOP_S)  # the world writes its ticks done, the brain its learning
