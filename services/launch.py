@@ -326,6 +326,11 @@ def check_brains_fit_worlds(path: Path, processes: list[Process], parsed: dict[s
             raise LaunchError(
                 f'{where}: shard = "{i}/{n}", but [{world_name}] runs the brain as shards = {world.shards}'
             )
+        if args.world_shards != world.shard[1]:  # the brain would refuse the pieces of the others
+            raise LaunchError(
+                f"{where}: world_shards = {args.world_shards}, but [{world_name}] is one of {world.shard[1]} "
+                f"world shards: set world_shards = {world.shard[1]}"
+            )
         if (args.group, i) in shards_taken:
             raise LaunchError(f"{where}: shard {i}/{n} is also [{shards_taken[args.group, i]}]'s")
         shards_taken[args.group, i] = brain.name
@@ -401,6 +406,8 @@ def main(argv=None) -> int:
             failure = launcher.watch(until)
             if failure is None:
                 launcher.finish()
+            else:  # the others write what they have, as on Ctrl-C (a lead world shard waits for the rest)
+                launcher.stop_all(timeout=STOP_S)
         except KeyboardInterrupt:
             order = launcher.ending_order()
             log.warning("interrupted: ending %s in order", ", ".join(order))

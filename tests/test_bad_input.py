@@ -43,6 +43,10 @@ def files(tmp_path_factory):
     unfit = {"rows": f'params = "{folder / "rows.csv"}"', "shards": 'shard = "2/2"', "group": 'group = "other"'}
     for name, brain in unfit.items():  # a brain each that could never serve its world: refused before anything starts
         (folder / f"unfit-{name}.toml").write_text(f"[world]\nagents = 2\n[brain]\nonce = true\n{brain}\n")
+    (folder / "unfit-pieces.toml").write_text(  # two world shards, a brain that serves one world's agents
+        '[world-1]\nservice = "world"\nagents = 2\nshard = "1/2"\n'
+        '[world-2]\nservice = "world"\nagents = 2\nshard = "2/2"\n[brain]\nonce = true\n'
+    )
     (folder / "bad.toml").write_text(
         '[neurons]\nA = "regular"\n[[synapses]]\nfrom = "A"\nto = "B"\nweight = 5\ndelay = 1\n'
     )
@@ -240,6 +244,12 @@ CASES = [
         "launch {f}/unfit-shards.toml",
         2,
         'unfit-shards.toml, [brain]: shard = "2/2", but [world] runs the brain as shards = 1',
+    ),
+    (
+        "launch brain for one world of world shards",
+        "launch {f}/unfit-pieces.toml",
+        2,
+        "unfit-pieces.toml, [brain]: world_shards = 1, but [world-1] is one of 2 world shards: set world_shards = 2",
     ),
     (
         "launch brain in another group",

@@ -161,7 +161,10 @@ class BrainNode:
             )
         self.heard_at = time.monotonic()
         if message.first != self.first:
-            raise BusError(f"another slice: agents from {message.first}, this brain serves agents from {self.first}")
+            several = "" if self.world_shards > 1 else " (pieces of several world shards: --world-shards N)"
+            raise BusError(
+                f"another slice: agents from {message.first}, this brain serves agents from {self.first}{several}"
+            )
         if message.names != self.running.sensor_names or values.shape[0] != self.running.agents:
             raise BusError(
                 f"does not fit the run: {values.shape[0]} agents with sensors {list(message.names)}, this "

@@ -17,7 +17,6 @@ import json
 import logging
 import sys
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -179,6 +178,12 @@ def run_on(
     result["partial"] = world.tick < ticks
     log.info("%d ticks in %.1f s (%.0f ticks/s); %s", world.tick, elapsed, result["ticks_per_s"], outcome(result))
     finish(config, result, trajectory, world.tick, lost)
+    if lead_ended is not None and interrupted and not lead_ended():
+        log.warning(
+            "world shard %d/%d stays on the bus until world shard 1 ends the run, so that the result has its "
+            "insects (Ctrl-C again: it leaves now, and the run has no result)",
+            *shard,
+        )
     if lead_ended is not None and not shards.finished(bus, shard, lead_ended):  # its metrics written: the lead may end
         log.error("world shard 1 left the bus before it ended the run: the run has no whole result")
         return 1
@@ -196,7 +201,7 @@ def tick_loop(
     progress: Progress,
     trajectory: Trajectory,
     stream: StateStream | None,
-    lead_ended: Callable[[], bool] | None = None,
+    lead_ended: shards.LeadsEnd | None = None,
 ) -> None:
     """The lock-step ticks: each waits for the brain's answer (every shard's) to the last sensors sent.
     The recorder's share of tick t is kept after tick t + 1's sensors are sent, while the brain steps.
@@ -205,7 +210,7 @@ def tick_loop(
     ticks, folder = config.world.ticks, config.checkpoint
     for t in range(world.tick, ticks):
         if lead_ended is not None and lead_ended():
-            log.warning("world shard 1 ended the run at tick %d: ending it here too", t)
+            log.warning("world shard 1 ended the run at its tick %d: this shard ends it at %d", lead_ended.tick, t)
             return
         actions = brains.collect(world, requests)
         if requests[0].checkpoint and folder:

@@ -229,10 +229,11 @@ class LeadsEnd:
 
     def __init__(self, bus: Bus, run_id: str):
         self.control, self.run_id, self.came = bus.inbox(keys.control(bus.group), Control), run_id, False
+        self.tick = -1  # the lead's tick at its end
 
     def __call__(self) -> bool:
         while not self.came and isinstance(order := self.control.get(timeout=0), Control):
-            self.came = order.run == self.run_id
+            self.came, self.tick = order.run == self.run_id, order.tick
         return self.came
 
 
@@ -261,7 +262,11 @@ def merge_metrics(out: Path, shards: int, lost: list[str]) -> None:
     paths = [out / f"metrics-{keys.shard_name((i, shards))}.json" for i in range(1, shards + 1)]
     missing = [p.name for p in paths if not p.exists()]
     if missing:
-        log.warning("no metrics.json: %s not in %s (each shard writes its own to its --out)", ", ".join(missing), out)
+        log.warning(
+            "no metrics.json: %s not in %s (a shard that has not stopped yet, or one with another --out)",
+            ", ".join(missing),
+            out,
+        )
         return
     (out / "metrics.json").write_text(json.dumps(merged([json.loads(p.read_text()) for p in paths])))
     log.info("metrics of %d world shards merged into %s", shards, out / "metrics.json")
