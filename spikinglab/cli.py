@@ -39,6 +39,9 @@ def main(argv: list[str] | None = None) -> None:
     take_interrupts()  # Ctrl-C: KeyboardInterrupt, but never inside a kernel's compile
     name, rest = argv[0], argv[1:]
     if name == "bench":
+        if rest[:1] in (["-h"], ["--help"]):
+            print(f"usage: spikinglab bench {{{','.join(BENCHMARKS)}}} [options]   (spikinglab bench NAME --help)")
+            return
         if not rest or rest[0] not in BENCHMARKS:
             print(f"spikinglab bench: which benchmark? one of {', '.join(BENCHMARKS)}", file=sys.stderr)
             sys.exit(2)

@@ -121,6 +121,8 @@ def test_unknown_command_and_help():
     done = spikinglab("fly")
     assert done.returncode != 0 and "unknown command 'fly'" in done.stderr
     assert "run" in spikinglab("--help").stdout
+    bench = spikinglab("bench", "--help")
+    assert bench.returncode == 0 and "spikinglab bench {engine,loop,scale," in bench.stdout
 
 
 def test_sweep_writes_the_table(tmp_path):
