@@ -306,6 +306,10 @@ def test_ctrl_c_at_the_lead_ends_the_run_at_every_brain_shard(tmp_path):
             process.kill()
     lead, other = json.loads((tmp_path / "metrics.json").read_text())["shard_ticks"]
     assert other > lead  # world shard 2 was ahead when the lead ended the run
+    assert (
+        f"world shard 1 ended the run at its tick {lead}: this shard ends it at {other}"
+        in (tmp_path / "world2.log").read_text()
+    )
     for j in (1, 2, 3):
         log = (tmp_path / f"brain{j}.log").read_text()
         assert f"run ended at tick {lead}" in log and "without its end" not in log
