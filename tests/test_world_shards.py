@@ -317,6 +317,32 @@ def test_ctrl_c_at_the_lead_ends_the_run_at_every_brain_shard(tmp_path):
     assert not list(tmp_path.glob("weights*-tick*.npz"))
 
 
+def test_ctrl_c_at_a_world_shard_alone_stops_its_ticks_and_it_waits_for_the_leads_end(tmp_path):
+    """Ctrl-C at world shard 2 alone: its ticks stop, and it stays on the bus, saying so, while the
+    lead runs on; once the lead ends the run (Ctrl-C there too) both end with the run's metrics,
+    partial, its ticks the fewest (shard 2's)."""
+    made = options(tmp_path)
+    bus = ("--group", "wa", "--connect", endpoint(tmp_path, "router"))
+    router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
+    worlds, shards = start_shards(tmp_path, bus, made, 2, "--ticks", 200_000)
+    try:
+        serving(tmp_path, 2)
+        worlds[1].send_signal(signal.SIGINT)
+        log = tmp_path / "world2.log"
+        wait_for(lambda: "stays on the bus until world shard 1 ends the run" in log.read_text(), 60, "shard 2 to stay")
+        time.sleep(1.0)
+        assert worlds[1].poll() is None and worlds[0].poll() is None  # the lead runs on, shard 2 waits for it
+        worlds[0].send_signal(signal.SIGINT)
+        for i, process in enumerate(worlds, 1):
+            assert finish(process, 60, tmp_path / f"world{i}.log") == 130
+    finally:
+        for process in (*worlds, *shards, router):
+            process.kill()
+    merged = json.loads((tmp_path / "metrics.json").read_text())
+    lead, other = merged["shard_ticks"]
+    assert merged["partial"] and merged["ticks"] == other < lead
+
+
 def test_every_world_shard_is_recorded_as_one_population(tmp_path):
     """2 world shards publish their slices' state, the recorder makes one recording of the 7 insects:
     every tick's poses are the one-process closed loop's, agent 4 (world shard 2's) the detail agent
