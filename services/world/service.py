@@ -178,13 +178,7 @@ def run_on(
     result["partial"] = world.tick < ticks
     log.info("%d ticks in %.1f s (%.0f ticks/s); %s", world.tick, elapsed, result["ticks_per_s"], outcome(result))
     finish(config, result, trajectory, world.tick, lost)
-    if lead_ended is not None and interrupted and not lead_ended():
-        log.warning(
-            "world shard %d/%d stays on the bus until world shard 1 ends the run, so that the result has its "
-            "insects (Ctrl-C again: it leaves now, and the run has no result)",
-            *shard,
-        )
-    if lead_ended is not None and not shards.finished(bus, shard, lead_ended):  # its metrics written: the lead may end
+    if lead_ended is not None and not shards.finished(bus, shard, lead_ended, interrupted):  # the lead may end now
         log.error("world shard 1 left the bus before it ended the run: the run has no whole result")
         return 1
     if lost:

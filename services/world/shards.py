@@ -237,9 +237,15 @@ class LeadsEnd:
         return self.came
 
 
-def finished(bus: Bus, shard: tuple[int, int], lead_ended: LeadsEnd) -> bool:
-    """Another shard's end of the run: say it has finished, and wait for the lead to end the run;
-    False when the lead left the bus without ending it."""
+def finished(bus: Bus, shard: tuple[int, int], lead_ended: LeadsEnd, interrupted: bool) -> bool:
+    """Another shard's end of the run (its metrics written): say it has finished, and wait for the
+    lead to end the run (cut short here alone, too); False when the lead left the bus without it."""
+    if interrupted and not lead_ended():
+        log.warning(
+            "world shard %d/%d stays on the bus until world shard 1 ends the run, so that the result has its "
+            "insects (Ctrl-C again: it leaves now, and the run has no result)",
+            *shard,
+        )
     lead = bus.presence("world")
     token = bus.session.liveliness().declare_token(keys.alive(bus.group, keys.world_done(shard)))
     try:
