@@ -45,7 +45,10 @@ def test_brain_killed_mid_run_world_waits_then_continues(tmp_path):
         world.kill()
         watcher.close()
     continued_where_lost(tmp_path / "world.log", "brain", states, 6000)
-    assert json.loads((tmp_path / "metrics.json").read_text())["ticks"] == 6000
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["ticks"] == 6000
+    (lost,) = metrics["brains_lost_at"]  # no --checkpoint: the brain came back without the run's learning
+    assert 0 < lost < 6000 and f"brain lost at tick {lost}:" in (tmp_path / "world.log").read_text()
 
 
 def garbage(tick: int) -> list[bytes]:

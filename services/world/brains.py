@@ -52,6 +52,7 @@ class Brains:
         self.motor = bus.inbox(keys.motor(group), Motor)
         self.index = {lo: k for k, (lo, _) in enumerate(self.slices)}  # a slice by its first agent
         self.first_answer_at: float | None = None  # perf_counter when the brain first answered in full
+        self.lost_at: list[int] = []  # the ticks at which a brain (shard) left the bus mid-run
 
     def wait(self) -> None:
         for outbox, what, presence in zip(self.sensors, self.waited_for, self.presences):
@@ -132,6 +133,7 @@ class Silence:
         for k in silent:
             if not b.presences[k].alive:
                 log.warning("%s lost at tick %d: waiting for it to come back", b.names[k], self.tick)
+                b.lost_at.append(self.tick)
                 wait_for_subscriber(b.sensors[k], b.waited_for[k], b.presences[k])
                 log.info("%s back: continuing at tick %d", b.names[k], self.tick)
                 self.asked_at, self.said_at = time.monotonic(), None

@@ -174,7 +174,7 @@ def run_on(
         lost = shards.end_run(bus, control, shard, Control(tick=world.tick, command="end", run=run_id), interrupted)
     result = metrics_of(world, world.tick, elapsed, start)
     result.update(steady_rate(brains, start, world.tick, started, elapsed))
-    result["rejected_messages"] = bus.rejections()
+    result.update(rejected_messages=bus.rejections(), brains_lost_at=brains.lost_at)
     result["partial"] = world.tick < ticks
     log.info("%d ticks in %.1f s (%.0f ticks/s); %s", world.tick, elapsed, result["ticks_per_s"], outcome(result))
     finish(config, result, trajectory, world.tick, lost)

@@ -298,5 +298,6 @@ def merged(parts: list[dict]) -> dict:
         for key, counts in part["rejected_messages"].items():
             for why, n in counts.items():
                 rejected.setdefault(key, {})[why] = rejected.get(key, {}).get(why, 0) + n
+    whole["brains_lost_at"] = sorted(tick for part in parts for tick in part["brains_lost_at"])  # each shard's tick
     whole["world_shards"] = len(parts)
     return whole
