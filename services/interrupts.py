@@ -1,8 +1,9 @@
 """Ctrl-C (and SIGTERM, where a process takes it as Ctrl-C) as KeyboardInterrupt, but never inside
 a numba compile: raised there, it can land in a callback from LLVM, where Python prints and drops
 it, and numba then fails with "RuntimeError: no compiled object yet" (a traceback and exit 1, not
-the run ended at the ticks done). A signal that comes while this thread compiles is raised as soon
-as that compile is over (kernels compile lazily, at their first call, so mid-run too)."""
+the run ended at the ticks done). A signal that comes while the main thread compiles is raised as
+that compile lets go of numba's compiler lock, before the next can take it (kernels compile
+lazily, at their first call, one after another on a first tick, and mid-run too)."""
 
 from __future__ import annotations
 
@@ -11,26 +12,49 @@ import sys
 import threading
 from contextlib import contextmanager
 
-_pending = threading.Event()  # an interrupt waits for a compile to end
+_pending = threading.Event()  # an interrupt waits for the compile under way to end
+_listening = threading.Event()  # the listener below is registered with numba
 
 
-def _after_compile(lock, signum: int) -> None:
-    with lock:  # numba's compiler lock: free once the main thread's compile is over
-        pass
-    _pending.clear()
-    signal.pthread_kill(threading.main_thread().ident or 0, signum)  # a signal, to wake a main thread that waits
+def _compiler_lock():
+    """numba's compiler lock, or None where numba is not loaded (then nothing compiles)."""
+    return getattr(sys.modules.get("numba.core.compiler_lock"), "global_compiler_lock", None)
+
+
+def _after_compile() -> None:
+    """Called as numba's compiler lock is let go (numba's "numba:compiler_lock" event ends): the
+    interrupt waiting is raised once the main thread's outermost compile is over."""
+    lock = _compiler_lock()
+    main = threading.current_thread() is threading.main_thread()
+    if _pending.is_set() and main and lock is not None and not lock.is_locked():
+        _pending.clear()
+        raise KeyboardInterrupt
+
+
+def _listen() -> None:
+    from numba.core import event
+
+    class CompileOver(event.Listener):
+        def on_start(self, data) -> None:
+            pass
+
+        def on_end(self, data) -> None:
+            _after_compile()
+
+    event.register("numba:compiler_lock", CompileOver())
+    _listening.set()
 
 
 def on_interrupt(signum, frame) -> None:
-    """The handler: KeyboardInterrupt now, or once the compile under way is over."""
-    compiler = sys.modules.get("numba.core.compiler_lock")  # not imported: nothing compiles
-    lock = getattr(compiler, "global_compiler_lock", None)
+    """The handler: KeyboardInterrupt now, or as the compile under way ends."""
+    lock = _compiler_lock()
     if lock is None or not lock.is_locked():
         raise KeyboardInterrupt
+    if not _listening.is_set():
+        _listen()
     if not _pending.is_set():  # a second Ctrl-C meanwhile is the same interrupt
         _pending.set()
         print("interrupted: stopping once the kernel being compiled is ready", file=sys.stderr, flush=True)
-        threading.Thread(target=_after_compile, args=(lock, signum), name="interrupt", daemon=True).start()
 
 
 def take_interrupts(*signals: int) -> None:
