@@ -284,7 +284,8 @@ def launch(run: RunProcesses, folder: Path, view) -> tuple[int | None, bool, int
                 launcher.stop("world")
             metrics = folder / "metrics.json"  # a resumed run's folder holds the last one
             if not metrics.exists() or metrics.stat().st_mtime < begun:  # no run began: nothing to wait for
-                return None, interrupted, None
+                failed(folder, "interrupted before the first tick")
+                return 130, True, None
         if dead is not None:
             launcher.stop_all(timeout=STOP_S)  # the world writes its ticks done, the brain its learning
             failed(folder, dead)
