@@ -90,7 +90,8 @@ class LockStep:
     def unsaved(self) -> bool:
         """Whether there is learning of a run that has not ended, not kept yet (none before the
         first step: an interrupt waits for the compile that builds the brain, then lands there)."""
-        return self.node.brain is not None and self.node.last_tick >= 0 and self.kept != self.progress()
+        stepped = any(n.brain is not None and n.last_tick >= 0 for n in self.nodes.values())
+        return stepped and self.kept != self.progress()
 
     def starts_run(self, message: Sensors) -> bool:
         """Whether `message` starts a new run: every node's run has gone quiet (BrainNode.starts_run)."""

@@ -307,6 +307,15 @@ def test_a_brain_built_for_a_run_but_not_stepped_has_no_learning_to_keep(session
     assert brain.unsaved()
 
 
+def test_a_stepped_piece_is_learning_to_keep_while_another_is_built_but_not_stepped(sessions):
+    """A brain serving pieces of 2 world shards: world shard 2's piece has stepped, world shard 1's
+    is built but not stepped (an interrupt landed just after its compile): there is learning to keep."""
+    brain = sessions.brain(options=["--world-shards", 2])
+    serve(brain, range(3), first=4)
+    brain.node_for(reading(0), False).start(reading(0))
+    assert brain.unsaved()
+
+
 def test_an_end_that_came_while_the_brain_was_busy_is_taken_when_it_is_interrupted(
     router, sessions, tmp_path, monkeypatch
 ):
@@ -316,14 +325,18 @@ def test_an_end_that_came_while_the_brain_was_busy_is_taken_when_it_is_interrupt
     served, world = brain_and_world(sessions, router)
     served.config = dataclasses.replace(served.config, save=tmp_path / "weights.npz")
     serve(served, range(5))
+    heard = threading.Event()  # on the brain's session: the end has reached it
+    listener = served.bus.session.declare_subscriber(keys.control(GROUP), lambda sample: heard.set())
     world.end("r1", 5)
 
     def busy_then_interrupted(timeout=None):
-        time.sleep(0.5)  # the end reaches the brain meanwhile
+        assert heard.wait(10), "the end never reached the brain's session"
+        time.sleep(0.1)  # and its control inbox, on the same session
         raise KeyboardInterrupt
 
     monkeypatch.setattr(served.sensors, "get", busy_then_interrupted)
     with pytest.raises(KeyboardInterrupt):
         served.run()
+    listener.undeclare()
     assert load_weights(tmp_path / "weights.npz", CIRCUIT).shape[0] == 1
     assert not list(tmp_path.glob("weights-*"))
