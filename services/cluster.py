@@ -68,14 +68,20 @@ def connected(address: str):
         ) from None
     except Exception as e:  # it speaks Dask's protocol, or seemed to, but is no scheduler
         raise ClusterError(f"{address} answered, but not as a Dask scheduler ({type(e).__name__})") from None
-    quiet = logging.getLogger("distributed.client")  # its reconnect's traceback: the study's error says it
-    level = quiet.level
-    quiet.setLevel(logging.CRITICAL)
+    client_log, quiet = logging.getLogger("distributed.client"), Quiet()  # a filter each: studies may overlap
+    client_log.addFilter(quiet)  # its reconnect's traceback: the study's ClusterError says what happened
     try:
         with client:
             yield client
     finally:
-        quiet.setLevel(level)
+        client_log.removeFilter(quiet)
+
+
+class Quiet(logging.Filter):
+    """Drops the records of Dask's client below CRITICAL while a study has it."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.levelno >= logging.CRITICAL
 
 
 def require_scheduler(address: str, host: str, port: int) -> None:
