@@ -17,6 +17,7 @@ from services.bus.schemas import Array, WorldState, encode
 from services.loop import brain_for, closed_loop
 from services.options import shard_slice, shards_meet
 from services.world.options import WorldOptions, world_from
+from services.world.shards import merge_metrics
 from services.world.world import SENSORS
 
 from .processes import Watcher, endpoint, finish, logged, start, wait_for
@@ -448,3 +449,15 @@ def test_the_scale_benchmark_refuses_impossible_cases_before_starting():
         )
         assert done.returncode == 2 and done.stdout == ""
         assert len(done.stderr.splitlines()) == 1 and "at most one shard per agent" in done.stderr
+
+
+def test_the_lead_merges_no_shard_file_of_another_run(tmp_path, caplog):
+    """A folder that holds world shard 2's file of an earlier run (shard 2 of this run had not
+    stopped yet): no metrics.json, not one that mixes two runs, and the earlier run's goes too."""
+    part = {"run": "now", "agents": 1, "ticks": 10, "partial": False, "rejected_messages": {}}
+    (tmp_path / "metrics-1of2.json").write_text(json.dumps(part))
+    (tmp_path / "metrics-2of2.json").write_text(json.dumps(part | {"run": "before"}))
+    (tmp_path / "metrics.json").write_text("{}")
+    merge_metrics(tmp_path, 2, [], "now")
+    assert not (tmp_path / "metrics.json").exists()
+    assert "metrics-2of2.json in" in caplog.text and "is not run now's" in caplog.text

@@ -174,7 +174,7 @@ def run_on(
         lost = shards.end_run(bus, control, shard, Control(tick=world.tick, command="end", run=run_id), interrupted)
     result = metrics_of(world, world.tick, elapsed, start)
     result.update(steady_rate(brains, start, world.tick, started, elapsed))
-    result.update(rejected_messages=bus.rejections(), brains_lost_at=brains.lost_at)
+    result.update(rejected_messages=bus.rejections(), brains_lost_at=brains.lost_at, run=run_id)
     result["partial"] = world.tick < ticks
     log.info("%d ticks in %.1f s (%.0f ticks/s); %s", world.tick, elapsed, result["ticks_per_s"], outcome(result))
     finish(config, result, trajectory, world.tick, lost)
@@ -251,7 +251,7 @@ def finish(config: WorldConfig, result: dict, trajectory: Trajectory, done: int,
         if shard[1] > 1:
             (out / f"metrics-{keys.shard_name(shard)}.json").write_text(json.dumps(result))
             if shard[0] == 1:  # the others have finished and left: theirs are written
-                shards.merge_metrics(out, shard[1], lost)
+                shards.merge_metrics(out, shard[1], lost, result["run"])
         else:
             (out / "metrics.json").write_text(json.dumps(result))
         if done and shard[0] == 1:  # agent 0's path

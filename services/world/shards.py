@@ -259,23 +259,28 @@ def finished(bus: Bus, shard: tuple[int, int], lead_ended: LeadsEnd, interrupted
         token.undeclare()
 
 
-def merge_metrics(out: Path, shards: int, lost: list[str]) -> None:
-    """metrics.json of the whole population from the shards' metrics-<I>of<N>.json in `out`; none
-    where a shard was `lost` (a file of its in `out` is an earlier run's)."""
+def merge_metrics(out: Path, shards: int, lost: list[str], run_id: str) -> None:
+    """metrics.json of the whole population from the shards' metrics-<I>of<N>.json of run `run_id`
+    in `out`; none where a shard was `lost`, or where its file is not there or is another run's (a
+    shard that has not stopped yet, leaving an earlier run's file in the same folder)."""
+    whole = out / "metrics.json"
     if lost:
-        (out / "metrics.json").unlink(missing_ok=True)
+        whole.unlink(missing_ok=True)
         return
     paths = [out / f"metrics-{keys.shard_name((i, shards))}.json" for i in range(1, shards + 1)]
-    missing = [p.name for p in paths if not p.exists()]
+    parts = [json.loads(p.read_text()) if p.exists() else {} for p in paths]
+    missing = [p.name for p, part in zip(paths, parts) if part.get("run") != run_id]
     if missing:
+        whole.unlink(missing_ok=True)
         log.warning(
-            "no metrics.json: %s not in %s (a shard that has not stopped yet, or one with another --out)",
+            "no metrics.json: %s in %s is not run %s's (a shard that has not stopped yet, or one with another --out)",
             ", ".join(missing),
             out,
+            run_id,
         )
         return
-    (out / "metrics.json").write_text(json.dumps(merged([json.loads(p.read_text()) for p in paths])))
-    log.info("metrics of %d world shards merged into %s", shards, out / "metrics.json")
+    whole.write_text(json.dumps(merged(parts)))
+    log.info("metrics of %d world shards merged into %s", shards, whole)
 
 
 def merged(parts: list[dict]) -> dict:
@@ -298,6 +303,6 @@ def merged(parts: list[dict]) -> dict:
         for key, counts in part["rejected_messages"].items():
             for why, n in counts.items():
                 rejected.setdefault(key, {})[why] = rejected.get(key, {}).get(why, 0) + n
-    whole["brains_lost_at"] = sorted(tick for part in parts for tick in part["brains_lost_at"])  # each shard's tick
+    whole["brains_lost_at"] = sorted(t for part in parts for t in part.get("brains_lost_at", []))  # each shard's ticks
     whole["world_shards"] = len(parts)
     return whole
