@@ -262,6 +262,12 @@ def announce(args: argparse.Namespace, circuit: Circuit, columns: dict, run_id: 
     )
 
 
+def ticked(metrics: Path, since: float) -> bool:
+    """Whether the world wrote `metrics` (metrics.json) of one tick or more since `since` (a resumed
+    run's folder holds the last)."""
+    return metrics.exists() and metrics.stat().st_mtime >= since and json.loads(metrics.read_text())["ticks"] > 0
+
+
 def launch(run: RunProcesses, folder: Path, view) -> tuple[int | None, bool, int | None]:
     """Start the services (and the live view), watch them until the world has ended, and end them
     together. Returns the exit code of a run that has no result (None: world and brain wrote
@@ -282,8 +288,7 @@ def launch(run: RunProcesses, folder: Path, view) -> tuple[int | None, bool, int
             log.warning("\ninterrupted: ending the run at the ticks done (Ctrl-C again to stop at once)")
             if "world" in launcher.children:  # as Ctrl-C: the world writes what it has, the brain saves
                 launcher.stop("world")
-            metrics = folder / "metrics.json"  # a resumed run's folder holds the last one
-            if not metrics.exists() or metrics.stat().st_mtime < begun:  # no run began: nothing to wait for
+            if not ticked(folder / "metrics.json", begun):  # a brain may not know the run: none to wait for
                 failed(folder, "interrupted before the first tick")
                 return 130, True, None
         if dead is not None:
