@@ -295,7 +295,14 @@ def launch(run: RunProcesses, folder: Path, view) -> tuple[int | None, bool, int
             launcher.stop_all(timeout=STOP_S)  # the world writes its ticks done, the brain its learning
             failed(folder, dead)
             return 1, interrupted, None
-        launcher.finish()  # the brain saves, the recorder writes the rest
+        try:
+            launcher.finish()  # the brain saves, the recorder writes the rest
+        except KeyboardInterrupt:  # the first Ctrl-C as they do: they write what they have, as asked now
+            if interrupted:
+                raise
+            interrupted = True
+            log.warning("\ninterrupted: the brain and the recorder write what they have (Ctrl-C again to stop at once)")
+            launcher.stop_all(timeout=STOP_S)
     except KeyboardInterrupt:
         log.error("stopped at once: no result written")
         failed(folder, "interrupted twice")

@@ -299,3 +299,27 @@ def test_sigterm_before_the_run_begins_ends_every_process_at_once(tmp_path):
     assert time.monotonic() - sent < 30  # the brain's and recorder's stop, not FINISH_S's 120 s
     assert "Traceback" not in err and "interrupted before the first tick" in err
     assert not running_with(str(tmp_path))
+
+
+def test_one_ctrl_c_after_the_world_ended_still_writes_the_summary(tmp_path):
+    """The world has run all its ticks and the recorder is still writing (held here with SIGSTOP):
+    one Ctrl-C stops brain and recorder as the first Ctrl-C does, each writing what it has, and the
+    run's summary is written; it is not taken as a second Ctrl-C (no result)."""
+    run = start_run(tmp_path, "--ticks", 10_000)
+    folder, brain = tmp_path / "r", tmp_path / "r" / "brain.log"
+    wait_for(lambda: brain.exists() and " brain for " in brain.read_text(), 120, "the run to start")
+    (recorder,) = [pid for pid, cmdline in running_with(str(tmp_path)).items() if "services.recorder" in cmdline]
+    os.kill(recorder, signal.SIGSTOP)
+    try:
+        wait_for(lambda: (folder / "metrics.json").exists(), 120, "the world to end")
+        time.sleep(0.5)  # the launcher waits for the recorder
+        run.send_signal(signal.SIGINT)
+        time.sleep(0.3)
+    finally:
+        os.kill(recorder, signal.SIGCONT)
+    _, err = run.communicate(timeout=90)
+    assert run.returncode == 130, err
+    assert "interrupted: the brain and the recorder write what they have" in err and "Traceback" not in err
+    head = json.loads((folder / "summary.json").read_text())["headline"]
+    assert head["partial"] is False and head["ticks_done"] == 10_000
+    assert not (folder / "FAILED.txt").exists() and not running_with(str(tmp_path))
