@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -148,6 +149,20 @@ def test_two_world_shards_and_brain_shards_run_bit_for_bit_as_one_process(tmp_pa
         assert "keeps checkpoints" not in (tmp_path / f"brain{j}.log").read_text()  # no shard's first tick says so
 
 
+@contextmanager
+def shards_on_a_router(tmp_path, group: str, brains: int, ticks: int):
+    """A router, and on it (group `group`) 2 world shards of `ticks` ticks and `brains` brain shards
+    (start_shards); (world shards, brain shards), every process killed on leaving."""
+    bus = ("--group", group, "--connect", endpoint(tmp_path, "router"))
+    router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
+    worlds, shards = start_shards(tmp_path, bus, options(tmp_path), brains, "--ticks", ticks)
+    try:
+        yield worlds, shards
+    finally:
+        for process in (*worlds, *shards, router):
+            process.kill()
+
+
 def serving(tmp_path, brains: int) -> None:
     """Until each of the brain shards, logging to brain<j>.log in `tmp_path`, serves its first piece."""
     for j in range(1, brains + 1):
@@ -233,11 +248,8 @@ def test_a_second_copy_of_a_world_shard_waiting_for_its_lead_stays_off(tmp_path)
 def test_a_world_shard_lost_mid_run_ends_the_lead_with_an_error(tmp_path):
     """kill -9 of world shard 2 mid-run: the lead runs its own slice to the end, then names the lost
     shard and exits 1 (no metrics.json: half the population has no result), not 0."""
-    made = options(tmp_path)
-    bus = ("--group", "wl", "--connect", endpoint(tmp_path, "router"))
-    router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
-    worlds, shards = start_shards(tmp_path, bus, made, 1, "--ticks", 20_000)
-    try:  # the lead says the run's ticks and seed once every shard has joined
+    with shards_on_a_router(tmp_path, "wl", 1, 20_000) as (worlds, shards):
+        # the lead says the run's ticks and seed once every shard has joined
         wait_for(lambda: " ticks, seed " in (tmp_path / "world1.log").read_text(), 120, "the run to start")
         time.sleep(0.5)
         worlds[1].kill()
@@ -245,9 +257,6 @@ def test_a_world_shard_lost_mid_run_ends_the_lead_with_an_error(tmp_path):
         log = (tmp_path / "world1.log").read_text()
         assert "world-2of2 left the bus before the end of its ticks: the run has no result for its insects" in log
         assert not (tmp_path / "metrics.json").exists()
-    finally:
-        for process in (*worlds, *shards, router):
-            process.kill()
 
 
 def test_the_lead_lost_mid_run_ends_the_once_brains_that_served_it(tmp_path):
@@ -256,11 +265,7 @@ def test_the_lead_lost_mid_run_ends_the_once_brains_that_served_it(tmp_path):
     waits, and world shard 2 runs its ticks, then ends with exit 1: no lead ended the run. World
     shard 2 freezes a moment after the lead is lost: a pause of a shard still on the bus is not the
     run's stop, so no brain shard keeps its learning then and again at the end."""
-    made = options(tmp_path)
-    bus = ("--group", "wk", "--connect", endpoint(tmp_path, "router"))
-    router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
-    worlds, shards = start_shards(tmp_path, bus, made, 2, "--ticks", 20_000)
-    try:
+    with shards_on_a_router(tmp_path, "wk", 2, 20_000) as (worlds, shards):
         serving(tmp_path, 2)
         time.sleep(0.5)
         worlds[0].kill()
@@ -277,9 +282,6 @@ def test_the_lead_lost_mid_run_ends_the_once_brains_that_served_it(tmp_path):
             assert "kept no checkpoint of it to resume from and has not come back in 15 s; --once ends here" in log
             assert re.search(r"weights so far saved to \S+weights\d-\w+-tick\d+\.npz", log)
             assert log.count("without its end") == 1 and len(list(tmp_path.glob(f"weights{j}-*-tick*.npz"))) == 1
-    finally:
-        for process in (*worlds, *shards, router):
-            process.kill()
 
 
 def test_ctrl_c_at_the_lead_ends_the_run_at_every_brain_shard(tmp_path):
@@ -287,11 +289,7 @@ def test_ctrl_c_at_the_lead_ends_the_run_at_every_brain_shard(tmp_path):
     the lead froze a moment): the lead's end names its own tick, before the last that brain shards
     2 and 3 answered world shard 2, which stops at its next tick. Every brain shard ends the run with
     that end, its weights saved to --save and exit 0, not kept as a run that stopped without it."""
-    made = options(tmp_path)
-    bus = ("--group", "wc", "--connect", endpoint(tmp_path, "router"))
-    router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
-    worlds, shards = start_shards(tmp_path, bus, made, 3, "--ticks", 200_000)
-    try:
+    with shards_on_a_router(tmp_path, "wc", 3, 200_000) as (worlds, shards):
         serving(tmp_path, 3)
         time.sleep(0.5)
         worlds[0].send_signal(signal.SIGSTOP)
@@ -302,9 +300,6 @@ def test_ctrl_c_at_the_lead_ends_the_run_at_every_brain_shard(tmp_path):
             assert finish(process, 60, tmp_path / f"world{i}.log") == 130  # cut short, with a result
         for j, process in enumerate(shards, 1):
             assert finish(process, 30, tmp_path / f"brain{j}.log") == 0
-    finally:
-        for process in (*worlds, *shards, router):
-            process.kill()
     lead, other = json.loads((tmp_path / "metrics.json").read_text())["shard_ticks"]
     assert other > lead  # world shard 2 was ahead when the lead ended the run
     assert (
@@ -322,11 +317,7 @@ def test_ctrl_c_at_a_world_shard_alone_stops_its_ticks_and_it_waits_for_the_lead
     """Ctrl-C at world shard 2 alone: its ticks stop, and it stays on the bus, saying so, while the
     lead runs on; once the lead ends the run (Ctrl-C there too) both end with the run's metrics,
     partial, its ticks the fewest (shard 2's)."""
-    made = options(tmp_path)
-    bus = ("--group", "wa", "--connect", endpoint(tmp_path, "router"))
-    router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
-    worlds, shards = start_shards(tmp_path, bus, made, 2, "--ticks", 200_000)
-    try:
+    with shards_on_a_router(tmp_path, "wa", 2, 200_000) as (worlds, shards):
         serving(tmp_path, 2)
         worlds[1].send_signal(signal.SIGINT)
         log = tmp_path / "world2.log"
@@ -336,9 +327,6 @@ def test_ctrl_c_at_a_world_shard_alone_stops_its_ticks_and_it_waits_for_the_lead
         worlds[0].send_signal(signal.SIGINT)
         for i, process in enumerate(worlds, 1):
             assert finish(process, 60, tmp_path / f"world{i}.log") == 130
-    finally:
-        for process in (*worlds, *shards, router):
-            process.kill()
     merged = json.loads((tmp_path / "metrics.json").read_text())
     lead, other = merged["shard_ticks"]
     assert merged["partial"] and merged["ticks"] == other < lead
