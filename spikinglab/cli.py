@@ -28,6 +28,21 @@ def usage() -> str:
     return "\n".join(lines)
 
 
+def command_module(name: str, module: str):
+    """The module of command `name`; one line and exit 2 where a package it needs is not installed."""
+    try:
+        return importlib.import_module(module)
+    except ModuleNotFoundError as e:  # an install without it, such as the gateway's alone (docs/robot.md)
+        if not e.name or e.name.partition(".")[0] in ("services", "spikinglab"):
+            raise
+        print(
+            f"spikinglab {name}: needs the package {e.name.partition('.')[0]}, which this install leaves out "
+            "(the gateway alone installs only what the gateway needs: docs/robot.md)",
+            file=sys.stderr,
+        )
+        sys.exit(2)
+
+
 def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
     if not argv or argv[0] in ("-h", "--help"):
@@ -52,22 +67,8 @@ def main(argv: list[str] | None = None) -> None:
         print(f"spikinglab: unknown command {name!r} (spikinglab --help lists the commands)", file=sys.stderr)
         sys.exit(2)
     try:
-        command = importlib.import_module(module)
-    except ModuleNotFoundError as e:  # an install without it, such as the gateway's alone (docs/robot.md)
-        if not e.name or e.name.partition(".")[0] in ("services", "spikinglab"):
-            raise
-        print(
-            f"spikinglab {name}: needs the package {e.name.partition('.')[0]}, which this install leaves out "
-            "(the gateway alone installs only what the gateway needs: docs/robot.md)",
-            file=sys.stderr,
-        )
-        sys.exit(2)
-    except KeyboardInterrupt:  # Ctrl-C while the command's modules load: nothing of it has begun
-        print(f"spikinglab {name}: interrupted", file=sys.stderr)
-        sys.exit(130)
-    try:
-        code = command.main(rest)
-    except KeyboardInterrupt:  # one the command does not take itself: a line, not a traceback
+        code = command_module(name, module).main(rest)
+    except KeyboardInterrupt:  # one the command does not take itself, its modules loading too: a line, not a traceback
         print(f"spikinglab {name}: interrupted", file=sys.stderr)
         sys.exit(130)
     sys.exit(code if isinstance(code, int) else 0)  # benchmarks return their figures
