@@ -179,9 +179,6 @@ def main(argv=None) -> int:
     if not (folder / "metrics.json").exists() or not (folder / "weights.npz").exists():
         failed(folder, "interrupted before the first tick" if interrupted else "the world or the brain wrote no result")
         return 130 if interrupted else 1
-    if json.loads((folder / "metrics.json").read_text())["ticks"] == 0:  # stopped while the kernels compiled
-        failed(folder, "interrupted before the first tick")
-        return 130
     recording = None if run.recording is None else recording_status(recorder_code, run.recording)
     summary = summarise(folder, args, argv, circuit, time.time() - started, recording)
     if not summary["headline"]["partial"]:  # the run is whole: its learning is in weights.npz
