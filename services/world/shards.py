@@ -139,7 +139,8 @@ def another_copy(session, group: str, shard: tuple[int, int]) -> str | None:
     """The name of another process that is this world shard (on the bus, or waiting to join), if one
     is alive within DUPLICATE_S: the tokens on the bus come to a new watch within moments, not at once
     (a liveliness query just after joining missed one in six). Each copy declares its waiting token
-    before it watches, so that of two started together each finds the other (and both end)."""
+    before it watches, so that of two started together the later always finds the earlier (and the
+    earlier the later, where its token comes within the earlier's DUPLICATE_S)."""
     joined, own = keys.world_service(shard), waiting_name(shard, session)
     copies = own.rpartition("-")[0]  # its waiting name but for the session's id
 
