@@ -312,7 +312,8 @@ def test_one_ctrl_c_after_the_world_ended_still_writes_the_summary(tmp_path):
     os.kill(recorder, signal.SIGSTOP)
     try:
         wait_for(lambda: (folder / "metrics.json").exists(), 120, "the world to end")
-        time.sleep(0.5)  # the launcher waits for the recorder
+        wait_for(lambda: "services.world" not in str(running_with(str(tmp_path))), 60, "the world to exit")
+        time.sleep(0.5)  # the launcher has seen it and waits for the recorder
         run.send_signal(signal.SIGINT)
         time.sleep(0.3)
     finally:
