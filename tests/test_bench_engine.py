@@ -15,5 +15,8 @@ def test_call_costs_times_every_part():
 def test_order_split_reports_each_case_with_the_same_feeds():
     result = order_split(load_circuit("insect"), agents=8, ticks=200, rounds=1)
     spikes = {k: v for k, v in result.items() if k.endswith("_spikes_per_agent_tick")}
-    assert len(spikes) == 3 and all(v > 0 for v in spikes.values())
+    assert len(spikes) == 4 and all(v > 0 for v in spikes.values())
+    # the turns by receiver and one by one: the same spikes
+    random_order = "netlogo_random_order{}_spikes_per_agent_tick"
+    assert spikes[random_order.format("")] == spikes[random_order.format("_turns_one_by_one")]
     assert all(result[k.replace("_spikes_per_agent_tick", "_agent_ticks_per_s")] > 0 for k in spikes)

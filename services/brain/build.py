@@ -35,6 +35,9 @@ DEFAULT_SEMANTICS = "netlogo"  # the original's engine: the only one that learns
 ORDERS = ("random", "file", "netlogo-stream")
 # netlogo rules, each of which can be switched off alone to measure what it does (docs/results.md)
 SHUFFLE, COUNT_FROM_SEND, REOPEN_IN_TURN, DT0_AGAIN, STREAM = 1, 2, 4, 8, 16
+# The turns neuron by neuron across agents (engine._netlogo_by_receiver): where no pulse reaches its
+# post in the tick it is sent and the order is drawn before the turns (not NetLogo's own stream)
+BY_RECEIVER = 32
 NETLOGO_RULES = {
     "delay_count": COUNT_FROM_SEND,  # a pulse's count-down starts in the sending tick (else: the next)
     "reopen": REOPEN_IN_TURN,  # a refractory neuron opens in its turn (else: at the next tick's start)
@@ -73,6 +76,8 @@ class Network:
     profile: np.ndarray  # [neurons]: neuron n's column of stdp
     out_start: np.ndarray  # [neurons + 1] uint64: neuron n's outgoing synapses are out_syn[out_start[n]:out_start[n+1]]
     out_syn: np.ndarray  # [network synapses] uint64
+    in_start: np.ndarray  # [neurons + 1] uint64: neuron n's incoming synapses are in_syn[in_start[n]:in_start[n+1]]
+    in_syn: np.ndarray  # [network synapses] uint64 by post, then pre, then file order (a turn's deliveries)
     order_key: np.ndarray  # [A] uint64: the hash of agent a's seed, for its netlogo order
     order_jump: np.ndarray  # [2, neurons] uint64: the order's LCG k steps on from r is r * [0, k] + [1, k]
     rules: int  # the NETLOGO_RULES bits in force, and SHUFFLE or STREAM for those orders
@@ -130,7 +135,10 @@ FLAT_VIEWS += ("hist_len_flat", "ring_flat")
 # feed_column [A] float64, one input neuron's feed for its agents, contiguous (engine._feed_and_inputs);
 # due_flat [neurons * A] uint8 at n * A + a, whether neuron n has pulses due now; draws_flat
 # [(neurons + 1) * A] uint64, the random order's draws (engine._netlogo_range).
-SCRATCH = ("feed_column", "due_flat", "draws_flat")
+# turn_flat [neurons * A] uint8 at n * A + a, the place of neuron n's turn in agent a's order
+# and arrived_flat [2 * A] uint64, one neuron's pulses due now, a bit per incoming synapse: from the
+# turns before its own (row 0) and after (engine._netlogo_by_receiver).
+SCRATCH = ("feed_column", "due_flat", "draws_flat", "turn_flat", "arrived_flat", "agent_list")
 structref.define_proxy(
     StateStruct, StateType, [f.name for f in dataclasses.fields(State)] + list(FLAT_VIEWS) + list(SCRATCH)
 )
@@ -147,8 +155,10 @@ def _state_struct(clock, v, w, counters, last_spike, hist, ring, spiked, stream)
     flat = (v.reshape(-1), w.reshape(-1), spiked.reshape(-1), last_spike.reshape(-1))
     counters_flat = (counters[REFRACTORY].reshape(-1), counters[REFR_LEFT].reshape(-1), counters[HIST_LEN].reshape(-1))
     arrays = (clock, v, w, counters, last_spike, hist, ring, spiked, stream)
-    scratch = (np.empty(v.shape[1]), np.empty(v.size, np.uint8), np.empty(v.size + v.shape[1], np.uint64))
-    return StateStruct(*arrays, *flat, *counters_flat, ring.reshape(-1), *scratch)
+    agents = v.shape[1]
+    scratch = (np.empty(agents), np.empty(v.size, np.uint8), np.empty(v.size + agents, np.uint64))
+    by_receiver = (np.empty(v.size, np.uint8), np.empty(2 * agents, np.uint64), np.empty(agents, np.uint64))
+    return StateStruct(*arrays, *flat, *counters_flat, ring.reshape(-1), *scratch, *by_receiver)
 
 
 def check_options(agents: int, semantics: str, order: str, without, netlogo_seed: int | None = None) -> None:
@@ -179,8 +189,12 @@ def agent_seeds(seed, agents: int) -> np.ndarray:
     return seeds
 
 
-def build_network(circuit: Circuit, params: dict, seeds: np.ndarray, semantics: str, order: str, without=()) -> Network:
-    """The Network of `circuit` for agents with these per-agent columns (services.params) and seeds."""
+def build_network(
+    circuit: Circuit, params: dict, seeds: np.ndarray, semantics: str, order: str, without=(), by_receiver=True
+) -> Network:
+    """The Network of `circuit` for agents with these per-agent columns (services.params) and seeds;
+    `by_receiver=False` keeps the netlogo turns one by one where they could run by receiver (the
+    same results: for tests and benchmarks)."""
     c, agents = circuit, len(seeds)
     n_neurons, n_inputs, n_synapses = len(c.neuron_names), len(c.inputs), len(c.synapses)
     if n_synapses >= 1 << SYN_BITS:
@@ -196,18 +210,26 @@ def build_network(circuit: Circuit, params: dict, seeds: np.ndarray, semantics: 
     ).reshape(n_inputs, 2)
     stdp, group, profile = learning_tables(c, params, agents)
     if semantics == "netlogo":  # each neuron's outgoing synapses, for its turn
-        pre = syn[: n_synapses - n_inputs, PRE]
+        pre, post = syn[: n_synapses - n_inputs, PRE], syn[: n_synapses - n_inputs, POST]
         out_syn = np.argsort(pre, kind="stable").astype(np.uint64)
         out_start = np.searchsorted(pre[out_syn], np.arange(n_neurons + 1)).astype(np.uint64)
+        in_syn = np.lexsort((pre, post)).astype(np.uint64)  # stable: file order within one pre
+        in_start = np.searchsorted(post[in_syn], np.arange(n_neurons + 1)).astype(np.uint64)
         order_key = mix(seeds.view(np.uint64))  # once here rather than in every tick
         order_jump = lcg_jumps(n_neurons)  # the same
         rules = SHUFFLE * (order == "random") | STREAM * (order == "netlogo-stream")
         rules |= sum(f for k, f in NETLOGO_RULES.items() if k not in without)
+        sent_now = bool(rules & COUNT_FROM_SEND) and bool((syn[: n_synapses - n_inputs, DELAY] <= 1).any())
+        few_in = np.bincount(post, minlength=1).max() <= 64  # a bit each
+        order_first = order == "file" or (order == "random" and n_neurons <= 16)  # the draws' packed order
+        if by_receiver and few_in and not sent_now and order_first:
+            rules |= BY_RECEIVER
     else:
         out_start, out_syn = np.zeros(n_neurons + 1, np.uint64), np.zeros(0, np.uint64)
+        in_start, in_syn = out_start, out_syn
         order_key, order_jump, rules = np.zeros(agents, np.uint64), np.zeros((2, 0), np.uint64), 0
     stream_order = source_order(c) if order == "netlogo-stream" else np.zeros(0, np.uint64)
-    order_fields = (out_start, out_syn, order_key, order_jump, rules, stream_order)
+    order_fields = (out_start, out_syn, in_start, in_syn, order_key, order_jump, rules, stream_order)
     return Network(syn, npar, inpar, stdp, group, profile, *order_fields)
 
 

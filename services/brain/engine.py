@@ -39,6 +39,7 @@ from services.snapshots import copy_into
 
 from .build import (
     AT_START,
+    BY_RECEIVER,
     COUNT,
     COUNT_FROM_SEND,
     DECAY,
@@ -93,6 +94,10 @@ FLOAT64 = np.dtype(np.float64)
 # the per-call kernels take any feed of float64 [A, inputs], read only: no per-call check of its layout
 FEED_TYPE = types.Array(types.float64, 2, "A", readonly=True)
 IDENTITY = np.uint64(0xFEDCBA9876543210)  # the file order of up to 16 neurons, 4 bits each
+# the index of a uint64's one set bit: LOWEST_BIT[(bit * DE_BRUIJN) >> 58] (a de Bruijn sequence)
+DE_BRUIJN = np.uint64(0x03F79D71B4CB0A89)
+LOWEST_BIT = np.zeros(64, np.int64)
+LOWEST_BIT[(np.uint64(1) << np.arange(64, dtype=np.uint64)) * DE_BRUIJN >> np.uint64(58)] = np.arange(64)
 
 
 @njit(cache=True, inline="always")
@@ -261,6 +266,145 @@ def order_draw(r, i):
 
 
 @njit(cache=True, inline="always")
+def _netlogo_by_receiver(lo, hi, t, net, st):
+    """The netlogo turns of tick t for agents lo..hi-1, neuron by neuron across agents rather than
+    agent by agent in turn order: the same updates in the same order, for a network where no pulse
+    reaches its post in the tick it is sent (BY_RECEIVER). Then a turn changes only its own neuron,
+    the weights onto it and pulses due in later ticks; a pulse due now is delivered in its sender's
+    turn and changes only its post and its own weight. So each neuron's tick is its own: the
+    arrivals whose senders come before it in the order (in the order of the senders' turns), its
+    state machine, then the rest. The order is the draws' permutation (row 1 of draws_flat)."""
+    syn, npar, stdp, group, profile = net.syn, net.npar, net.stdp, net.group, net.profile
+    out_start, out_syn, in_start, in_syn, rules = net.out_start, net.out_syn, net.in_start, net.in_syn, net.rules
+    training = st.clock[TRAINING] != 0
+    hist, ring = st.hist, st.ring
+    n_neurons, agents = st.v.shape[0], np.uint64(st.v.shape[1])
+    v1, w1, spiked1, last1 = st.v_flat, st.w_flat, st.spiked_flat, st.last_spike_flat
+    refr1, left1, hlen1, ring1 = st.refractory_flat, st.refr_left_flat, st.hist_len_flat, st.ring_flat
+    draws, turn1, arrived, agent_list = st.draws_flat, st.turn_flat, st.arrived_flat, st.agent_list
+    mask = ring.shape[0] - 1
+    ring_now = np.uint64(t & mask) * np.uint64(ring.shape[1]) * agents
+    width = stdp.shape[2] - TABLE
+    send = np.int64(1) if rules & COUNT_FROM_SEND else np.int64(0)
+    reopen = (rules & REOPEN_IN_TURN) != 0
+    for a in range(lo, hi):  # each neuron's place in the order
+        perm = draws[agents + a] if rules & SHUFFLE else IDENTITY
+        for k in range(n_neurons):
+            n = (perm >> np.uint64(4 * k)) & np.uint64(15) if rules & SHUFFLE else np.uint64(k)
+            turn1[n * agents + a] = k
+    arrivals = np.empty(max(1, in_syn.shape[0]), np.uint64)  # one agent's arrivals at one neuron, by turn
+    for p in range(n_neurons):
+        row, first, last_in = np.uint64(p) * agents, in_start[p], in_start[p + 1]
+        rest, threshold, decay, refr_v = npar[p, REST], npar[p, THRESHOLD], npar[p, DECAY], npar[p, REFR_V]
+        period, floor, offset = np.int32(npar[p, REFR_PERIOD]), npar[p, FLOOR], np.int64(npar[p, STDP_OFFSET])
+        prof = profile[p]
+        for a in range(lo, hi):  # its pulses due now, one bit per incoming synapse: row 0 before its turn, 1 after
+            arrived[a], arrived[agents + a] = 0, 0
+        for i in range(first, last_in):
+            s, bit = in_syn[i], np.uint64(1) << np.uint64(i - first)
+            due_at, pre_at = ring_now + s * agents, np.uint64(syn[s, PRE]) * agents
+            for a in range(lo, hi):
+                due, early = ring1[due_at + a] != 0, turn1[pre_at + a] < turn1[row + a]
+                ring1[due_at + a] = 0
+                arrived[a] |= bit if due & early else np.uint64(0)
+                arrived[agents + a] |= np.uint64(0) if early else (bit if due else np.uint64(0))
+        for stage in range(2):  # 0: arrivals from the turns before this neuron's; 1: its turn, then the rest
+            if stage == 1:
+                # The state machine as the turns run it, by selects: one vector loop across agents.
+                for a in range(lo, hi):
+                    pa = row + a
+                    refractory = refr1[pa] != 0
+                    vn = v1[pa]
+                    fire = (not refractory) & (vn != rest) & (vn >= threshold)
+                    left = left1[pa] - refractory
+                    left1[pa] = period if fire else left
+                    refr1[pa] = np.int32(1) if fire else np.int32(refractory & ((left > 0) | (not reopen)))
+                    decayed = vn + (rest - vn) * decay
+                    v1[pa] = refr_v if refractory else (vn if fire | (vn == rest) else decayed)
+                    last1[pa] = t if fire else last1[pa]
+                    spiked1[pa] = fire
+                for a in range(lo, hi):  # a spike: potentiation over the history
+                    pa = row + a
+                    if not spiked1[pa]:
+                        continue
+                    g = group[a]
+                    lo_w, hi_w = stdp[g, prof, LO], stdp[g, prof, HI]
+                    for h in range(hlen1[pa]):
+                        entry = hist[a, p, h]
+                        s, dt = entry & SYN_MASK, (entry >> SYN_BITS) - t
+                        if 0 <= dt + offset < width:
+                            sa = s * agents + a
+                            w1[sa] = min(max(w1[sa] + stdp[g, prof, TABLE + dt + offset], lo_w), hi_w)
+                    hlen1[pa] = 0
+                for q in range(out_start[p], out_start[p + 1]):  # pulses out, due in a later tick
+                    s = out_syn[q]
+                    slot = np.uint64((t + syn[s, DELAY] - send) & mask)
+                    base = (slot * np.uint64(ring.shape[1]) + s) * agents
+                    for a in range(lo, hi):
+                        ring1[base + a] = spiked1[row + a]
+            due_row, listed = np.uint64(stage) * agents, lo
+            if last_in - first == 1 and not (training and syn[in_syn[first], FLAGS] & PLASTIC):
+                s = in_syn[first]  # one synapse in, nothing to learn: a vector loop of selects
+                inhibitory = (syn[s, FLAGS] & INHIBITORY) != 0
+                for a in range(lo, hi):
+                    pa, sa = row + a, s * agents + a
+                    vp, ws = v1[pa], w1[sa]
+                    changed = max(vp - ws, floor) if inhibitory else vp + ws
+                    v1[pa] = changed if (arrived[due_row + a] != 0) & (refr1[pa] == 0) else vp
+                continue
+            for a in range(lo, hi if last_in > first else lo):  # the agents with arrivals, listed without a branch
+                agent_list[listed] = a
+                listed += np.uint64(arrived[due_row + a] != 0)
+            for k in range(lo, listed):
+                a = agent_list[k]
+                pa, due = row + a, arrived[due_row + a]
+                m = 0  # the arrivals of this stage, by their senders' turns (stable: file order within one)
+                while due:
+                    low = due & (~due + np.uint64(1))
+                    due ^= low
+                    s = in_syn[first + LOWEST_BIT[(low * DE_BRUIJN) >> np.uint64(58)]]
+                    key = turn1[np.uint64(syn[s, PRE]) * agents + a]
+                    j = m
+                    while j > 0 and turn1[np.uint64(syn[arrivals[j - 1], PRE]) * agents + a] > key:
+                        arrivals[j] = arrivals[j - 1]
+                        j -= 1
+                    arrivals[j] = s
+                    m += 1
+                for i in range(m):
+                    # NetLogo receive-pulse, as in _netlogo_range's turns
+                    s = arrivals[i]
+                    sa = s * agents + a
+                    vp, ws = v1[pa], w1[sa]
+                    changed = max(vp - ws, floor) if syn[s, FLAGS] & INHIBITORY else vp + ws
+                    v1[pa] = changed if refr1[pa] == 0 else vp
+                    if not (training & ((syn[s, FLAGS] & PLASTIC) != 0)):
+                        continue
+                    n_hist = hlen1[pa]
+                    if n_hist > HISTORY:
+                        for h in range(n_hist - 1):
+                            hist[a, p, h] = hist[a, p, h + 1]
+                        n_hist -= 1
+                    hist[a, p, n_hist] = (t << SYN_BITS) | s
+                    hlen1[pa] = n_hist + 1
+                    g, last = group[a], last1[pa]
+                    lo_w, hi_w = stdp[g, prof, LO], stdp[g, prof, HI]
+                    if rules & DT0_AGAIN:
+                        for h in range(n_hist + 1):
+                            entry = hist[a, p, h]
+                            if (entry >> SYN_BITS) != last:
+                                break
+                            ea = (entry & SYN_MASK) * agents + a
+                            if 0 <= offset < width:
+                                w1[ea] = min(max(w1[ea] + stdp[g, prof, TABLE + offset], lo_w), hi_w)
+                        depress = t > last
+                    else:
+                        depress = True
+                    dt = t - last
+                    if depress and 0 <= dt + offset < width:
+                        w1[sa] = min(max(w1[sa] + stdp[g, prof, TABLE + dt + offset], lo_w), hi_w)
+
+
+@njit(cache=True, inline="always")
 def _netlogo_range(lo, hi, t, feed, net, st):
     """NetLogo tick t for agents lo..hi-1: what precedes the turns (the feed, input pulses, the end
     of refractory periods, which neurons have pulses due, the random order's draws and, up to 16
@@ -307,11 +451,12 @@ def _netlogo_range(lo, hi, t, feed, net, st):
             arrived, vp, ws, closed = ring[now, s, a] != 0, v[post, a], w[s, a], counters[REFRACTORY, post, a]
             ring[now, s, a] = 0
             v[post, a] = vp + ws if arrived & (closed == 0) else vp
-    for n in range(n_neurons):  # which neurons have pulses due now: most turns deliver none
+    by_receiver = (rules & BY_RECEIVER) != 0
+    for n in range(0 if by_receiver else n_neurons):  # which neurons have pulses due now: most turns deliver none
         row = np.uint64(n) * agents
         for a in range(lo, hi):
             due1[row + a] = 0
-    for s in range(n_net):
+    for s in range(0 if by_receiver else n_net):
         pre = np.uint64(syn[s, PRE])
         for a in range(lo, hi):
             due1[pre * agents + a] |= ring[now, s, a]
@@ -337,6 +482,9 @@ def _netlogo_range(lo, hi, t, feed, net, st):
                     draws[agents + a] = perm ^ ((x << si) | (x << sj))
                 else:
                     draws[row + a] = j
+    if by_receiver:
+        _netlogo_by_receiver(lo, hi, t, net, st)
+        return
     for a in range(lo, hi):
         g = group[a]
         perm = draws[agents + a] if rules & SHUFFLE and packed else IDENTITY
@@ -520,6 +668,9 @@ class Engine:
     `params`: per-agent parameters (services.params, the brain's columns: A+, A-, tau+/-, w_max,
     initial weight, input gain), each a number or one value per agent; agents with the same
     values share one STDP table.
+
+    `by_receiver=False` runs the netlogo turns agent by agent in turn order even where they can
+    run neuron by neuron across agents (the same results, slower: for tests and benchmarks).
     """
 
     def __init__(
@@ -533,13 +684,14 @@ class Engine:
         without: tuple[str, ...] = (),
         params=None,
         netlogo_seed: int | None = None,
+        by_receiver: bool = True,
     ):
         check_options(agents, semantics, order, without, netlogo_seed)
         self.circuit, self.agents = circuit, agents
         self.semantics, self.order, self.without = semantics, order, tuple(without)
         self.seeds = agent_seeds(seed, agents)
         self.params = agent_columns(agents, params, "brain")
-        self.network = build_network(circuit, self.params, self.seeds, semantics, order, without)
+        self.network = build_network(circuit, self.params, self.seeds, semantics, order, without, by_receiver)
         self.initial_weights = initial_weights(circuit, self.params, agents)
         self.state = new_state(circuit, agents, stream=order == "netlogo-stream")
         self.stream_start = None  # the stream's row as setup leaves it (order netlogo-stream)

@@ -116,6 +116,7 @@ def order_split(circuit, agents: int, ticks: int, rounds: int) -> dict:
     feeds = random_feeds(np.random.default_rng(0), circuit, ticks, agents)
     cases = {
         "netlogo, random order": Engine(circuit, agents=agents, semantics="netlogo", order="random"),
+        "netlogo, random order, turns one by one": Engine(circuit, agents=agents, order="random", by_receiver=False),
         "netlogo, file order": Engine(circuit, agents=agents, semantics="netlogo", order="file"),
         "phased": Engine(circuit, agents=agents, semantics="phased"),
     }

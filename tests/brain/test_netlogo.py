@@ -186,3 +186,83 @@ def test_each_rule_switched_off_alone():
     assert e.w[0, c.synapse_index("C", "M")] == pytest.approx(5 + 0.05 - 0.05 * math.exp(-10 / 18), abs=1e-12)
     with pytest.raises(ValueError, match="NetLogo rules are delay_count, reopen, dt0"):
         Engine(c, semantics="phased", without=("dt0",))  # phased has no NetLogo rules to switch off
+
+
+def dense_circuit(seed, neurons=10):
+    """Random synapses between `neurons` neurons (self-synapses too), delays 2-4, some inhibitory,
+    some plastic, inputs onto half: many pulses reach one neuron in one tick, from turns on both
+    sides of its own."""
+    rng = np.random.default_rng(seed)
+    names = [f"N{k}" for k in range(neurons)]
+    synapses = []
+    for pre in names:
+        for post in names:
+            if rng.random() < 0.4:
+                kind = rng.integers(3)  # 0 plain, 1 inhibitory, 2 plastic
+                weight = float(rng.uniform(4, 12))
+                synapses.append(
+                    {"from": pre, "to": post, "weight": weight, "delay": int(rng.integers(2, 5))}
+                    | ({"inhibitory": True} if kind == 1 else {})
+                    | ({"plastic": True} if kind == 2 else {})
+                )
+    inputs = {f"in{k}": {"target": names[k]} for k in range(0, neurons, 2)}
+    return build_circuit({"neurons": dict.fromkeys(names, "regular"), "inputs": inputs, "synapses": synapses})
+
+
+IDENTITY_CIRCUITS = {
+    "insect": lambda: load_circuit("insect"),
+    "association": lambda: load_circuit("association"),
+    "dense": lambda: dense_circuit(4).with_learning_rate(0.2),
+    "delay 1": lambda: converging(0.2),  # one by one, but without delay_count
+    "18 neurons": lambda: dense_circuit(5, neurons=18),  # random order: one by one (not packed in a word)
+}
+
+
+@pytest.mark.parametrize("circuit", IDENTITY_CIRCUITS)
+@pytest.mark.parametrize("agents", [16, PARALLEL_FROM + 3])
+def test_turns_by_receiver_equal_the_turns_one_by_one(circuit, agents):
+    """The netlogo turns neuron by neuron across agents (the default where no pulse is due in the
+    tick it is sent) give every spike, potential and weight of the turns agent by agent in order,
+    bit for bit: each order and rule, training switched off and on again."""
+    c = IDENTITY_CIRCUITS[circuit]()
+    rng = np.random.default_rng(2)
+    shape = (900, agents, len(c.inputs))
+    feeds = np.where(rng.random(shape) < 0.3, rng.random(shape) * 5, np.nan)
+    for order, without in (("random", ()), ("file", ()), ("random", ("delay_count",)), ("random", ("reopen",))):
+        engines = [Engine(c, agents, order=order, seed=3, without=without, by_receiver=b) for b in (True, False)]
+        for k, feed in enumerate(feeds):
+            if k in (500, 600):
+                for e in engines:
+                    e.training = k == 600
+            by_receiver, one_by_one = (e.step(feed).copy() for e in engines)
+            assert np.array_equal(by_receiver, one_by_one), (order, without, k)
+        by_receiver, one_by_one = engines
+        assert np.array_equal(by_receiver.v, one_by_one.v) and np.array_equal(by_receiver.w, one_by_one.w)
+        assert np.array_equal(by_receiver.state.hist, one_by_one.state.hist), (order, without)
+        assert not np.array_equal(by_receiver.w, by_receiver.initial_weights)  # it learned
+
+
+@pytest.mark.parametrize("agents", [3, PARALLEL_FROM + 3])
+def test_turns_by_receiver_follow_each_agents_fisher_yates_order(agents):
+    # A_k fires at tick t; its pulse (delay 2) reaches B_k in A_k's turn at t + 1: B_k fires at
+    # t + 1 when its turn at t + 1 comes after A_k's, else at t + 2.
+    pairs = 8
+    c = build_circuit(
+        {
+            "neurons": {f"{x}{k}": "regular" for x in "AB" for k in range(pairs)},
+            "inputs": {f"in{k}": {"target": f"A{k}"} for k in range(pairs)},
+            "synapses": [{"from": f"A{k}", "to": f"B{k}", "weight": 20, "delay": 2} for k in range(pairs)],
+        }
+    )
+    e = Engine(c, agents=agents, semantics="netlogo", order="random", seed=7)
+    a_at = [c.node_names.index(f"A{k}") for k in range(pairs)]
+    b_at = [c.node_names.index(f"B{k}") for k in range(pairs)]
+    for tick in (0, 5, 1000):
+        e.reset()
+        e.state.clock[TICK] = tick
+        e.step(np.zeros((agents, pairs)))
+        e.step()
+        for a in range(agents):
+            turn = np.argsort(fisher_yates(e.network.order_key[a], tick + 1, 2 * pairs))
+            expected = [turn[a_at[k]] < turn[b_at[k]] for k in range(pairs)]
+            assert e.spiked[a, b_at].tolist() == expected, (tick, a)
