@@ -38,6 +38,10 @@ SHUFFLE, COUNT_FROM_SEND, REOPEN_IN_TURN, DT0_AGAIN, STREAM = 1, 2, 4, 8, 16
 # The turns neuron by neuron across agents (engine._netlogo_by_receiver): where no pulse reaches its
 # post in the tick it is sent and the order is drawn before the turns (not NetLogo's own stream)
 BY_RECEIVER = 32
+# ... from this many agents: below, their loops are too short to pay for the passes per neuron (insect
+# circuit, one thread, agent-ticks/s by receiver against one by one: A = 8 4.7 M against 5.4 M,
+# A = 16 7.6 against 7.0, A = 128 15.0 against 8.7; EPYC, 2026-11-26)
+BY_RECEIVER_FROM = 16
 NETLOGO_RULES = {
     "delay_count": COUNT_FROM_SEND,  # a pulse's count-down starts in the sending tick (else: the next)
     "reopen": REOPEN_IN_TURN,  # a refractory neuron opens in its turn (else: at the next tick's start)
@@ -135,10 +139,10 @@ FLAT_VIEWS += ("hist_len_flat", "ring_flat")
 # feed_column [A] float64, one input neuron's feed for its agents, contiguous (engine._feed_and_inputs);
 # due_flat [neurons * A] uint8 at n * A + a, whether neuron n has pulses due now; draws_flat
 # [(neurons + 1) * A] uint64, the random order's draws (engine._netlogo_range).
-# turn_flat [neurons * A] uint8 at n * A + a, the place of neuron n's turn in agent a's order
+# places [A] uint64, the place of each neuron's turn in agent a's order (4 bits each: up to 16 neurons)
 # and arrived_flat [2 * A] uint64, one neuron's pulses due now, a bit per incoming synapse: from the
 # turns before its own (row 0) and after (engine._netlogo_by_receiver).
-SCRATCH = ("feed_column", "due_flat", "draws_flat", "turn_flat", "arrived_flat", "agent_list")
+SCRATCH = ("feed_column", "due_flat", "draws_flat", "places", "arrived_flat", "agent_list")
 structref.define_proxy(
     StateStruct, StateType, [f.name for f in dataclasses.fields(State)] + list(FLAT_VIEWS) + list(SCRATCH)
 )
@@ -157,7 +161,7 @@ def _state_struct(clock, v, w, counters, last_spike, hist, ring, spiked, stream)
     arrays = (clock, v, w, counters, last_spike, hist, ring, spiked, stream)
     agents = v.shape[1]
     scratch = (np.empty(agents), np.empty(v.size, np.uint8), np.empty(v.size + agents, np.uint64))
-    by_receiver = (np.empty(v.size, np.uint8), np.empty(2 * agents, np.uint64), np.empty(agents, np.uint64))
+    by_receiver = (np.empty(agents, np.uint64), np.empty(2 * agents, np.uint64), np.empty(agents, np.uint64))
     return StateStruct(*arrays, *flat, *counters_flat, ring.reshape(-1), *scratch, *by_receiver)
 
 
@@ -221,8 +225,8 @@ def build_network(
         rules |= sum(f for k, f in NETLOGO_RULES.items() if k not in without)
         sent_now = bool(rules & COUNT_FROM_SEND) and bool((syn[: n_synapses - n_inputs, DELAY] <= 1).any())
         few_in = np.bincount(post, minlength=1).max() <= 64  # a bit each
-        order_first = order == "file" or (order == "random" and n_neurons <= 16)  # the draws' packed order
-        if by_receiver and few_in and not sent_now and order_first:
+        packed = order in ("file", "random") and n_neurons <= 16  # the places of the turns in a word
+        if by_receiver and agents >= BY_RECEIVER_FROM and few_in and not sent_now and packed:
             rules |= BY_RECEIVER
     else:
         out_start, out_syn = np.zeros(n_neurons + 1, np.uint64), np.zeros(0, np.uint64)

@@ -17,7 +17,9 @@ public views `v`, `w` and `spiked` are [A, ...]. One tick runs five named phases
 That is the "phased" semantics. The "netlogo" semantics (`Engine(..., semantics="netlogo")`)
 reproduces the original SpikingLab NetLogo engine instead (docs/tick.md): input neurons first,
 then every neuron in its turn, in a seeded random order per agent and tick (or file order), each
-running its state machine and then at once the pulse queues of its own outgoing synapses.
+running its state machine and then at once the pulse queues of its own outgoing synapses. Where
+no pulse is due in the tick it is sent, each neuron's turn depends on its own state and on which
+senders' turns come before it, so the turns run neuron by neuron across agents (the same updates).
 
 The same circuit, feeds and seeds give the same spikes and weights, bit for bit, whether agents
 are stepped alone or together: the only randomness (the netlogo order) is a pure function of
@@ -281,20 +283,21 @@ def _netlogo_by_receiver(lo, hi, t, net, st):
     n_neurons, agents = st.v.shape[0], np.uint64(st.v.shape[1])
     v1, w1, spiked1, last1 = st.v_flat, st.w_flat, st.spiked_flat, st.last_spike_flat
     refr1, left1, hlen1, ring1 = st.refractory_flat, st.refr_left_flat, st.hist_len_flat, st.ring_flat
-    draws, turn1, arrived, agent_list = st.draws_flat, st.turn_flat, st.arrived_flat, st.agent_list
+    draws, places, arrived, agent_list = st.draws_flat, st.places, st.arrived_flat, st.agent_list
     mask = ring.shape[0] - 1
     ring_now = np.uint64(t & mask) * np.uint64(ring.shape[1]) * agents
     width = stdp.shape[2] - TABLE
     send = np.int64(1) if rules & COUNT_FROM_SEND else np.int64(0)
     reopen = (rules & REOPEN_IN_TURN) != 0
-    for a in range(lo, hi):  # each neuron's place in the order
-        perm = draws[agents + a] if rules & SHUFFLE else IDENTITY
-        for k in range(n_neurons):
-            n = (perm >> np.uint64(4 * k)) & np.uint64(15) if rules & SHUFFLE else np.uint64(k)
-            turn1[n * agents + a] = k
+    for a in range(lo, hi):  # each neuron's place in the order, 4 bits each: the order's inverse
+        places[a] = np.uint64(0) if rules & SHUFFLE else IDENTITY
+    for k in range(n_neurons if rules & SHUFFLE else 0):
+        for a in range(lo, hi):
+            n = (draws[agents + a] >> np.uint64(4 * k)) & np.uint64(15)
+            places[a] |= np.uint64(k) << (n * np.uint64(4))
     arrivals = np.empty(max(1, in_syn.shape[0]), np.uint64)  # one agent's arrivals at one neuron, by turn
     for p in range(n_neurons):
-        row, first, last_in = np.uint64(p) * agents, in_start[p], in_start[p + 1]
+        row, at, first, last_in = np.uint64(p) * agents, np.uint64(4 * p), in_start[p], in_start[p + 1]
         rest, threshold, decay, refr_v = npar[p, REST], npar[p, THRESHOLD], npar[p, DECAY], npar[p, REFR_V]
         period, floor, offset = np.int32(npar[p, REFR_PERIOD]), npar[p, FLOOR], np.int64(npar[p, STDP_OFFSET])
         prof = profile[p]
@@ -302,9 +305,10 @@ def _netlogo_by_receiver(lo, hi, t, net, st):
             arrived[a], arrived[agents + a] = 0, 0
         for i in range(first, last_in):
             s, bit = in_syn[i], np.uint64(1) << np.uint64(i - first)
-            due_at, pre_at = ring_now + s * agents, np.uint64(syn[s, PRE]) * agents
+            due_at, pre_at = ring_now + s * agents, np.uint64(4 * syn[s, PRE])
             for a in range(lo, hi):
-                due, early = ring1[due_at + a] != 0, turn1[pre_at + a] < turn1[row + a]
+                early = (places[a] >> pre_at) & np.uint64(15) < (places[a] >> at) & np.uint64(15)
+                due = ring1[due_at + a] != 0
                 ring1[due_at + a] = 0
                 arrived[a] |= bit if due & early else np.uint64(0)
                 arrived[agents + a] |= np.uint64(0) if early else (bit if due else np.uint64(0))
@@ -363,9 +367,9 @@ def _netlogo_by_receiver(lo, hi, t, net, st):
                     low = due & (~due + np.uint64(1))
                     due ^= low
                     s = in_syn[first + LOWEST_BIT[(low * DE_BRUIJN) >> np.uint64(58)]]
-                    key = turn1[np.uint64(syn[s, PRE]) * agents + a]
+                    key = (places[a] >> np.uint64(4 * syn[s, PRE])) & np.uint64(15)
                     j = m
-                    while j > 0 and turn1[np.uint64(syn[arrivals[j - 1], PRE]) * agents + a] > key:
+                    while j > 0 and (places[a] >> np.uint64(4 * syn[arrivals[j - 1], PRE])) & np.uint64(15) > key:
                         arrivals[j] = arrivals[j - 1]
                         j -= 1
                     arrivals[j] = s
@@ -669,8 +673,9 @@ class Engine:
     initial weight, input gain), each a number or one value per agent; agents with the same
     values share one STDP table.
 
-    `by_receiver=False` runs the netlogo turns agent by agent in turn order even where they can
-    run neuron by neuron across agents (the same results, slower: for tests and benchmarks).
+    The netlogo turns run neuron by neuron across agents (_netlogo_by_receiver) where the network
+    allows it and there are at least BY_RECEIVER_FROM agents, else agent by agent in turn order:
+    the same results. `by_receiver=False` keeps them agent by agent (for tests and benchmarks).
     """
 
     def __init__(

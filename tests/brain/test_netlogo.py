@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from services.brain.build import HIST_LEN, TICK, mix
+from services.brain.build import BY_RECEIVER_FROM, HIST_LEN, TICK, mix
 from services.brain.circuit import build_circuit, load_circuit
 from services.brain.engine import PARALLEL_FROM, Engine, order_draw
 
@@ -214,12 +214,12 @@ IDENTITY_CIRCUITS = {
     "association": lambda: load_circuit("association"),
     "dense": lambda: dense_circuit(4).with_learning_rate(0.2),
     "delay 1": lambda: converging(0.2),  # one by one, but without delay_count
-    "18 neurons": lambda: dense_circuit(5, neurons=18),  # random order: one by one (not packed in a word)
+    "18 neurons": lambda: dense_circuit(5, neurons=18),  # one by one: the places do not fit in a word
 }
 
 
 @pytest.mark.parametrize("circuit", IDENTITY_CIRCUITS)
-@pytest.mark.parametrize("agents", [16, PARALLEL_FROM + 3])
+@pytest.mark.parametrize("agents", [BY_RECEIVER_FROM, PARALLEL_FROM + 3])
 def test_turns_by_receiver_equal_the_turns_one_by_one(circuit, agents):
     """The netlogo turns neuron by neuron across agents (the default where no pulse is due in the
     tick it is sent) give every spike, potential and weight of the turns agent by agent in order,
@@ -242,7 +242,7 @@ def test_turns_by_receiver_equal_the_turns_one_by_one(circuit, agents):
         assert not np.array_equal(by_receiver.w, by_receiver.initial_weights)  # it learned
 
 
-@pytest.mark.parametrize("agents", [3, PARALLEL_FROM + 3])
+@pytest.mark.parametrize("agents", [BY_RECEIVER_FROM, PARALLEL_FROM + 3])
 def test_turns_by_receiver_follow_each_agents_fisher_yates_order(agents):
     # A_k fires at tick t; its pulse (delay 2) reaches B_k in A_k's turn at t + 1: B_k fires at
     # t + 1 when its turn at t + 1 comes after A_k's, else at t + 2.
