@@ -76,16 +76,18 @@ def fisher_yates(order_key, tick, neurons):
 
 @pytest.mark.parametrize("pairs", [4, 8, 9])  # 8 and 16 neurons: the order packed in a word; 18: by rows
 @pytest.mark.parametrize("agents", [3, PARALLEL_FROM + 3])
-def test_every_agent_takes_its_turns_in_its_fisher_yates_order(pairs, agents):
-    # A_k fires at tick 0 and its pulse (delay 1) reaches B_k in A_k's turn: B_k fires at 0 when
-    # its turn comes after A_k's, else at 1. So each pair shows one comparison of the order.
+@pytest.mark.parametrize("delay", [1, 2])  # 1: due in A_k's turn of its tick, the turns one by one; 2: by receiver
+def test_every_agent_takes_its_turns_in_its_fisher_yates_order(pairs, agents, delay):
+    # A_k fires at tick t and its pulse reaches B_k in A_k's turn at t + delay - 1: B_k fires then
+    # when its turn comes after A_k's, else a tick later. So each pair shows one comparison of the order.
     c = build_circuit(
         {
             "neurons": {f"{x}{k}": "regular" for x in "AB" for k in range(pairs)},
             "inputs": {f"in{k}": {"target": f"A{k}"} for k in range(pairs)},
-            "synapses": [{"from": f"A{k}", "to": f"B{k}", "weight": 20, "delay": 1} for k in range(pairs)],
+            "synapses": [{"from": f"A{k}", "to": f"B{k}", "weight": 20, "delay": delay} for k in range(pairs)],
         }
     )
+    agents = max(agents, BY_RECEIVER_FROM) if delay == 2 else agents
     e = Engine(c, agents=agents, semantics="netlogo", order="random", seed=7)
     a_at = [c.node_names.index(f"A{k}") for k in range(pairs)]
     b_at = [c.node_names.index(f"B{k}") for k in range(pairs)]
@@ -94,8 +96,10 @@ def test_every_agent_takes_its_turns_in_its_fisher_yates_order(pairs, agents):
         e.state.clock[TICK] = tick
         e.step(np.zeros((agents, pairs)))
         assert e.spiked[:, a_at].all()
+        for _ in range(delay - 1):
+            e.step()
         for a in range(agents):
-            turn = np.argsort(fisher_yates(e.network.order_key[a], tick, 2 * pairs))  # each neuron's place
+            turn = np.argsort(fisher_yates(e.network.order_key[a], tick + delay - 1, 2 * pairs))  # each neuron's place
             expected = [turn[a_at[k]] < turn[b_at[k]] for k in range(pairs)]
             assert e.spiked[a, b_at].tolist() == expected, (tick, a)
 
@@ -240,29 +244,3 @@ def test_turns_by_receiver_equal_the_turns_one_by_one(circuit, agents):
         assert np.array_equal(by_receiver.v, one_by_one.v) and np.array_equal(by_receiver.w, one_by_one.w)
         assert np.array_equal(by_receiver.state.hist, one_by_one.state.hist), (order, without)
         assert not np.array_equal(by_receiver.w, by_receiver.initial_weights)  # it learned
-
-
-@pytest.mark.parametrize("agents", [BY_RECEIVER_FROM, PARALLEL_FROM + 3])
-def test_turns_by_receiver_follow_each_agents_fisher_yates_order(agents):
-    # A_k fires at tick t; its pulse (delay 2) reaches B_k in A_k's turn at t + 1: B_k fires at
-    # t + 1 when its turn at t + 1 comes after A_k's, else at t + 2.
-    pairs = 8
-    c = build_circuit(
-        {
-            "neurons": {f"{x}{k}": "regular" for x in "AB" for k in range(pairs)},
-            "inputs": {f"in{k}": {"target": f"A{k}"} for k in range(pairs)},
-            "synapses": [{"from": f"A{k}", "to": f"B{k}", "weight": 20, "delay": 2} for k in range(pairs)],
-        }
-    )
-    e = Engine(c, agents=agents, semantics="netlogo", order="random", seed=7)
-    a_at = [c.node_names.index(f"A{k}") for k in range(pairs)]
-    b_at = [c.node_names.index(f"B{k}") for k in range(pairs)]
-    for tick in (0, 5, 1000):
-        e.reset()
-        e.state.clock[TICK] = tick
-        e.step(np.zeros((agents, pairs)))
-        e.step()
-        for a in range(agents):
-            turn = np.argsort(fisher_yates(e.network.order_key[a], tick + 1, 2 * pairs))
-            expected = [turn[a_at[k]] < turn[b_at[k]] for k in range(pairs)]
-            assert e.spiked[a, b_at].tolist() == expected, (tick, a)
