@@ -140,8 +140,9 @@ FLAT_VIEWS += ("hist_len_flat", "ring_flat")
 # due_flat [neurons * A] uint8 at n * A + a, whether neuron n has pulses due now; draws_flat
 # [(neurons + 1) * A] uint64, the random order's draws (engine._netlogo_range).
 # places [A] uint64, the place of each neuron's turn in agent a's order (4 bits each: up to 16 neurons)
-# and arrived_flat [2 * A] uint64, one neuron's pulses due now, a bit per incoming synapse: from the
-# turns before its own (row 0) and after (engine._netlogo_by_receiver).
+# arrived_flat [2 * A] uint64, one neuron's pulses due now, a bit per incoming synapse: from the
+# turns before its own (row 0) and after; agent_list [A] uint64, the agents with any of them
+# (engine._netlogo_by_receiver).
 SCRATCH = ("feed_column", "due_flat", "draws_flat", "places", "arrived_flat", "agent_list")
 structref.define_proxy(
     StateStruct, StateType, [f.name for f in dataclasses.fields(State)] + list(FLAT_VIEWS) + list(SCRATCH)

@@ -412,7 +412,8 @@ def _netlogo_by_receiver(lo, hi, t, net, st):
 def _netlogo_range(lo, hi, t, feed, net, st):
     """NetLogo tick t for agents lo..hi-1: what precedes the turns (the feed, input pulses, the end
     of refractory periods, which neurons have pulses due, the random order's draws and, up to 16
-    neurons, its swaps) as vector loops across agents, then each agent's turns in sequence.
+    neurons, its swaps) as vector loops across agents, then each agent's turns in sequence (or,
+    where the network allows, neuron by neuron across agents: _netlogo_by_receiver).
 
     Of a neuron's whole history only two kinds of entry change w when a plastic pulse arrives:
     every remembered arrival came at or after the post's last spike (the history is cleared when
