@@ -275,7 +275,11 @@ def _netlogo_by_receiver(lo, hi, t, net, st):
     the weights onto it and pulses due in later ticks; a pulse due now is delivered in its sender's
     turn and changes only its post and its own weight. So each neuron's tick is its own: the
     arrivals whose senders come before it in the order (in the order of the senders' turns), its
-    state machine, then the rest. The order is the draws' permutation (row 1 of draws_flat)."""
+    state machine, then the rest. The order is the draws' permutation (row 1 of draws_flat).
+
+    As _netlogo_range, one function with no calls in its loops: the plastic arrival shared with
+    it as an inline helper took both kernels to half their speed (A = 1,000, `bench engine --orders`
+    in turns: 13.1-13.4 M against 27.0-28.6 M by receiver, 10.3-11.9 against 15.3-17.0 M one by one)."""
     syn, npar, stdp, group, profile = net.syn, net.npar, net.stdp, net.group, net.profile
     out_start, out_syn, in_start, in_syn, rules = net.out_start, net.out_syn, net.in_start, net.in_syn, net.rules
     training = st.clock[TRAINING] != 0
