@@ -440,7 +440,6 @@ def _netlogo_range(lo, hi, t, feed, net, st):
     now = np.uint64(t & mask)
     n_net = syn.shape[0] - feed.shape[1]
     width = stdp.shape[2] - TABLE  # W(dt) is stdp[g, p, TABLE + dt + offset] for 0 <= dt + offset < width
-    order = np.empty(n_neurons, np.uint64)  # the k-th neuron to take its turn; unsigned: no negative-index checks
     send = np.int64(1) if rules & COUNT_FROM_SEND else np.int64(0)  # count-down ticks used in the sending tick
     reopen = (rules & REOPEN_IN_TURN) != 0
     agents = np.uint64(v.shape[1])  # the turns read flat views (build.FLAT_VIEWS): index n * agents + a
@@ -460,15 +459,6 @@ def _netlogo_range(lo, hi, t, feed, net, st):
             arrived, vp, ws, closed = ring[now, s, a] != 0, v[post, a], w[s, a], counters[REFRACTORY, post, a]
             ring[now, s, a] = 0
             v[post, a] = vp + ws if arrived & (closed == 0) else vp
-    by_receiver = (rules & BY_RECEIVER) != 0
-    for n in range(0 if by_receiver else n_neurons):  # which neurons have pulses due now: most turns deliver none
-        row = np.uint64(n) * agents
-        for a in range(lo, hi):
-            due1[row + a] = 0
-    for s in range(0 if by_receiver else n_net):
-        pre = np.uint64(syn[s, PRE])
-        for a in range(lo, hi):
-            due1[pre * agents + a] |= ring[now, s, a]
     # The random order: each agent's Fisher-Yates draws across agents (vector loops), then the
     # swaps. Row 0 of `draws`: the LCG's start, a hash of (seed, tick); step i's r by jump-ahead,
     # j in 0..i by multiply-shift. Up to 16 neurons, the swaps too, on a permutation packed in
@@ -491,9 +481,18 @@ def _netlogo_range(lo, hi, t, feed, net, st):
                     draws[agents + a] = perm ^ ((x << si) | (x << sj))
                 else:
                     draws[row + a] = j
-    if by_receiver:
+    if rules & BY_RECEIVER:
         _netlogo_by_receiver(lo, hi, t, net, st)
         return
+    for n in range(n_neurons):  # which neurons have pulses due now: most turns deliver none
+        row = np.uint64(n) * agents
+        for a in range(lo, hi):
+            due1[row + a] = 0
+    for s in range(n_net):
+        pre = np.uint64(syn[s, PRE])
+        for a in range(lo, hi):
+            due1[pre * agents + a] |= ring[now, s, a]
+    order = np.empty(n_neurons, np.uint64)  # the k-th neuron to take its turn; unsigned: no negative-index checks
     for a in range(lo, hi):
         g = group[a]
         perm = draws[agents + a] if rules & SHUFFLE and packed else IDENTITY
