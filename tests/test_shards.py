@@ -4,12 +4,14 @@ import json
 import subprocess
 import sys
 
+import numba
 import numpy as np
 
 from services.brain.checkpoint import load_weights
 from services.brain.circuit import load_circuit
 from services.loop import brain_for, closed_loop
-from services.world.world import World, params_for
+from services.world.world import SENSORS, World, params_for
+from spikinglab.bench.scale import links
 
 from .processes import continued_where_lost, endpoint, finish, kill_mid_run, start, watched_world
 
@@ -183,3 +185,11 @@ def test_the_scale_and_loop_benchmarks_print_their_figures():
         "recording_ticks_per_s",
     }
     assert all(v > 0 for v in figures.values())
+
+
+def test_the_scale_benchmark_times_each_link_of_the_chain_on_one_thread():
+    threads = numba.get_num_threads()
+    figures = links(agents=64, ticks=5)
+    assert all(figures[f"{link}_ms"] > 0 for link in ("world", "engine", "message"))
+    assert figures["message_bytes"] >= 64 * len(SENSORS) * 8  # the values, float64
+    assert numba.get_num_threads() == threads  # its threads given back

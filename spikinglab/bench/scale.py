@@ -20,6 +20,10 @@ here (`spikinglab bench engine`). The last line is JSON: {"agents": A, "cores": 
 Process counts above the core count share cores, so measure where there are at least as many
 cores as processes. Run:
 `spikinglab bench scale [--agents 16000] [--shards 1 2 4 8] [--world-shards 1] [--ticks 200]`.
+
+--links: only the links of the lock-step chain a tick waits on, in this process on one thread
+(the world's sense and act, the engine's step, the sensors message encoded and decoded), in ms per
+tick, with the message's size: what a shard of each kind divides.
 """
 
 from __future__ import annotations
@@ -28,15 +32,23 @@ import json
 import os
 import subprocess
 import tempfile
+import time
 from pathlib import Path
 
+import numba
+
+from services.brain.circuit import load_circuit
+from services.bus.schemas import Array, Sensors, decode, encode
 from services.launch import local_endpoints, spawn
+from services.loop import brain_for, world_actions
 from services.options import Parser, at_least
+from services.world.world import SENSORS, World
 from spikinglab.bench import steady_rate
 from spikinglab.bench.loop import zenoh_roundtrips
 
 NEAR = 0.5  # a rate at least this share of a bound's is noted as near that bound
 ROUND_TRIPS = 2000  # of the bare ping-pong
+WARM_UP = 20  # --links: ticks that compile the kernels, not measured
 
 
 def sharded(agents: int, shards: int, ticks: int, worlds: int = 1) -> float:
@@ -79,6 +91,40 @@ def sharded(agents: int, shards: int, ticks: int, worlds: int = 1) -> float:
         return steady_rate(Path(tmp)) * agents
 
 
+def links(agents: int, ticks: int) -> dict:
+    """Ms per tick of each link of the lock-step chain, on one thread, and the message's bytes."""
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        world = World(seed=1, agents=agents)
+        brain = brain_for(world, load_circuit("insect"))
+        seconds, size = {"world": 0.0, "engine": 0.0, "message": 0.0}, 0
+        for tick in range(ticks + WARM_UP):
+            t0 = time.perf_counter()
+            values = world.sense()
+            t1 = time.perf_counter()
+            payload = encode(Sensors(tick=tick, names=SENSORS, values=Array.view(values), run="links"))
+            decode(payload, Sensors)
+            t2 = time.perf_counter()
+            actions = brain.step(values)
+            t3 = time.perf_counter()
+            world.act(world_actions(brain.action_names, actions))
+            if tick >= WARM_UP:
+                seconds["world"] += t1 - t0 + time.perf_counter() - t3
+                seconds["message"] += t2 - t1
+                seconds["engine"] += t3 - t2
+                size = len(payload)
+    finally:
+        numba.set_num_threads(threads)
+    result = {f"{link}_ms": round(s / ticks * 1e3, 3) for link, s in seconds.items()} | {"message_bytes": size}
+    print(
+        f"A = {agents:,}, one thread, ms per tick: world (sense + act) {result['world_ms']:.2f}, engine "
+        f"{result['engine_ms']:.2f}, sensors message encoded and decoded {result['message_ms']:.2f} "
+        f"({size / 1e6:.2f} MB)"
+    )
+    return result
+
+
 def bounds(worlds: int, shards: int, ticks_per_s: float, cores: int, round_trips: float) -> str:
     """The row's note: each bound the case is near or over, as measured, or ""."""
     processes = worlds + shards + (worlds > 1)  # the router relays where there are world shards
@@ -101,7 +147,12 @@ def main(argv=None) -> dict:
         default=200,
         help="lock-step ticks per case; the rate is after the first (default 200)",
     )
+    p.add_argument("--links", action="store_true", help="only the chain's links in this process, one thread")
     args = p.parse_args(argv)
+    if args.links:
+        result = links(args.agents, args.ticks)
+        print(json.dumps(result))
+        return result
     for option, counts in (("--shards", args.shards), ("--world-shards", args.world_shards)):
         if max(counts) > args.agents:
             p.error(f"argument {option}: {max(counts)} shards of {args.agents:,} agents: at most one shard per agent")
