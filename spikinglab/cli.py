@@ -4,6 +4,7 @@ in the registry (services/commands.py)."""
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 
 from services.commands import BENCHMARKS, COMMANDS
@@ -68,9 +69,13 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(2)
     try:
         code = command_module(name, module).main(rest)
+        sys.stdout.flush()  # a reader gone shows here, not as Python's error at its exit
     except KeyboardInterrupt:  # one the command does not take itself, its modules loading too: a line, not a traceback
         print(f"spikinglab {name}: interrupted", file=sys.stderr)
         sys.exit(130)
+    except BrokenPipeError:  # whoever read the output stopped (`| head`): nothing more to say
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # the exit's flush would fail again
+        sys.exit(1)
     sys.exit(code if isinstance(code, int) else 0)  # benchmarks return their figures
 
 

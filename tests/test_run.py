@@ -125,6 +125,17 @@ def test_unknown_command_and_help():
     assert bench.returncode == 0 and "spikinglab bench {engine,loop,scale," in bench.stdout
 
 
+def test_a_reader_that_stops_reading_ends_a_command_without_a_traceback():
+    """`spikinglab ... | head`: the pipe closed before the command's output, as `head` does."""
+    command = [sys.executable, "-m", "spikinglab", "bench", "scale", "--links", "--agents", "64", "--ticks", "5"]
+    done = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    assert done.stdout is not None and done.stderr is not None
+    done.stdout.close()
+    err = done.stderr.read()
+    assert done.wait(timeout=120) == 1
+    assert "Traceback" not in err and "BrokenPipeError" not in err, err
+
+
 def test_sweep_writes_the_table(tmp_path):
     done = spikinglab("sweep", "--a-plus", 0.02, 0.04, "--seeds", 2, "--ticks", 4000, "--runs", tmp_path, "--id", "s")
     assert done.returncode == 0, done.stderr
