@@ -245,9 +245,11 @@ def test_a_second_copy_of_a_world_shard_waiting_for_its_lead_stays_off(tmp_path)
         assert "-waiting-" not in (tmp_path / log).read_text()
 
 
-def test_a_world_shard_lost_mid_run_ends_the_lead_with_an_error(tmp_path):
+def test_a_world_shard_lost_mid_run_ends_the_lead_and_the_brain_with_an_error(tmp_path):
     """kill -9 of world shard 2 mid-run: the lead runs its own slice to the end, then names the lost
-    shard and exits 1 (no metrics.json: half the population has no result), not 0."""
+    shard and exits 1 (no metrics.json: half the population has no result), not 0. The `--once`
+    brain takes the lead's end, names the lost shard too and exits 1; its weights are kept as a run
+    that stopped without its end, not saved to --save as a whole run's."""
     with shards_on_a_router(tmp_path, "wl", 1, 20_000) as (worlds, shards):
         # the lead says the run's ticks and seed once every shard has joined
         wait_for(lambda: " ticks, seed " in (tmp_path / "world1.log").read_text(), 120, "the run to start")
@@ -257,6 +259,11 @@ def test_a_world_shard_lost_mid_run_ends_the_lead_with_an_error(tmp_path):
         log = (tmp_path / "world1.log").read_text()
         assert "world-2of2 left the bus before the end of its ticks: the run has no result for its insects" in log
         assert not (tmp_path / "metrics.json").exists()
+        assert finish(shards[0], 60, tmp_path / "brain1.log") == 1
+    log = (tmp_path / "brain1.log").read_text()
+    assert "(world-2of2 left the bus before the end of its ticks): its weights so far saved to" in log
+    assert "has no whole result (world-2of2 lost); --once ends here" in log
+    assert not (tmp_path / "weights1.npz").exists() and len(list(tmp_path.glob("weights1-*-tick*.npz"))) == 1
 
 
 def test_the_lead_lost_mid_run_ends_the_once_brains_that_served_it(tmp_path):

@@ -39,6 +39,7 @@ class LockStep:
         self.ending: Control | None = None  # the end of the run served, held until it is due (due_end)
         self.heard_at = time.monotonic()  # when the last sensors came
         self.router_since: float | None = None  # on a router, its world gone, since (world_gone_for_good)
+        self.exit_code = 0  # --once: 1 where a world shard of the run served was lost
         group = bus.group
         self.sensors = bus.inbox(keys.sensors(group, config.shard), Sensors)
         self.control = bus.inbox(keys.control(group), Control)
@@ -111,6 +112,9 @@ class LockStep:
             return node
         if self.nodes and (message.run != self.node.run or len(self.nodes) >= self.config.world_shards):
             return self.node
+        if not self.nodes:  # the run's first piece: which world shards finish or leave, from now on
+            for presence in (*self.worlds, *self.done):
+                presence.seen_from_now()
         return self.nodes.setdefault(message.first, self.new_node())
 
     def run(self) -> int:
@@ -127,10 +131,10 @@ class LockStep:
                 if isinstance(message, Sensors):
                     new_run = self.starts_run(message)  # asked once: the answer changes as time passes
                     if new_run and self.ending is not None and self.finish_run(self.ending):
-                        return 0  # the run served had its end, and --once serves no other
+                        return self.exit_code  # the run served had its end, and --once serves no other
                     self.serve(message, new_run)
                 if self.take_orders():
-                    return 0
+                    return self.exit_code
                 if message is None and self.unsaved() and not self.world_alive():  # gone without an end
                     self.keep_learning("its world left the bus")
                 if self.config.once and self.world_gone_for_good():
@@ -205,16 +209,27 @@ class LockStep:
         return self.ending
 
     def finish_run(self, order: Control) -> bool:
-        """End the run served at `order`; True when this brain is done (--once)."""
-        self.end_run(order)
+        """End the run served at `order`; True when this brain is done (--once), with exit_code 1
+        where a world shard of the run was lost."""
+        lost = self.end_run(order)
         self.ending = None  # only now: a SIGTERM while the end is saved saves it again (run's except)
         if self.config.once:
+            if lost:
+                log.error("run %s has no whole result (%s lost); --once ends here", order.run, ", ".join(lost))
+                self.exit_code = 1
             return True
         self.nodes = {}
         return False
 
-    def end_run(self, order: Control) -> None:
-        """The run ended: the last state batch with the final weights, the stats, the weights saved."""
+    def lost_shards(self) -> list[str]:
+        """The world shards of the run served (but the lead, which ends it) that left the bus before
+        they finished their ticks: seen in this run, gone, and never said they had finished."""
+        return [w.service for w, d in zip(self.worlds[1:], self.done) if w.seen and not w.alive and not d.seen]
+
+    def end_run(self, order: Control) -> list[str]:
+        """The run ended: the last state batch with the final weights, the stats, the weights saved;
+        where a world shard of it was lost, they are kept as a run that stopped without its end (not
+        saved to --save, which holds whole runs). The world shards lost."""
         config, node = self.config, self.node
         if self.state is not None and node.brain is not None:
             self.state.put(node.state_message(final=True))
@@ -227,9 +242,13 @@ class LockStep:
             config.stats.write_text(
                 json.dumps({"ticks": node.last_tick + 1, "rejected_messages": self.bus.rejections()})
             )
-        if config.save and node.brain is not None:
+        lost = self.lost_shards()
+        if lost:
+            self.keep_learning(f"{', '.join(lost)} left the bus before the end of its ticks")
+        elif config.save and node.brain is not None:
             save_weights(config.save, self.weights(), node.circuit, tick=order.tick)
             log.info("weights saved to %s", config.save)
+        return lost
 
     def weights(self) -> np.ndarray:
         """The weights of every agent served, pieces in the population's order."""

@@ -245,6 +245,10 @@ class Presence:
     def alive(self) -> bool:
         return bool(self._alive)
 
+    def seen_from_now(self) -> None:
+        """`seen` from here on says whether one has been alive since this call (a new run's watch)."""
+        self.seen = self.alive
+
     def wait(self, timeout: float | None = None) -> bool:
         """Wait until at least one is alive; True if so."""
         with self._changed:
