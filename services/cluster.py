@@ -15,8 +15,9 @@ import asyncio
 import logging
 import re
 import socket
+import threading
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from concurrent.futures import CancelledError, ThreadPoolExecutor
+from concurrent.futures import CancelledError, Future
 from contextlib import contextmanager
 from functools import partial
 from typing import cast
@@ -97,18 +98,27 @@ def require_scheduler(address: str, host: str, port: int) -> None:
         raise ClusterError(
             f"no Dask scheduler answers at {address} within {CONNECT_S} s ({type(e).__name__})"
         ) from None
-    with ThreadPoolExecutor(1) as thread:  # a loop of its own: the caller may be in one (Jupyter)
+    answer: Future = Future()
+
+    def ask() -> None:  # in a loop of its own: the caller may be in one (Jupyter)
         try:
-            kind = thread.submit(asyncio.run, identity(address)).result()
-        except TimeoutError:
-            raise ClusterError(
-                f"something at {address} accepts connections but does not answer as Dask does within "
-                f"{CONNECT_S} s: not a Dask scheduler (its dashboard's port?)"
-            ) from None
-        except Exception:  # another protocol's bytes read as Dask's frames: any error (a MemoryError too)
-            raise ClusterError(
-                f"something at {address} answered, but not in Dask's protocol: not a Dask scheduler"
-            ) from None
+            answer.set_result(asyncio.run(identity(address)))
+        except BaseException as e:
+            answer.set_exception(e)
+
+    # a daemon thread: Ctrl-C ends the study at once, not when the check has timed out
+    threading.Thread(target=ask, name="dask-scheduler-check", daemon=True).start()
+    try:
+        kind = answer.result()
+    except TimeoutError:
+        raise ClusterError(
+            f"something at {address} accepts connections but does not answer as Dask does within "
+            f"{CONNECT_S} s: not a Dask scheduler (its dashboard's port?)"
+        ) from None
+    except Exception:  # another protocol's bytes read as Dask's frames: any error (a MemoryError too)
+        raise ClusterError(
+            f"something at {address} answered, but not in Dask's protocol: not a Dask scheduler"
+        ) from None
     if kind != "Scheduler":
         raise ClusterError(f"{address} is a Dask {kind}, not a scheduler: give the scheduler's address")
 

@@ -5,6 +5,7 @@ runs that block again on another worker. Without a cluster, nothing of Dask (or 
 
 import json
 import re
+import signal
 import socket
 import subprocess
 import sys
@@ -252,6 +253,29 @@ def test_an_address_that_is_not_a_scheduler_is_named_in_one_line(cluster, tmp_pa
             for wrong, said in cases.items():
                 with pytest.raises(ClusterError, match=re.escape(said)):
                     evaluate(PARAMS, 1000, [0], cluster=wrong)
+
+
+def test_ctrl_c_during_the_check_of_a_silent_scheduler_ends_the_sweep_at_once(tmp_path):
+    """Ctrl-C while the sweep waits for a port that accepts and stays silent to say it is a Dask
+    scheduler: the sweep ends there (exit 130, nothing written), not when the 5 s check times out."""
+    with socket.socket() as silent:
+        silent.bind(("127.0.0.1", 0))
+        silent.listen()
+        silent.settimeout(60)
+        address = f"tcp://127.0.0.1:{silent.getsockname()[1]}"
+        command = [sys.executable, "-m", "spikinglab", "sweep", "--cluster", address, "--runs", str(tmp_path)]
+        sweep_process = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            first, _ = silent.accept()  # a plain connection first, then the check's, which waits for an answer
+            second, _ = silent.accept()
+            with first, second:
+                sweep_process.send_signal(signal.SIGINT)
+                _, err = sweep_process.communicate(timeout=4)  # the check alone would hold it 5 s
+        finally:
+            sweep_process.kill()
+    assert sweep_process.returncode == 130
+    assert err.strip().splitlines()[-1] == "spikinglab sweep: interrupted, no table written"
+    assert "Traceback" not in err and not list(tmp_path.iterdir())
 
 
 def test_a_malformed_address_is_refused_before_anything_starts(tmp_path, capsys):
