@@ -207,8 +207,9 @@ def test_a_sharded_worlds_end_is_taken_once_every_other_world_shard_has_stopped(
 ):
     """The lead's end of the run names its own tick, before the last of the piece that world shard
     2 sends: the brain holds it, answers world shard 2's next tick, and ends the run with it once
-    that shard has finished its ticks (its -done token) or left the bus, its weights saved to
-    --save. Another run's end is refused; a second end of the run changes nothing."""
+    that shard has finished its ticks (its -done token), its weights saved to --save, or left the
+    bus without it (lost: the weights kept as a run that stopped without its end, not saved to
+    --save). Another run's end is refused; a second end of the run changes nothing."""
     served, lead, other = sharded_run(sessions, router, ["--save", tmp_path / "weights.npz"])
     lead.end("r2", 30)
     lead.end("r1", 9)
@@ -230,8 +231,14 @@ def test_a_sharded_worlds_end_is_taken_once_every_other_world_shard_has_stopped(
     with caplog.at_level("INFO", logger="spikinglab.brain"):
         wait_for(served.take_orders, 10, "the brain to end the run")
     assert "run ended at tick 9 (world shard 1's; the last tick of each piece served: 9, 20)" in caplog.text
-    assert load_weights(tmp_path / "weights.npz", CIRCUIT).shape[0] == 2  # both pieces' agents
-    assert not list(tmp_path.glob("weights-*"))  # not kept as a run that stopped without its end
+    kept = list(tmp_path.glob("weights-*"))  # kept as a run that stopped without its end
+    if stops == "done":
+        assert load_weights(tmp_path / "weights.npz", CIRCUIT).shape[0] == 2  # both pieces' agents
+        assert not kept and "left the bus before the end of its ticks" not in caplog.text
+    else:
+        assert not (tmp_path / "weights.npz").exists() and len(kept) == 1
+        assert load_weights(kept[0], CIRCUIT).shape[0] == 2
+        assert "stopped at tick 10 without its end (world-2of2 left the bus before the end of its ticks)" in caplog.text
 
 
 def test_a_world_shard_on_the_bus_that_sends_nothing_for_gone_s_holds_the_end_no_longer(
