@@ -78,6 +78,7 @@ class Network:
     stdp: np.ndarray  # [groups, profiles, LO, HI, W(dt)...]
     group: np.ndarray  # [A]: agent a's row of stdp
     profile: np.ndarray  # [neurons]: neuron n's column of stdp
+    learns: np.ndarray  # [neurons] bool: a plastic synapse comes in (no other neuron ever has a history)
     out_start: np.ndarray  # [neurons + 1] uint64: neuron n's outgoing synapses are out_syn[out_start[n]:out_start[n+1]]
     out_syn: np.ndarray  # [network synapses] uint64
     in_start: np.ndarray  # [neurons + 1] uint64: neuron n's incoming synapses are in_syn[in_start[n]:in_start[n+1]]
@@ -235,7 +236,9 @@ def build_network(
         order_key, order_jump, rules = np.zeros(agents, np.uint64), np.zeros((2, 0), np.uint64), 0
     stream_order = source_order(c) if order == "netlogo-stream" else np.zeros(0, np.uint64)
     order_fields = (out_start, out_syn, in_start, in_syn, order_key, order_jump, rules, stream_order)
-    return Network(syn, npar, inpar, stdp, group, profile, *order_fields)
+    learns = np.zeros(n_neurons, np.bool_)
+    learns[syn[(syn[:, FLAGS] & PLASTIC) != 0, POST]] = True
+    return Network(syn, npar, inpar, stdp, group, profile, learns, *order_fields)
 
 
 def lcg_jumps(steps: int) -> np.ndarray:

@@ -188,7 +188,7 @@ def _deliver(lo, hi, t, training, syn, npar, lrn, v, w, counters, last_spike, hi
 
 
 @njit(cache=True, inline="always")
-def _fire(lo, hi, t, training, syn, npar, lrn, v, w, counters, last_spike, hist, spiked):
+def _fire(lo, hi, t, training, learns, npar, lrn, v, w, counters, last_spike, hist, spiked):
     """Phase 4: refractory clamp, fire at threshold (STDP potentiation), or decay toward rest."""
     for n in range(v.shape[0]):
         threshold, rest, decay = npar[n, THRESHOLD], npar[n, REST], npar[n, DECAY]
@@ -201,10 +201,7 @@ def _fire(lo, hi, t, training, syn, npar, lrn, v, w, counters, last_spike, hist,
             counters[REFR_LEFT, n, a] = period if fire else counters[REFR_LEFT, n, a] - refractory
             last_spike[n, a] = t if fire else last_spike[n, a]
             spiked[n, a] = fire
-        learns = False  # a history only where a plastic synapse comes in
-        for s in range(syn.shape[0]):
-            learns |= (syn[s, POST] == n) & ((syn[s, FLAGS] & PLASTIC) != 0)
-        for a in range(lo, hi if learns else lo):
+        for a in range(lo, hi if learns[n] else lo):  # a history only where a plastic synapse comes in
             if spiked[n, a] and counters[HIST_LEN, n, a] > 0:
                 if training:  # every remembered arrival is paired with this spike
                     for h in range(counters[HIST_LEN, n, a]):
@@ -234,7 +231,7 @@ def _step_range(lo, hi, t, feed, net, st):
     v, w, counters, last_spike, hist, ring, spiked = st.v, st.w, st.counters, st.last_spike, st.hist, st.ring, st.spiked
     _feed_and_inputs(lo, hi, t, feed, net.inpar, syn, v.shape[0], counters, ring, spiked, st.feed_column)
     _deliver(lo, hi, t, training, syn, npar, lrn, v, w, counters, last_spike, hist, ring)
-    _fire(lo, hi, t, training, syn, npar, lrn, v, w, counters, last_spike, hist, spiked)
+    _fire(lo, hi, t, training, net.learns, npar, lrn, v, w, counters, last_spike, hist, spiked)
     _emit(lo, hi, t, syn, feed.shape[1], ring, spiked)
 
 
@@ -334,10 +331,7 @@ def _netlogo_by_receiver(lo, hi, t, net, st):
                     v1[pa] = refr_v if refractory else (vn if fire | (vn == rest) else decayed)
                     last1[pa] = t if fire else last1[pa]
                     spiked1[pa] = fire
-                learns = False  # a history only where a plastic synapse comes in
-                for i in range(first, last_in):
-                    learns |= (syn[in_syn[i], FLAGS] & PLASTIC) != 0
-                for a in range(lo, hi if learns else lo):  # a spike: potentiation over the history
+                for a in range(lo, hi if net.learns[p] else lo):  # a spike: potentiation over the history
                     pa = row + a
                     if not spiked1[pa]:
                         continue
