@@ -232,7 +232,8 @@ class Presence:
     def _on_sample(self, sample) -> None:
         key = str(sample.key_expr)
         up = sample.kind == zenoh.SampleKind.PUT
-        self.seen = self.seen or up
+        if up:  # only set here: seen_from_now may clear it meanwhile
+            self.seen = True
         with self._changed:
             (self._alive.add if up else self._alive.discard)(key)
             self._changed.notify_all()
