@@ -236,8 +236,7 @@ def build_network(
         order_key, order_jump, rules = np.zeros(agents, np.uint64), np.zeros((2, 0), np.uint64), 0
     stream_order = source_order(c) if order == "netlogo-stream" else np.zeros(0, np.uint64)
     order_fields = (out_start, out_syn, in_start, in_syn, order_key, order_jump, rules, stream_order)
-    learns = np.zeros(n_neurons, np.bool_)
-    learns[syn[(syn[:, FLAGS] & PLASTIC) != 0, POST]] = True
+    learns = np.isin(np.arange(n_neurons), list(c.learning_neurons))
     return Network(syn, npar, inpar, stdp, group, profile, learns, *order_fields)
 
 
@@ -300,7 +299,7 @@ def learning_tables(circuit: Circuit, params: dict, agents: int) -> tuple:
     names = [k for k in params if k in LEARNING_FIELDS or k == "initial_weight"]
     rows = np.column_stack([params[k] for k in names]) if names else np.zeros((agents, 0))
     settings, group = np.unique(rows, axis=0, return_inverse=True)
-    learning = {circuit.synapses[k].post for k in circuit.plastic_synapses}
+    learning = circuit.learning_neurons
     keys = [(t, n in learning) for n, t in enumerate(circuit.neuron_types)]
     kinds = list(dict.fromkeys(keys))
     profile = np.array([kinds.index(k) for k in keys], dtype=np.int64)

@@ -135,6 +135,12 @@ class Circuit:
     def plastic_synapses(self) -> list[int]:
         return [k for k, s in enumerate(self.synapses) if s.plastic]
 
+    @property
+    def learning_neurons(self) -> set[int]:
+        """The neurons that a plastic synapse targets: those whose learning values a study sets, and
+        the only ones that ever remember arrivals."""
+        return {self.synapses[k].post for k in self.plastic_synapses}
+
     def with_learning_rate(self, a_plus: float, a_minus: float | None = None) -> Circuit:
         """Set A+ (and A-, default = A+) of every neuron type that is the target of a plastic synapse."""
         a_minus = a_plus if a_minus is None else a_minus
@@ -145,7 +151,7 @@ class Circuit:
 
     def with_learning_params(self, **fields) -> Circuit:
         """Set NeuronType fields (w_max, tau_plus, ...) of every neuron that a plastic synapse targets."""
-        learning = {self.synapses[k].post for k in self.plastic_synapses}
+        learning = self.learning_neurons
         types = []
         for n, t in enumerate(self.neuron_types):
             if n in learning:
