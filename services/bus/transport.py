@@ -232,9 +232,8 @@ class Presence:
     def _on_sample(self, sample) -> None:
         key = str(sample.key_expr)
         up = sample.kind == zenoh.SampleKind.PUT
-        if up:  # only set here: seen_from_now may clear it meanwhile
-            self.seen = True
-        with self._changed:
+        with self._changed:  # with seen_from_now's: a token's arrival is never lost between the two
+            self.seen = self.seen or up
             (self._alive.add if up else self._alive.discard)(key)
             self._changed.notify_all()
         if self._on_change is not None:
@@ -248,7 +247,8 @@ class Presence:
 
     def seen_from_now(self) -> None:
         """`seen` from here on says whether one has been alive since this call (a new run's watch)."""
-        self.seen = self.alive
+        with self._changed:
+            self.seen = bool(self._alive)
 
     def wait(self, timeout: float | None = None) -> bool:
         """Wait until at least one is alive; True if so."""
