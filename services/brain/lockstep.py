@@ -112,7 +112,7 @@ class LockStep:
             return node
         if self.nodes and (message.run != self.node.run or len(self.nodes) >= self.config.world_shards):
             return self.node
-        if not self.nodes:  # the run's first piece: which world shards finish or leave, from now on
+        if not self.nodes:  # the run's first piece: which world shards are seen, and finish, from now on
             for presence in (*self.worlds, *self.done):
                 presence.seen_from_now()
         return self.nodes.setdefault(message.first, self.new_node())
@@ -223,8 +223,10 @@ class LockStep:
 
     def lost_shards(self) -> list[str]:
         """The world shards of the run served (but the lead, which ends it) that left the bus before
-        they finished their ticks: seen in this run, gone, and never said they had finished."""
-        return [w.service for w, d in zip(self.worlds[1:], self.done) if w.seen and not w.alive and not d.seen]
+        they finished their ticks: gone, and never said in this run that they had finished (each
+        holds its -done token until the lead's end; one gone before this brain's first piece of the
+        run counts too)."""
+        return [w.service for w, d in zip(self.worlds[1:], self.done) if not w.alive and not d.seen]
 
     def end_run(self, order: Control) -> list[str]:
         """The run ended: the last state batch with the final weights, the stats, the weights saved;
@@ -244,7 +246,7 @@ class LockStep:
             )
         lost = self.lost_shards()
         if lost:
-            self.keep_learning(f"{', '.join(lost)} left the bus before the end of its ticks")
+            self.keep_learning(f"{', '.join(lost)} left the bus before the end of its ticks", order.tick)
         elif config.save and node.brain is not None:
             save_weights(config.save, self.weights(), node.circuit, tick=order.tick)
             log.info("weights saved to %s", config.save)
@@ -254,27 +256,21 @@ class LockStep:
         """The weights of every agent served, pieces in the population's order."""
         return np.concatenate([self.nodes[k].running.engine.get_weights() for k in sorted(self.nodes)])
 
-    def keep_learning(self, why: str) -> None:
-        """A run stopped without its end (`why`): its weights so far are saved beside --save, never
-        lost to the next run."""
+    def keep_learning(self, why: str, ended_at: int | None = None) -> None:
+        """A run stopped without its end, or ended (at tick `ended_at`) with a world shard lost, for
+        `why`: its weights so far are saved beside --save, never lost to the next run."""
         save, node = self.config.save, self.node
+        what = f"run {node.run} " + (
+            f"ended at tick {ended_at} without a whole result"
+            if ended_at is not None
+            else f"stopped at tick {node.last_tick + 1} without its end"
+        )
         if not save:
             self.kept = self.progress()
-            log.warning(
-                "run %s stopped at tick %d without its end (%s); its weights are not saved (no --save)",
-                node.run,
-                node.last_tick,
-                why,
-            )
+            log.warning("%s (%s); its weights are not saved (no --save)", what, why)
             return
         path = save.with_name(f"{save.stem}-{node.run}-tick{node.last_tick + 1}.npz")
         save_weights(path, self.weights(), node.circuit, tick=node.last_tick + 1)
         # kept only now: a SIGTERM during the save (the run ending as its world is lost) saves again
         self.kept = self.progress()
-        log.warning(
-            "run %s stopped at tick %d without its end (%s): its weights so far saved to %s",
-            node.run,
-            node.last_tick + 1,
-            why,
-            path,
-        )
+        log.warning("%s (%s): its weights so far saved to %s", what, why, path)

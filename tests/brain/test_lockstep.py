@@ -53,10 +53,11 @@ class Sessions:
         self.opened.append(session)
         return session
 
-    def brain(self, connect=(), listen=(), options=(), quiet_s: float = QUIET_S) -> LockStep:
-        """A lock-step brain (--once, with `options`) on a session of its own, as the brain service
-        makes it; `quiet_s`: how long the run served must be silent before another may start."""
-        args = parser().parse_args(["--once", "--group", GROUP, *map(str, options)])
+    def brain(self, connect=(), listen=(), options=(), quiet_s: float = QUIET_S, once: bool = True) -> LockStep:
+        """A lock-step brain (--once unless not `once`, with `options`) on a session of its own, as
+        the brain service makes it; `quiet_s`: how long the run served must be silent before another
+        may start."""
+        args = parser().parse_args([*(["--once"] if once else []), "--group", GROUP, *map(str, options)])
         config = config_from(args, BrainConfig)
         bus = Bus(self.open(connect, listen), config.bus.group, keys.brain_service(config.shard))
         self.buses.append(bus)
@@ -238,7 +239,43 @@ def test_a_sharded_worlds_end_is_taken_once_every_other_world_shard_has_stopped(
     else:
         assert not (tmp_path / "weights.npz").exists() and len(kept) == 1
         assert load_weights(kept[0], CIRCUIT).shape[0] == 2
-        assert "stopped at tick 10 without its end (world-2of2 left the bus before the end of its ticks)" in caplog.text
+        why = "(world-2of2 left the bus before the end of its ticks): its weights so far saved to"
+        assert f"run r1 ended at tick 9 without a whole result {why}" in caplog.text
+
+
+def test_each_run_served_judges_its_own_world_shards(router, sessions, tmp_path, caplog):
+    """A brain that serves run after run (no --once): a world shard 2 that said it had finished r1
+    does not cover r2's shard 2, which leaves without; r3's leaves before the brain's first piece
+    of r3. Each lost run is kept beside --save; --save keeps r1, the whole one."""
+    save = tmp_path / "weights.npz"
+    served, lead, other = sharded_run(sessions, router, ["--save", save], once=False)
+    done = World(other.session, "world-2of2-done")
+    done.join()
+    lead.end("r1", 9)
+    wait_for(lambda: served.take_orders() or save.exists(), 10, "r1 to end")
+    other.leave()
+    done.leave()
+    wait_for(lambda: not served.worlds[1].alive and not served.done[0].alive, 10, "the brain to see r1's shard 2 go")
+    second = World(sessions.open(connect=[router]), "world-2of2")
+    second.join()
+    wait_for(lambda: served.worlds[1].alive, 10, "the brain to see r2's shard 2")
+    serve(served, range(10), first=0, run="r2")
+    serve(served, range(12), first=1, run="r2")
+    second.leave()
+    lead.end("r2", 9)
+    wait_for(lambda: served.take_orders() or list(tmp_path.glob("weights-r2-*")), 10, "r2 to end, kept")
+    third = World(sessions.open(connect=[router]), "world-2of2")
+    third.join()
+    wait_for(lambda: served.worlds[1].alive, 10, "the brain to see r3's shard 2")
+    third.leave()
+    wait_for(lambda: not served.worlds[1].alive, 10, "the brain to see r3's shard 2 go")
+    with caplog.at_level("INFO", logger="spikinglab.brain"):
+        serve(served, range(5), first=0, run="r3")
+        lead.end("r3", 4)
+        wait_for(lambda: served.take_orders() or list(tmp_path.glob("weights-r3-*")), 10, "r3 to end, kept")
+    assert "world-2of2 left the bus before the end of its ticks" in caplog.text
+    assert load_weights(save, CIRCUIT).shape[0] == 2  # r1's two pieces, not overwritten since
+    assert [p.name for p in sorted(tmp_path.glob("weights-*"))] == ["weights-r2-tick10.npz", "weights-r3-tick5.npz"]
 
 
 def test_a_world_shard_on_the_bus_that_sends_nothing_for_gone_s_holds_the_end_no_longer(
