@@ -20,9 +20,6 @@ N, M = 624, 397  # MT19937's words and its twist offset
 STREAM_INDEX = N  # stream[a, STREAM_INDEX]: the index of agent a's next word
 STREAM_TURNS = N + 1  # stream[a, STREAM_TURNS + k]: the neuron of turn k in agent a's last tick
 INT_MAX = 2**31 - 1
-# Per tick before the inputs: `ask visualsensors [view-world-ahead]` and, inside perceive-world,
-# `ask visualsensors [propagate-visual-stimuli]`: an ask over the 3 sensors draws nextInt(3), nextInt(2).
-SENSOR_ASKS = (3, 2, 3, 2)
 # `normalneurons` in NetLogo's order (who numbers, as the source's setup creates them: labels 11, 12,
 # 13, 21, 22, 31, 32, 23, 24), named as in services/brain/circuits/insect.toml.
 SOURCE_NEURONS = ("BLACK", "RED", "GREEN", "PAIN", "REWARD", "MOVE", "ROTATE", "H1", "H2")
