@@ -25,6 +25,10 @@ if TYPE_CHECKING:  # the service module, which starts this one
 
 log = logging.getLogger("spikinglab.brain")
 GONE_S = 15.0  # on a router without its world (which kept no checkpoint) this long: a --once brain ends
+# A world shard's -done token and its leaving reach the brain on two watches, in either order (one
+# that ends its ticks after the lead's end says it is done and leaves within a millisecond): a shard
+# seen gone with no -done token is given this long for the token to come before it counts as lost.
+DONE_GRACE_S = 1.0
 
 
 class LockStep:
@@ -223,10 +227,12 @@ class LockStep:
 
     def lost_shards(self) -> list[str]:
         """The world shards of the run served (but the lead, which ends it) that left the bus before
-        they finished their ticks: gone, and never said in this run that they had finished (each
-        holds its -done token until the lead's end; one gone before this brain's first piece of the
+        they finished their ticks: gone, and no -done token of this run seen, nor within DONE_GRACE_S
+        (each holds its token until the lead's end; one gone before this brain's first piece of the
         run counts too)."""
-        return [w.service for w, d in zip(self.worlds[1:], self.done) if not w.alive and not d.seen]
+        deadline = time.monotonic() + DONE_GRACE_S
+        gone = [(w, d) for w, d in zip(self.worlds[1:], self.done) if not w.alive and not d.seen]
+        return [w.service for w, d in gone if not d.wait_seen(max(0.0, deadline - time.monotonic()))]
 
     def end_run(self, order: Control) -> list[str]:
         """The run ended: the last state batch with the final weights, the stats, the weights saved;

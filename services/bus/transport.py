@@ -250,6 +250,11 @@ class Presence:
         with self._changed:
             self.seen = bool(self._alive)
 
+    def wait_seen(self, timeout: float) -> bool:
+        """Wait until one has been alive since the watch began (or seen_from_now); True if so."""
+        with self._changed:
+            return self._changed.wait_for(lambda: self.seen, timeout)
+
     def wait(self, timeout: float | None = None) -> bool:
         """Wait until at least one is alive; True if so."""
         with self._changed:

@@ -243,6 +243,23 @@ def test_a_sharded_worlds_end_is_taken_once_every_other_world_shard_has_stopped(
         assert f"run r1 ended at tick 9 without a whole result {why}" in caplog.text
 
 
+def test_a_world_shards_done_token_heard_just_after_its_leaving_still_counts(router, sessions, tmp_path):
+    """World shard 2 ends its ticks after the lead's end: it says it is done and leaves within a
+    millisecond, and the brain's two watches may hear the leaving first (seen in CI). A -done token
+    heard within DONE_GRACE_S of the end still makes the run whole: --save written, none kept."""
+    save = tmp_path / "weights.npz"
+    served, lead, other = sharded_run(sessions, router, ["--save", save])
+    lead.end("r1", 9)
+    other.leave()
+    wait_for(lambda: not served.worlds[1].alive, 10, "the brain to see world shard 2 leave")
+    done = World(other.session, "world-2of2-done")
+    late = threading.Timer(0.2, done.join)  # its -done token, heard a moment after
+    late.start()
+    wait_for(served.take_orders, 10, "the brain to end the run")
+    late.join()
+    assert save.exists() and not list(tmp_path.glob("weights-*")) and served.exit_code == 0
+
+
 def test_each_run_served_judges_its_own_world_shards(router, sessions, tmp_path, caplog):
     """A brain that serves run after run (no --once): a world shard 2 that said it had finished r1
     does not cover r2's shard 2, which leaves without; r3's leaves before the brain's first piece
