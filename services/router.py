@@ -10,9 +10,7 @@ import logging
 import sys
 import time
 
-import zenoh
-
-from services.bus.config import add_bus_args
+from services.bus.config import Session, add_bus_args
 from services.options import Parser
 from services.runtime import service_main
 
@@ -31,7 +29,7 @@ def listen_by_default(args: argparse.Namespace) -> None:
         args.listen = [DEFAULT_LISTEN]
 
 
-def run(args: argparse.Namespace, session: zenoh.Session) -> int:
+def run(args: argparse.Namespace, session: Session) -> int:
     """Route until Ctrl-C or SIGTERM."""
     log.info("router %s listening on %s", session.zid(), ", ".join(args.listen))
     while True:  # service_main closes the session on the way out

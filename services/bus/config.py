@@ -22,6 +22,7 @@ import zenoh
 from . import keys
 
 log = logging.getLogger("spikinglab.bus")
+Session = zenoh.Session  # for the services' annotations: outside services/bus no module imports zenoh
 
 
 class BusConfigError(ValueError):
@@ -138,19 +139,24 @@ def make_config(connect=(), listen=(), config_file: dict | None = None, mode: st
         raise BusConfigError(f"{where}: {str(e).split(' at /')[0]}") from None
 
 
-def open_session(args: argparse.Namespace, mode: str | None = None) -> zenoh.Session:
+def session_for(connect=(), listen=(), config_file: dict | None = None, mode: str | None = None) -> Session:
+    """A session opened with make_config's settings; a clear error when zenoh refuses them."""
+    try:
+        return zenoh.open(make_config(connect, listen, config_file, mode))
+    except zenoh.ZError as e:
+        reason = str(e).split(" at /")[0]  # without the Rust source location
+        raise BusConfigError(
+            f"cannot open the bus session (connect {list(connect)}, listen {list(listen)}): {reason}"
+        ) from None
+
+
+def open_session(args: argparse.Namespace, mode: str | None = None) -> Session:
     if getattr(args, "cpu", None) is not None:  # before zenoh starts its threads, so they stay there too
         try:
             os.sched_setaffinity(0, {args.cpu})
         except (OSError, AttributeError) as e:
             log.warning("cannot pin to CPU %d: %s", args.cpu, e)
-    try:
-        session = zenoh.open(make_config(args.connect, args.listen, args.zenoh_config, mode))
-    except zenoh.ZError as e:
-        reason = str(e).split(" at /")[0]  # without the Rust source location
-        raise BusConfigError(
-            f"cannot open the bus session (connect {args.connect}, listen {args.listen}): {reason}"
-        ) from None
+    session = session_for(args.connect, args.listen, args.zenoh_config, mode)
     if args.connect:
         threading.Thread(
             target=report_if_alone, args=(session, args.connect), daemon=True, name="connection check"
@@ -158,7 +164,7 @@ def open_session(args: argparse.Namespace, mode: str | None = None) -> zenoh.Ses
     return session
 
 
-def report_if_alone(session: zenoh.Session, connect: list[str]) -> None:
+def report_if_alone(session: Session, connect: list[str]) -> None:
     """Say so when none of the --connect endpoints answered within NOTHING_ANSWERS_AFTER seconds;
     Zenoh keeps trying meanwhile (the other side may start later)."""
     deadline = time.monotonic() + NOTHING_ANSWERS_AFTER

@@ -1,7 +1,8 @@
 """Messages on the bus: strict inboxes, outboxes, liveliness, one service's place on the bus.
 
-The only code besides bus/config.py that imports zenoh. A message is decoded strictly on arrival
-(bus/schemas.py); what does not decode is counted and logged by key and reason, never used.
+Zenoh's subscribers, publishers and liveliness are used here (and in pingpong.py's probe);
+config.py opens the sessions. A message is decoded strictly on arrival (bus/schemas.py); what
+does not decode is counted and logged by key and reason, never used.
 """
 
 from __future__ import annotations

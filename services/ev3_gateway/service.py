@@ -33,10 +33,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import zenoh
 
 from services.bus import keys
-from services.bus.config import BusConfig, add_bus_args
+from services.bus.config import BusConfig, Session, add_bus_args
 from services.bus.schemas import Array, BusError, Control, Motor, Sensors, new_run_id
 from services.bus.transport import Bus
 from services.options import Parser, at_least, not_negative, number, positive
@@ -442,7 +441,7 @@ def backend_from(config: GatewayConfig):
     return EV3Backend(protocol=config.protocol, host=config.host, wiring=wiring)
 
 
-def run(config: GatewayConfig, session: zenoh.Session, backend) -> int:
+def run(config: GatewayConfig, session: Session, backend) -> int:
     bus = Bus(session, config.bus.group, "gateway")
     gateway = Gateway(backend, bus, config)
     bus.watch_others(lambda: f" ({gateway.stats['polls']} polls, {time.monotonic() - gateway.started:.1f} s in)")

@@ -19,9 +19,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-import zenoh
 
-from services.bus.config import make_config
+from services.bus.config import session_for
 from services.bus.schemas import encode
 from services.launch import local_endpoints, spawn
 from services.options import Parser, at_least, positive
@@ -42,7 +41,7 @@ def fuzz(endpoints: list[str], per_s: float, stop: threading.Event, counts: dict
     """Byte mutants of a real message of every kind, at its key, `per_s` in all."""
     rng = np.random.default_rng(0)
     originals = [(KEY_OF[type(m)].replace("insect", "soak"), encode(m)) for m in EXAMPLES]
-    with zenoh.open(make_config(connect=endpoints)) as session:
+    with session_for(connect=endpoints) as session:
         publishers = {key: session.declare_publisher(key) for key, _ in originals}
         while not stop.wait(1 / per_s):
             key, data = originals[rng.integers(len(originals))]
