@@ -1,5 +1,6 @@
 """The house rules a reader relies on, read from the source: no function over 60 lines outside the
-compiled kernels, no module importing another's private names, no test module importing another."""
+compiled kernels, no module importing another's private names, no test module importing another,
+the bus code in one place."""
 
 from __future__ import annotations
 
@@ -46,6 +47,29 @@ def test_no_module_imports_another_modules_private_names():
                 private = [a.name for a in node.names if a.name.startswith("_") and not a.name.startswith("__")]
                 if private:
                     found.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.module}: {private}")
+    assert not found, found
+
+
+def imported_modules(path: Path) -> list[tuple[int, str]]:
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found.append((node.lineno, node.module))
+    return found
+
+
+def test_only_the_bus_package_imports_zenoh():
+    """docs/bus.md: outside services/bus/ no module imports zenoh (tests forge messages with their own sessions)."""
+    bus = ROOT / "services" / "bus"
+    found = [
+        f"{path.relative_to(ROOT)}:{line} {module}"
+        for path in sources("services", "spikinglab", "examples")
+        if bus not in path.parents
+        for line, module in imported_modules(path)
+        if module.split(".")[0] == "zenoh"
+    ]
     assert not found, found
 
 
