@@ -13,11 +13,13 @@ recorder) may subscribe to everything and put nothing. No role may query the rou
 
 from __future__ import annotations
 
+import argparse
 import datetime
 import ipaddress
 import json
 import logging
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -239,12 +241,25 @@ def write_configs(folder: Path) -> None:
         (folder / f"{role}.json5").write_text(header + json.dumps(zenoh_config(folder, role), indent=2) + "\n")
 
 
+def host_name(text: str) -> str:
+    """--host: an IP address, or a DNS name (letters, digits and hyphens in dot-separated labels)."""
+    try:
+        return str(ipaddress.ip_address(text))
+    except ValueError:
+        pass
+    labels = text.rstrip(".").split(".")
+    if len(text) > 253 or not all(re.fullmatch(r"[A-Za-z0-9]([A-Za-z0-9-]{0,61}[A-Za-z0-9])?", x) for x in labels):
+        raise argparse.ArgumentTypeError(f"expected an IP address or a host name such as lab-pc.local, got {text!r}")
+    return text
+
+
 def parser() -> Parser:
     p = Parser(prog="spikinglab certs", description=(__doc__ or "").partition("\n")[0])
     p.add_argument("folder", type=Path, metavar="DIR", help="where to write them (made if missing)")
     p.add_argument(
         "--host",
         action="append",
+        type=host_name,
         default=[],
         metavar="NAME",
         help="a name or address the router is reached at, besides localhost and 127.0.0.1 "

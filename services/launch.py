@@ -39,7 +39,7 @@ from pathlib import Path
 
 from services.commands import ENDLESS, PARENT, SERVICES
 from services.interrupts import ctrl_c_held
-from services.options import Parser, UsageError
+from services.options import Parser, UsageError, output_folder
 from services.params import file_for_agents
 
 log = logging.getLogger("spikinglab.launch")
@@ -87,10 +87,25 @@ class Process:
             raise LaunchError(f"{where}: unknown service {self.service!r} (one of {', '.join(SERVICES)})")
         parser = importlib.import_module(SERVICES[self.service]).parser()
         parser.exit_on_error = False  # raise, so that the error can name the launch file
+        self.check_kinds(parser, where)
         try:
             return parser.parse_args(self.argv())
         except (argparse.ArgumentError, UsageError) as e:
             raise LaunchError(f"{where}: {e}") from None
+
+    def check_kinds(self, parser: argparse.ArgumentParser, where: str) -> None:
+        """What argv() would let through to a wrong meaning: a switch given a value other than true
+        or false (`--flag yes` ends as an unrecognised `yes`), a list for an option taken once (the
+        last would win)."""
+        actions = {flag: action for action in parser._actions for flag in action.option_strings}
+        for key, value in self.options.items():
+            action = actions.get("--" + key.replace("_", "-"))
+            if action is None:
+                continue  # the parser names it
+            if action.nargs == 0 and not isinstance(value, bool):
+                raise LaunchError(f"{where}: {key} = {value!r}: a switch, true or false")
+            if isinstance(value, (list, tuple)) and not isinstance(action, argparse._AppendAction):
+                raise LaunchError(f"{where}: {key} = {value!r}: takes one value, not a list")
 
 
 def local_endpoints(*names: str) -> tuple[list[str], tempfile.TemporaryDirectory]:
@@ -368,7 +383,7 @@ def parser() -> argparse.ArgumentParser:
         "file", type=launch_file, nargs="?", help=f"a launch file (.toml), or a shipped one: {', '.join(shipped())}"
     )
     p.add_argument("--list", action="store_true", help="name the shipped launch files and where they are")
-    p.add_argument("--logs", type=Path, help="also write each process's output to LOGS/<name>.log")
+    p.add_argument("--logs", type=output_folder, help="also write each process's output to LOGS/<name>.log")
     p.add_argument("--no-colour", action="store_true", help="no colours in the prefixes")
     return p
 

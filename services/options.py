@@ -5,10 +5,14 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import ipaddress
 import math
+import os
 import sys
+import tempfile
 import types
 import typing
+from pathlib import Path
 
 C = typing.TypeVar("C")
 
@@ -70,6 +74,16 @@ def at_least(minimum: int):
     return check
 
 
+def ip_address(text: str) -> str:
+    """An address to listen on: an IP address."""
+    try:
+        return str(ipaddress.ip_address(text))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not an IP address: e.g. 127.0.0.1 (this machine only) or 0.0.0.0 (every interface)"
+        ) from None
+
+
 def port(text: str) -> int:
     """A TCP port option, 1..65535."""
     value = whole_number(text, "a port number")
@@ -105,14 +119,58 @@ def not_negative(text: str) -> float:
     return value
 
 
+def _unwritable(folder: Path) -> str | None:
+    """Why `folder` cannot be written to or made, or None: tried with a folder made and removed in
+    the nearest one that exists (a permission check alone passes for root where nothing can be made)."""
+    for place in (folder, *folder.parents):
+        if place.exists():
+            if not place.is_dir():
+                return f"{place} is a file, not a folder"
+            try:
+                os.rmdir(tempfile.mkdtemp(dir=place))
+            except OSError as e:
+                return f"nothing can be written in {place} ({e.strerror})"
+            return None
+    return None
+
+
+def output_folder(text: str) -> Path:
+    """A folder option that is written to: one that exists and takes files, or one that can be made."""
+    path = Path(text)
+    why = _unwritable(path)
+    if why:
+        raise argparse.ArgumentTypeError(f"cannot write to the folder {text}: {why}")
+    return path
+
+
+def output_file(text: str) -> Path:
+    """A file option that is written to: not a folder, and its folder exists and takes files or can be made."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a folder; expected a file name")
+    why = _unwritable(path.parent)
+    if why:
+        raise argparse.ArgumentTypeError(f"cannot write {text}: {why}")
+    return path
+
+
+def folder_name(text: str) -> str:
+    """A folder's own name (--id): not a path, so that it stays inside the folder it goes in."""
+    if text in ("", ".", "..") or "/" in text or "\\" in text:
+        raise argparse.ArgumentTypeError(f"expected a folder name, not a path: got {text!r}")
+    return text
+
+
 def agent_list(text: str) -> tuple[int, ...]:
-    """Agent numbers separated by commas (`0`, `0,3,7`), or nothing."""
+    """Agent numbers separated by commas (`0`, `0,3,7`): at least one."""
     try:
         agents = tuple(int(a) for a in text.split(",") if a.strip())
     except ValueError:
         raise argparse.ArgumentTypeError(
             f"expected agent numbers separated by commas, e.g. 0,3,7; got {text!r}"
         ) from None
+    if not agents:
+        raise argparse.ArgumentTypeError(f"name at least one agent, e.g. 0 or 0,3,7; got {text!r}")
     if any(a < 0 for a in agents):
         raise argparse.ArgumentTypeError(f"agent numbers start at 0, got {text!r}")
     return agents

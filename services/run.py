@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import ipaddress
 import json
 import logging
 import os
@@ -33,7 +32,7 @@ from services.brain.circuit import Circuit, CircuitError, load_circuit
 from services.brain.engine import PARALLEL_FROM
 from services.brain.engine_options import add_engine_args, brain_params
 from services.launch import STOP_S, Launcher, Process, local_endpoints, options_for
-from services.options import Parser, agent_list, at_least, config_from, positive
+from services.options import Parser, agent_list, at_least, config_from, folder_name, ip_address, output_folder, positive
 from services.run_folder import KEPT_PARAMS, RunFolderError, failed, started_with, take
 from services.run_report import learning_rate, plot, plot_trajectory, rates_text, recording_status, report, summarise
 from services.world.options import WorldOptions, add_world_args, world_from
@@ -59,8 +58,8 @@ def parser() -> argparse.ArgumentParser:
     )
     add_engine_args(p)
     p.add_argument("--load", type=Path, help="start the brain from these weights (.npz checkpoint)")
-    p.add_argument("--runs", type=Path, default=Path("runs"), help="where run folders go (default runs/)")
-    p.add_argument("--id", help="name of the run folder (default: date, time and seed)")
+    p.add_argument("--runs", type=output_folder, default=Path("runs"), help="where run folders go (default runs/)")
+    p.add_argument("--id", type=folder_name, help="name of the run folder (default: date, time and seed)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-record", action="store_true", help="no Rerun recording (recording.rrd)")
     p.add_argument(
@@ -102,15 +101,6 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
-def ip_address(text: str) -> str:
-    try:
-        return str(ipaddress.ip_address(text))
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"{text!r} is not an IP address: e.g. 127.0.0.1 (this machine only) or 0.0.0.0 (every interface)"
-        ) from None
-
-
 def arguments(p: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:
     """The run's options: those given, or with --resume those the run in that folder was started with."""
     args = p.parse_args(argv)
@@ -120,6 +110,8 @@ def arguments(p: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace
         p.error(f"argument --ticks: must be at least one bin of collisions ({BIN:,} ticks), got {args.ticks:,}")
     if args.view and args.no_record:
         p.error("argument --view: the live view comes from the recorder, which --no-record leaves out")
+    if max(args.detail) >= args.agents:
+        p.error(f"argument --detail: agent {max(args.detail)} of {args.agents} (agents are 0 .. {args.agents - 1})")
     if args.view_host != LOCAL and not args.view:
         p.error("argument --view-host: it says where the live view listens, which only --view starts")
     try:  # the brain would refuse them only after the world has started
@@ -198,8 +190,9 @@ def checked_inputs(args: argparse.Namespace) -> tuple[Circuit, dict]:
         circuit = circuit.with_learning_rate(args.a_plus)
     world_from(config_from(args, WorldOptions, whole=False))  # and the --params file, for the world's agents
     columns = brain_params(args.params, circuit) if args.params else {}
-    if args.load:
-        load_weights(args.load, circuit)
+    loaded = len(load_weights(args.load, circuit)) if args.load else 1
+    if loaded not in (1, args.agents):
+        raise ValueError(f"{args.load}: weights of {loaded} agents, the run has {args.agents} (or give one agent's)")
     return circuit, columns
 
 

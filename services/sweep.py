@@ -24,7 +24,7 @@ from services.gpu import DEVICES, check_device
 from services.interrupts import ctrl_c_held
 from services.learning import PAPER, all_definitions, noxious_ticks, plot_table1, quarter_collisions, stats
 from services.loop import population
-from services.options import Parser, add_netlogo_seed, at_least, positive
+from services.options import Parser, add_netlogo_seed, at_least, folder_name, output_folder, positive
 from services.world.netlogo_setup import spikinglab_setup
 from services.world.options import add_learned_after, add_preset
 from services.world.world import BIN, params_for
@@ -273,8 +273,13 @@ def parser() -> Parser:
         "`random-seed N` (its own: 7850); the seeds then vary the neurons' order (docs/netlogo-random.md)",
     )
     add_engine_args(p)
-    p.add_argument("--runs", type=Path, default=Path("runs"), help="where the sweep's folder goes (default runs/)")
-    p.add_argument("--id", help="the sweep's folder name (default sweep-<date>-<time>)")
+    p.add_argument(
+        "--runs",
+        type=output_folder,
+        default=Path("runs"),
+        help="where the sweep's folder goes (default runs/)",
+    )
+    p.add_argument("--id", type=folder_name, help="the sweep's folder name (default sweep-<date>-<time>)")
     p.add_argument(
         "--cluster",
         type=address_option,
@@ -296,6 +301,8 @@ def main(argv=None) -> int:
         args = p.parse_args(argv)
         try:
             check_seeds_differ(args.netlogo_seed, args.semantics, args.order)
+            if args.id and any((args.runs / args.id / name).exists() for name in RESULTS):
+                raise ValueError(f"argument --id: {args.runs / args.id} holds a sweep already: choose another --id")
             if args.device != "cpu":
                 check_device(args.device, args.cluster)
             if args.netlogo_seed is not None:

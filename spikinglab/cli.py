@@ -59,7 +59,8 @@ def main(argv: list[str] | None = None) -> None:
             print(f"usage: spikinglab bench {{{','.join(BENCHMARKS)}}} [options]   (spikinglab bench NAME --help)")
             return
         if not rest or rest[0] not in BENCHMARKS:
-            print(f"spikinglab bench: which benchmark? one of {', '.join(BENCHMARKS)}", file=sys.stderr)
+            said = f"no benchmark {rest[0]!r}" if rest else "which benchmark?"
+            print(f"spikinglab bench: {said} (one of {', '.join(BENCHMARKS)})", file=sys.stderr)
             sys.exit(2)
         module, rest = BENCHMARKS[rest[0]], rest[1:]
     elif name in COMMANDS:

@@ -36,6 +36,11 @@ def files(tmp_path_factory):
     (folder / "badmode.json5").write_text('{mode: "boss"}\n')
     (folder / "list.json5").write_text('["tls/127.0.0.1:7447"]\n')
     (folder / "occupied").write_text("a file, not a folder\n")
+    save_weights(folder / "two.npz", Engine(circuit, agents=2), circuit)
+    (folder / "sweeps" / "done").mkdir(parents=True)
+    (folder / "sweeps" / "done" / "table.md").write_text("an earlier sweep's table\n")
+    (folder / "list.toml").write_text("[world]\nticks = [1000, 2000]\n")
+    (folder / "word.toml").write_text('[world]\npublish_state = "yes"\n')
     (folder / "typo.csv").write_text("a_plsu,w_max\n0.02,15\n")
     (folder / "rows.csv").write_text("a_plus\n0.01\n0.02\n0.03\n")
     (folder / "word.csv").write_text("a_plus,move_step\n0.02,1\n0.02,fast\n")
@@ -155,6 +160,44 @@ ARGUMENTS = [
     ("zenoh config not JSON5", "brain --zenoh-config {f}/broken.json5", 2, "broken.json5 is not a JSON5 config"),
     ("zenoh config not an object", "brain --zenoh-config {f}/list.json5", 2, "should hold one JSON5 object"),
     ("unknown command", "fly", 2, "unknown command 'fly'"),
+    ("unknown benchmark", "bench fly", 2, "no benchmark 'fly' (one of engine,"),
+    ("run detail of no agent", "run --detail ,", 2, "argument --detail: name at least one agent"),
+    ("run detail beyond the agents", "run --agents 2 --detail 0,5", 2, "argument --detail: agent 5 of 2"),
+    ("run id a path", "run --id ../elsewhere", 2, "argument --id: expected a folder name, not a path"),
+    (
+        "sweep over an earlier sweep",
+        "sweep --runs {f}/sweeps --id done",
+        2,
+        "argument --id: {f}/sweeps/done holds a sweep already: choose another --id",
+    ),
+    (
+        "world out where a file is",
+        "world --out {f}/occupied",
+        2,
+        "argument --out: cannot write to the folder {f}/occupied: {f}/occupied is a file, not a folder",
+    ),
+    (
+        "brain save where nothing can be made",
+        "brain --save /proc/none/w.npz",
+        2,
+        "argument --save: cannot write /proc/none/w.npz: nothing can be written in /proc",
+    ),
+    ("gateway stats in a file", "gateway --stats {f}/occupied/g.json", 2, "argument --stats: cannot write"),
+    ("record out a folder", "record --out {f}", 2, "argument --out: {f} is a folder; expected a file name"),
+    ("launch logs in a file", "launch --logs {f}/occupied simulation", 2, "argument --logs: cannot write to the"),
+    (
+        "brain stream order without its seed",
+        "brain --order netlogo-stream",
+        2,
+        "order netlogo-stream draws from NetLogo's stream as the source's setup leaves it: it needs",
+    ),
+    ("world group of two segments", "world --group a/b", 2, "argument --group: group name 'a/b' must be one key"),
+    ("brain on CPU -1", "brain --cpu -1", 2, "argument --cpu: must be at least 0, got -1"),
+    ("record serving on no address", "record --serve --grpc-host 999.1.1.1", 2, "'999.1.1.1' is not an IP address"),
+    ("gateway speed beyond 100", "gateway --speed 500", 2, "--speed must be within -100..100, got 500"),
+    ("gateway Bluetooth without its brick", "gateway --protocol Bluetooth", 2, "--protocol Bluetooth needs --host"),
+    ("fake brick reporting every 0 s", "fake-brick --report-every 0", 2, "argument --report-every: must be a number"),
+    ("certs for no host name", "certs c --host bad!name", 2, "argument --host: expected an IP address or a host"),
     ("launch file missing", "launch {f}/none.toml", 2, "no launch file"),
 ]
 # what only a process shows (a run's validation, a port in use, Zenoh's word): id, arguments ({f}: the
@@ -258,13 +301,17 @@ CASES = [
         "unfit-group.toml, [brain]: group 'other' is no world's in this file",
     ),
     ("launch file unknown service", "launch {f}/noservice.toml", 2, "noservice.toml, [mind]: unknown service 'mind'"),
+    ("launch file list for one value", "launch {f}/list.toml", 2, "[world]: ticks = [1000, 2000]: takes one value"),
+    ("launch file switch given a word", "launch {f}/word.toml", 2, "[world]: publish_state = 'yes': a switch"),
+    ("run weights of other agents", "run --load {f}/two.npz", 2, "two.npz: weights of 2 agents, the run has 1"),
+    ("run circuit not text", "run --circuit {f}/two.npz", 2, "two.npz: not a circuit file (not text"),
 ]
 
 
 def arguments(command: str, tmp_path, **places) -> list[str]:
     """The row's command line, its outputs in tmp_path."""
     argv = command.format(**places).split()
-    if argv[0] in ("run", "sweep"):
+    if argv[0] in ("run", "sweep") and "--runs" not in argv:
         argv += ["--runs", str(tmp_path / "runs")]
     elif argv[0] == "conditioning":
         argv += ["--out", str(tmp_path / "figures")]

@@ -181,6 +181,8 @@ def load_circuit(path_or_name: str | Path) -> Circuit:
         text = path.read_text()
     except OSError as e:
         raise CircuitError(f"{path}: cannot read circuit file: {e.strerror or e}") from None
+    except UnicodeDecodeError:
+        raise CircuitError(f"{path}: not a circuit file (not text: a circuit is a TOML file)") from None
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:

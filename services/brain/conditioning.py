@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from services.options import Parser, at_least, positive
+from services.options import Parser, at_least, output_folder, positive
 
 from .circuit import load_circuit
 from .engine import Engine
@@ -131,7 +131,11 @@ def main(argv=None) -> None:
     parser = Parser(prog="spikinglab conditioning", description=DESCRIPTION)
     parser.add_argument("--trials", type=at_least(1), default=400, help="pairings (default 400)")
     parser.add_argument("--a-plus", type=positive, default=0.02, help="A+ = A- of the learning neurons")
-    parser.add_argument("--out", type=Path, help="folder for the raster PNGs (default runs/conditioning-<date>)")
+    parser.add_argument(
+        "--out",
+        type=output_folder,
+        help="folder for the raster PNGs (default runs/conditioning-<date>)",
+    )
     args = parser.parse_args(argv)
     out = args.out or Path("runs") / f"conditioning-{datetime.datetime.now():%Y%m%d-%H%M%S}"
     out.mkdir(parents=True, exist_ok=True)

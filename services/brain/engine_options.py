@@ -10,7 +10,7 @@ from pathlib import Path
 from services.options import add_netlogo_seed
 from services.params import file_rows, read_params, side_of
 
-from .build import DEFAULT_SEMANTICS, ORDERS, SEMANTICS, learning_tables
+from .build import DEFAULT_SEMANTICS, ORDERS, SEMANTICS, check_options, learning_tables
 
 
 def add_engine_args(p: argparse.ArgumentParser) -> None:
@@ -38,6 +38,12 @@ def add_engine_args(p: argparse.ArgumentParser) -> None:
         )
     except argparse.ArgumentError:
         pass
+
+
+def engine_options_fit(args: argparse.Namespace) -> None:
+    """A Parser's `together` check: ValueError where the engine options do not go together
+    (--order netlogo-stream without --semantics netlogo and --netlogo-seed)."""
+    check_options(1, args.semantics, args.order, (), args.netlogo_seed)
 
 
 @dataclass(frozen=True)

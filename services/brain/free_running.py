@@ -262,6 +262,7 @@ class FreeRunning:
             stats["late_ms_p99"],
         )
         if config.stats:
+            config.stats.parent.mkdir(parents=True, exist_ok=True)
             config.stats.write_text(json.dumps(stats))
         if config.save and node.brain is not None:
             save_weights(config.save, node.brain.engine, node.circuit, tick=self.tick)

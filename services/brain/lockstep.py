@@ -247,6 +247,7 @@ class LockStep:
             pieces = f" (world shard 1's; the last tick of each piece served: {ticks})"
         log.info("run ended at tick %d%s; rejected messages: %s", order.tick, pieces, self.bus.rejections() or "none")
         if config.stats:
+            config.stats.parent.mkdir(parents=True, exist_ok=True)
             config.stats.write_text(
                 json.dumps({"ticks": node.last_tick + 1, "rejected_messages": self.bus.rejections()})
             )

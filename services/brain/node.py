@@ -79,6 +79,11 @@ class BrainNode:
         """A fresh brain for the sensors and agents of `message` (a new run)."""
         agents = message.values.shape[0]
         params = self.params_of(message.first, agents)  # first: a message that does not fit changes nothing
+        loaded = self.initial_weights
+        if loaded is not None and loaded.shape[0] not in (1, agents):
+            raise BusError(
+                f"does not fit the --load weights: they hold {loaded.shape[0]} agents, the world sends {agents}"
+            )
         options = dict(self.engine_options)
         if options.get("seed") is None:
             options["seed"] = message.seed
@@ -93,9 +98,8 @@ class BrainNode:
             params=params,
             **options,
         )
-        if self.initial_weights is not None:  # one agent's weights are given to every agent
-            w = self.initial_weights
-            self.running.engine.set_weights(w[0] if w.shape[0] == 1 else w)
+        if loaded is not None:  # one agent's weights are given to every agent
+            self.running.engine.set_weights(loaded[0] if loaded.shape[0] == 1 else loaded)
         self.batch = self.new_batch()  # nothing of a previous run goes into this one's batches
         log.info(
             "brain for %d agent(s) of circuit %s, sensors %s, training %s, %s",

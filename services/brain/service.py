@@ -19,12 +19,12 @@ from pathlib import Path
 from services.bus import keys
 from services.bus.config import BusConfig, add_bus_args
 from services.bus.transport import Bus, Presence
-from services.options import Parser, at_least, number, shard
+from services.options import Parser, at_least, number, output_file, output_folder, shard
 from services.runtime import service_main
 
 from .checkpoint import load_weights
 from .circuit import CircuitError, load_circuit
-from .engine_options import EngineOptions, add_engine_args, brain_params
+from .engine_options import EngineOptions, add_engine_args, brain_params, engine_options_fit
 from .free_running import FreeRunning, add_free_running_args
 from .lockstep import LockStep
 from .node import FREE_STATE_BATCH, BrainNode
@@ -38,7 +38,9 @@ ALONE_AFTER_S = 1.0  # a brain of the same name not heard of within this long af
 
 
 def parser() -> argparse.ArgumentParser:
-    p = Parser(prog="spikinglab brain", description="The spiking-network brain, on the bus.")
+    p = Parser(
+        prog="spikinglab brain", description="The spiking-network brain, on the bus.", together=[engine_options_fit]
+    )
     p.add_argument(
         "--circuit", default="insect", help="circuit name in services/brain/circuits/ or a .toml path (default insect)"
     )
@@ -61,7 +63,7 @@ def parser() -> argparse.ArgumentParser:
         "sensor messages carry, so that a run is the same in one process or across the bus)",
     )
     p.add_argument("--load", type=Path, help="start from the weights in this checkpoint (.npz)")
-    p.add_argument("--save", type=Path, help="write the final weights here (.npz) when the run ends")
+    p.add_argument("--save", type=output_file, help="write the final weights here (.npz) when the run ends")
     p.add_argument("--once", action="store_true", help="exit after one run ends (default: serve the next run)")
     p.add_argument(
         "--shard",
@@ -74,14 +76,14 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--world-shards", type=at_least(1), default=1, metavar="N", help=WORLD_SHARDS_HELP)
     p.add_argument(
         "--checkpoint",
-        type=Path,
+        type=output_folder,
         metavar="DIR",
         help="keep the brain's whole state here whenever the world keeps a checkpoint (world "
         "--checkpoint), the last two per run: a resumed run goes back to them tick for tick",
     )
     p.add_argument(
         "--stats",
-        type=Path,
+        type=output_file,
         help="write the rejected messages (and, free-running, the tick rate and lateness) here (JSON) when a run ends",
     )
     p.add_argument(

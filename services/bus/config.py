@@ -19,6 +19,8 @@ from pathlib import Path
 import json5
 import zenoh
 
+from services.options import at_least
+
 from . import keys
 
 log = logging.getLogger("spikinglab.bus")
@@ -51,6 +53,14 @@ def endpoint(text: str) -> str:
     return text
 
 
+def group_name(text: str) -> str:
+    """--group: one key segment."""
+    try:
+        return keys.check_group(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
 def add_bus_args(parser: argparse.ArgumentParser) -> None:
     bus = parser.add_argument_group("bus")
     bus.add_argument(
@@ -77,12 +87,13 @@ def add_bus_args(parser: argparse.ArgumentParser) -> None:
     )
     bus.add_argument(
         "--group",
+        type=group_name,
         default=keys.DEFAULT_GROUP,
         help=f"the insect or population this service belongs to (default {keys.DEFAULT_GROUP})",
     )
     bus.add_argument(
         "--cpu",
-        type=int,
+        type=at_least(0),
         metavar="N",
         help="run this process on CPU N only (a lock-step pair on separate cores is ~30 %% faster)",
     )

@@ -11,7 +11,8 @@ DEFAULT_GROUP = "insect"
 WAITING = "-waiting-"
 
 
-def _check(group: str) -> str:
+def check_group(group: str) -> str:
+    """`group` if it is one key segment, else ValueError saying what it may not hold."""
     if not group or any(c in group for c in "/*$?#@ "):
         raise ValueError(f"group name {group!r} must be one key segment (no '/', '*', '$', '?', '#', '@' or spaces)")
     return group
@@ -21,8 +22,8 @@ def sensors(group: str, shard: tuple[int, int] | None = None) -> str:
     """World (or robot gateway) -> brain: sensor values for one tick; to shard (i, n) of a sharded
     brain (n > 1), its slice of the agents."""
     if shard is None or shard[1] == 1:
-        return f"{PREFIX}/{_check(group)}/sensors"
-    return f"{PREFIX}/{_check(group)}/sensors/{shard_name(shard)}"
+        return f"{PREFIX}/{check_group(group)}/sensors"
+    return f"{PREFIX}/{check_group(group)}/sensors/{shard_name(shard)}"
 
 
 def shard_name(shard: tuple[int, int]) -> str:
@@ -32,42 +33,42 @@ def shard_name(shard: tuple[int, int]) -> str:
 
 def motor(group: str) -> str:
     """Brain -> world (or gateway): which actions fired in one tick."""
-    return f"{PREFIX}/{_check(group)}/motor"
+    return f"{PREFIX}/{check_group(group)}/motor"
 
 
 def control(group: str) -> str:
     """Run control: end of run, training on/off."""
-    return f"{PREFIX}/{_check(group)}/control"
+    return f"{PREFIX}/{check_group(group)}/control"
 
 
 def brain_state(group: str) -> str:
     """Brain -> recorder: the layout once, then batches of spikes, potentials and weights."""
-    return f"{PREFIX}/{_check(group)}/state/brain"
+    return f"{PREFIX}/{check_group(group)}/state/brain"
 
 
 def world_state(group: str) -> str:
     """World -> recorder: batches of poses, sensors, events and map changes."""
-    return f"{PREFIX}/{_check(group)}/state/world"
+    return f"{PREFIX}/{check_group(group)}/state/world"
 
 
 def world_map(group: str) -> str:
     """World -> recorder: the arena grid, at the start."""
-    return f"{PREFIX}/{_check(group)}/state/map"
+    return f"{PREFIX}/{check_group(group)}/state/map"
 
 
 def world_run(group: str) -> str:
     """World shard 1 -> the other world shards (world --shard I/N): the run they step together."""
-    return f"{PREFIX}/{_check(group)}/world/run"
+    return f"{PREFIX}/{check_group(group)}/world/run"
 
 
 def state(group: str) -> str:
     """Everything a recorder needs, and nothing of the lock-step traffic (sensors, motor)."""
-    return f"{PREFIX}/{_check(group)}/state/**"
+    return f"{PREFIX}/{check_group(group)}/state/**"
 
 
 def alive(group: str, service: str) -> str:
     """Liveliness token of a service (brain, world, gateway, recorder) of a group; "*": any."""
-    return f"{PREFIX}/{_check(group)}/alive/{service if service == '*' else _check(service)}"
+    return f"{PREFIX}/{check_group(group)}/alive/{service if service == '*' else check_group(service)}"
 
 
 def world_service(shard: tuple[int, int]) -> str:

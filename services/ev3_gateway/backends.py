@@ -62,9 +62,10 @@ class Wiring:
         ports = {"touch": self.touch, "colour": self.colour, "ultrasonic": self.ultrasonic}
         if len(set(ports.values())) != 3 or not all(1 <= p <= 4 for p in ports.values()):
             raise ValueError(f"the three sensors need three different ports of 1-4, got {ports}")
-        for name, value in (("--speed", self.speed), ("--spin-speed", self.spin_speed)):
-            if not -100 <= value <= 100:
-                raise ValueError(f"{name} must be within -100..100, got {value}")
+        if not -100 <= self.speed <= 100:
+            raise ValueError(f"--speed must be within -100..100, got {self.speed}")
+        if not 0 <= self.spin_speed <= 100:
+            raise ValueError(f"--spin-speed must be within 0..100, got {self.spin_speed}")
 
     @property
     def motor_bits(self) -> int:

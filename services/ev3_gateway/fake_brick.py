@@ -36,7 +36,7 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 
-from services.options import Parser
+from services.options import Parser, not_negative, positive
 from services.runtime import process_main
 
 log = logging.getLogger("spikinglab.fake_brick")
@@ -318,9 +318,17 @@ def parser() -> Parser:
         prog="spikinglab fake-brick",
         description="A fake EV3 brick on loopback for the gateway (--backend ev3) to find and drive.",
     )
-    p.add_argument("--colour", type=int, default=6, help="the colour sensor's reading (default 6: white)")
-    p.add_argument("--distance-cm", type=float, default=100.0, help="the ultrasonic sensor's reading (default 100)")
-    p.add_argument("--report-every", type=float, default=10.0, help="seconds between status lines (default 10)")
+    p.add_argument(
+        "--colour",
+        type=int,
+        choices=range(8),
+        default=6,
+        help="the colour sensor's reading, an EV3 colour 0-7 (default 6: white; 1 black, 3 green, 5 red)",
+    )
+    p.add_argument(
+        "--distance-cm", type=not_negative, default=100.0, help="the ultrasonic sensor's reading (default 100)"
+    )
+    p.add_argument("--report-every", type=positive, default=10.0, help="seconds between status lines (default 10)")
     return p
 
 

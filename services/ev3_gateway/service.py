@@ -38,7 +38,7 @@ from services.bus import keys
 from services.bus.config import BusConfig, Session, add_bus_args
 from services.bus.schemas import Array, BusError, Control, Motor, Sensors, new_run_id
 from services.bus.transport import Bus
-from services.options import Parser, at_least, not_negative, number, positive
+from services.options import Parser, at_least, not_negative, number, output_file, positive
 from services.runtime import service_main
 from services.vocabulary import INSECT_SENSORS
 
@@ -50,7 +50,7 @@ SMELL_OF_COLOUR = {BLACK: "smell_black", RED: "smell_red", GREEN: "smell_green"}
 
 
 def parser() -> argparse.ArgumentParser:
-    p = Parser(prog="spikinglab gateway", description="The robot's side of the bus.")
+    p = Parser(prog="spikinglab gateway", description="The robot's side of the bus.", together=[robot_options_fit])
     p.add_argument("--backend", choices=("ev3", "sim"), default="ev3", help="a real EV3 (default) or a simulated one")
     robot = p.add_argument_group("EV3")
     robot.add_argument("--protocol", choices=("WiFi", "USB", "Bluetooth"), default="WiFi")
@@ -89,11 +89,30 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--stats",
-        type=Path,
+        type=output_file,
         help="write polls, commands, stops, link losses and the times of collisions here (JSON) at the end",
     )
     add_bus_args(p)
     return p
+
+
+def robot_options_fit(args: argparse.Namespace) -> None:
+    """The EV3 options checked together before anything starts (ValueError naming the option)."""
+    if args.protocol == "Bluetooth" and not args.host:
+        raise ValueError("--protocol Bluetooth needs --host, the brick's MAC address")
+    wiring_of(args)
+
+
+def wiring_of(config) -> Wiring:
+    """The EV3's ports and speeds from the gateway's options (ValueError naming a wrong one)."""
+    return Wiring(
+        touch=config.touch_port,
+        colour=config.colour_port,
+        ultrasonic=config.ultrasonic_port,
+        motors=config.motors,
+        speed=config.speed,
+        spin_speed=config.spin_speed,
+    )
 
 
 def add_safety_args(p: argparse.ArgumentParser) -> None:
@@ -430,15 +449,7 @@ def backend_from(config: GatewayConfig):
             link_ms=config.link_ms,
             map_path=config.sim_map,
         )
-    wiring = Wiring(
-        touch=config.touch_port,
-        colour=config.colour_port,
-        ultrasonic=config.ultrasonic_port,
-        motors=config.motors,
-        speed=config.speed,
-        spin_speed=config.spin_speed,
-    )
-    return EV3Backend(protocol=config.protocol, host=config.host, wiring=wiring)
+    return EV3Backend(protocol=config.protocol, host=config.host, wiring=wiring_of(config))
 
 
 def run(config: GatewayConfig, session: Session, backend) -> int:
@@ -460,6 +471,7 @@ def run(config: GatewayConfig, session: Session, backend) -> int:
         bus.close()
         log.info("gateway done: %s", {k: len(v) if k == "collisions" else v for k, v in gateway.stats.items()})
         if config.stats:
+            config.stats.parent.mkdir(parents=True, exist_ok=True)
             config.stats.write_text(json.dumps(gateway.stats))
     return 0
 

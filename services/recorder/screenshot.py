@@ -20,7 +20,7 @@ from pathlib import Path
 import rerun.experimental as rrx
 from rerun.chunk import RrdReader
 
-from services.options import Parser, at_least
+from services.options import Parser, at_least, output_file
 
 
 def viewer_command() -> list[str] | None:
@@ -118,7 +118,7 @@ def window_size(text: str) -> str:
 def main(argv=None) -> int:
     p = Parser(prog="spikinglab screenshot", description=(__doc__ or "").splitlines()[0])
     p.add_argument("recording", type=Path)
-    p.add_argument("--out", type=Path, help="PNG file (default: beside the recording, replay.png)")
+    p.add_argument("--out", type=output_file, help="PNG file (default: beside the recording, replay.png)")
     p.add_argument("--tick", type=at_least(0), help="where the time cursor goes (default: the last tick)")
     p.add_argument("--size", type=window_size, default="1600x900", help="window size in points (default 1600x900)")
     args = p.parse_args(argv)

@@ -31,7 +31,7 @@ from services.bus import keys
 from services.bus.config import BusConfig, add_bus_args
 from services.bus.schemas import BrainLayout, BrainState, WorldMap, WorldState
 from services.bus.transport import Bus
-from services.options import Parser, agent_list, at_least, port
+from services.options import Parser, agent_list, at_least, ip_address, output_file, port
 from services.runtime import service_main
 
 from .listener import Listener
@@ -42,7 +42,7 @@ log = logging.getLogger("spikinglab.recorder")
 
 def parser() -> argparse.ArgumentParser:
     p = Parser(prog="spikinglab record", description="Record a run to a Rerun file.")
-    p.add_argument("--out", type=Path, help="the .rrd file (default runs/<date>-<time>/recording.rrd)")
+    p.add_argument("--out", type=output_file, help="the .rrd file (default runs/<date>-<time>/recording.rrd)")
     p.add_argument(
         "--viewer",
         metavar="URL",
@@ -62,6 +62,7 @@ def parser() -> argparse.ArgumentParser:
     )
     live.add_argument(
         "--grpc-host",
+        type=ip_address,
         default="0.0.0.0",
         help="the address --serve listens on (default 0.0.0.0: every interface; 127.0.0.1: this machine only)",
     )

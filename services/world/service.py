@@ -24,7 +24,7 @@ from services.bus import keys
 from services.bus.config import BusConfig, add_bus_args
 from services.bus.schemas import Control, RunTerms, Sensors, new_run_id
 from services.bus.transport import Bus, wait_for_subscriber
-from services.options import Parser, at_least
+from services.options import Parser, at_least, output_folder
 from services.options import shard as shard_of_n
 from services.runtime import service_main
 
@@ -42,7 +42,11 @@ log = logging.getLogger("spikinglab.world")
 def parser() -> argparse.ArgumentParser:
     p = Parser(prog="spikinglab world", description="The insect's world, on the bus.", together=[shards_fit])
     add_world_args(p)
-    p.add_argument("--out", type=Path, help="write metrics.json (collisions over time, learning time, ...) here")
+    p.add_argument(
+        "--out",
+        type=output_folder,
+        help="write metrics.json (collisions over time, learning time, ...) here",
+    )
     p.add_argument(
         "--publish-state",
         action="store_true",
@@ -67,7 +71,7 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--checkpoint",
-        type=Path,
+        type=output_folder,
         metavar="DIR",
         help="keep the whole world here every --checkpoint-every ticks, and resume the run kept here "
         "(with the same options) if there is one; the brain keeps its own (brain --checkpoint)",

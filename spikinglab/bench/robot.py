@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from services.launch import local_endpoints, spawn, stop
-from services.options import Parser, at_least, positive
+from services.options import Parser, at_least, output_folder, positive
 
 CONDITIONS = {  # name -> brain options
     "learning, A = 0.08 (the paper's robot)": ["--a-plus", 0.08],
@@ -110,7 +110,7 @@ def parser() -> Parser:
     p.add_argument(
         "--spin-ms", type=at_least(1), default=100, help="the gateway's spin per ROTATE (default 100: 5 degrees)"
     )
-    p.add_argument("--out", type=Path, default=Path("bench-results"))
+    p.add_argument("--out", type=output_folder, default=Path("bench-results"))
     return p
 
 

@@ -23,7 +23,7 @@ import numpy as np
 from services.bus.config import session_for
 from services.bus.schemas import encode
 from services.launch import local_endpoints, spawn
-from services.options import Parser, at_least, positive
+from services.options import Parser, at_least, output_folder, positive
 
 from .fuzz import EXAMPLES, KEY_OF
 from .gateway import gateway_and_brain
@@ -62,7 +62,11 @@ def main(argv=None) -> dict:
     p.add_argument("--seconds", type=at_least(10), default=600, help="robot: how long the gateway runs (default 600)")
     p.add_argument("--clock", type=positive, default=1000.0, help="robot: the brain's clock in Hz (default 1000)")
     p.add_argument("--sample-s", type=positive, default=2.0, help="how often RSS is read")
-    p.add_argument("--out", type=Path, help="keep the logs, metrics and recording here (default: a temporary folder)")
+    p.add_argument(
+        "--out",
+        type=output_folder,
+        help="keep the logs, metrics and recording here (default: a temporary folder)",
+    )
     args = p.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         out = args.out or Path(tmp)

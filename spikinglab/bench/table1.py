@@ -25,7 +25,7 @@ import numpy as np
 
 from services.gpu import DEVICES, check_device, simulated
 from services.learning import DEFAULT_DEFINITION, DEFINITIONS, PAPER, all_definitions, plot_table1, tick_text
-from services.options import Parser, at_least, positive
+from services.options import Parser, at_least, output_folder, positive
 
 A_VALUES = (0.01, 0.02, 0.03, 0.04, 0.08)
 STEPS = {"paper": "paper", "demo": "netlogo"}  # -> world preset
@@ -195,7 +195,7 @@ def main(argv=None) -> dict:
         default=len(os.sched_getaffinity(0)),
         help="populations at once on the CPU (default: one per core); with --device cuda, all of them",
     )
-    p.add_argument("--out", type=Path, default=Path("runs") / "table1")
+    p.add_argument("--out", type=output_folder, default=Path("runs") / "table1")
     p.add_argument(
         "--device",
         choices=("cpu", *DEVICES),

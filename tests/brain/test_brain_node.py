@@ -85,6 +85,20 @@ def test_a_first_message_the_circuit_cannot_use_is_refused():
     assert node.brain is None and answered(node, sensors(0)).tick == 0
 
 
+def test_loaded_weights_of_other_agents_refuse_the_run_and_one_agents_go_to_every_agent():
+    """--load weights of 2 agents cannot start a world of 3 (refused like any message that does not
+    fit, the brain waiting on); weights of one agent are given to each of the 3."""
+    synapses = len(CIRCUIT.synapses)
+    node = BrainNode(CIRCUIT, weights=np.full((2, synapses), 7.0))
+    with pytest.raises(BusError, match="does not fit the --load weights: they hold 2 agents, the world sends 3"):
+        node.answer(sensors(0))
+    assert node.brain is None
+    assert answered(BrainNode(CIRCUIT, weights=np.full((2, synapses), 7.0)), sensors(0, agents=2)).tick == 0
+    one = BrainNode(CIRCUIT, weights=np.full((1, synapses), 7.0), training=False)
+    answered(one, sensors(0))
+    np.testing.assert_array_equal(engine(one).get_weights(), np.full((AGENTS, synapses), 7.0))
+
+
 def test_only_an_end_of_the_run_served_ends_it():
     node = BrainNode(CIRCUIT)
     for t in range(10):
