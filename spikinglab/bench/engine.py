@@ -157,7 +157,7 @@ def parser() -> Parser:
     p.add_argument("--ticks", type=at_least(1), default=200_000, help="ticks per pass for one agent")
     p.add_argument("--agents", type=at_least(1), default=1000, help="agents in the batch case")
     p.add_argument("--batch-ticks", type=at_least(1), default=500, help="ticks per pass in the batch case")
-    p.add_argument("--repeats", type=at_least(1), default=3)
+    p.add_argument("--repeats", type=at_least(1), default=3, help="passes of each case, the best reported (default 3)")
     p.add_argument("--rounds", type=at_least(1), default=20, help="rounds of the two batch engines in turns (ratio)")
     p.add_argument("--calls", action="store_true", help="only where one agent's step() goes, per call")
     p.add_argument("--orders", action="store_true", help="only the netlogo engine's orders against phased, in turns")

@@ -70,11 +70,13 @@ def kernel_resources() -> dict:
 
 def main(argv=None) -> dict:
     p = Parser(prog="spikinglab bench gpu", description=(__doc__ or "").splitlines()[0])
-    p.add_argument("--agents", type=at_least(1), default=1_000_000)
-    p.add_argument("--ticks", type=at_least(1), default=2000)
-    p.add_argument("--warmup", type=at_least(1), default=10)
-    p.add_argument("--cpu-ticks", type=at_least(1), default=200)
-    p.add_argument("--semantics", choices=SEMANTICS, default=DEFAULT_SEMANTICS)
+    p.add_argument("--agents", type=at_least(1), default=1_000_000, help="insects (default 1000000)")
+    p.add_argument("--ticks", type=at_least(1), default=2000, help="ticks timed on the device (default 2000)")
+    p.add_argument(
+        "--warmup", type=at_least(1), default=10, help="device ticks before the timing: the compile (default 10)"
+    )
+    p.add_argument("--cpu-ticks", type=at_least(1), default=200, help="ticks timed on the CPU (default 200)")
+    p.add_argument("--semantics", choices=SEMANTICS, default=DEFAULT_SEMANTICS, help="the engine's semantics")
     p.add_argument("--order", choices=("random", "file"), default="random", help="the netlogo semantics' order")
     args = p.parse_args(argv)
     problem = device_problem()

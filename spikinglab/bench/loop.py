@@ -117,10 +117,15 @@ def parser() -> Parser:
         default=20_000,
         help="ticks of the one-agent bus runs (rates are measured after the first)",
     )
-    p.add_argument("--agents", type=at_least(1), default=1000)
-    p.add_argument("--batch-ticks", type=at_least(8), default=2000)  # a quarter of it in one process
-    p.add_argument("--large-agents", type=at_least(1), default=16_000)
-    p.add_argument("--large-ticks", type=at_least(2), default=300)
+    p.add_argument("--agents", type=at_least(1), default=1000, help="agents of the batch cases (default 1000)")
+    p.add_argument(
+        "--batch-ticks",
+        type=at_least(8),
+        default=2000,
+        help="ticks of the batch over the bus (default 2000; a quarter of it in one process)",
+    )
+    p.add_argument("--large-agents", type=at_least(1), default=16_000, help="agents of the large case (default 16000)")
+    p.add_argument("--large-ticks", type=at_least(2), default=300, help="ticks of the large case (default 300)")
     p.add_argument(
         "--repeats", type=at_least(1), default=3, help="runs of each bus case (default 3; the median is reported)"
     )

@@ -102,7 +102,7 @@ def alone(ticks: int) -> float:
 
 def main(argv=None) -> dict:
     p = Parser(prog="spikinglab bench recorder", description=(__doc__ or "").splitlines()[0])
-    p.add_argument("--ticks", type=at_least(2), default=30_000)
+    p.add_argument("--ticks", type=at_least(2), default=30_000, help="ticks of each run (default 30000)")
     p.add_argument(
         "--repeats",
         type=at_least(1),

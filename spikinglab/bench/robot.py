@@ -110,7 +110,9 @@ def parser() -> Parser:
     p.add_argument(
         "--spin-ms", type=at_least(1), default=100, help="the gateway's spin per ROTATE (default 100: 5 degrees)"
     )
-    p.add_argument("--out", type=output_folder, default=Path("bench-results"))
+    p.add_argument(
+        "--out", type=output_folder, default=Path("bench-results"), help="where the table goes (default bench-results)"
+    )
     return p
 
 

@@ -184,8 +184,10 @@ def run_jobs(todo: list[tuple[str, dict, float]], args) -> list[dict]:
 def main(argv=None) -> dict:
     p = Parser(prog="spikinglab bench table1", description=(__doc__ or "").splitlines()[0])
     p.add_argument("--ablation", action="store_true", help="the ablation table instead of the grid")
-    p.add_argument("--seeds", type=at_least(1), default=16)
-    p.add_argument("--ticks", type=at_least(1000), default=150_000)  # one bin of 1,000
+    p.add_argument("--seeds", type=at_least(1), default=16, help="insects (arenas 0 .. N-1) per setting (default 16)")
+    p.add_argument(
+        "--ticks", type=at_least(1000), default=150_000, help="ticks per insect, at least one bin (default 150000)"
+    )
     p.add_argument(
         "--a-plus", type=positive, nargs="+", default=None, help=f"A values (default {A_VALUES}; ablation: 0.02 0.04)"
     )
@@ -195,7 +197,9 @@ def main(argv=None) -> dict:
         default=len(os.sched_getaffinity(0)),
         help="populations at once on the CPU (default: one per core); with --device cuda, all of them",
     )
-    p.add_argument("--out", type=output_folder, default=Path("runs") / "table1")
+    p.add_argument(
+        "--out", type=output_folder, default=Path("runs") / "table1", help="where the tables go (default runs/table1)"
+    )
     p.add_argument(
         "--device",
         choices=("cpu", *DEVICES),
