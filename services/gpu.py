@@ -24,7 +24,7 @@ import numpy as np
 
 from services.brain.brain import Brain, bind
 from services.brain.build import TICK, TRAINING
-from services.loop import wiring
+from services.loop import check_loop, wiring
 from services.world.world import BIN, RAY_STEP, VIEW, World
 
 DEVICES = ("cuda",)
@@ -88,6 +88,7 @@ def fused_loop_cuda(
     from services.gpu_kernels import fused_kernel
 
     kernel: Any = fused_kernel  # a CUDA dispatcher: kernel[blocks, threads, stream](...)
+    check_loop(world, brain, ticks)
     if world.shared:
         raise ValueError("fused_loop_cuda needs an arena per insect (in a shared one, insects race for food)")
     if brain.engine.order == "netlogo-stream":

@@ -44,10 +44,11 @@ def noxious_ticks(
     is called for every tick t; below PARALLEL_FROM agents, after each stretch of BIN ticks, which
     runs as one compiled call that keeps the pain sensor's ticks (1.7 times as fast for 16 agents);
     on the device ("cuda", services/gpu.py), after each launch."""
-    from services.loop import closed_loop, fused_loop
+    from services.loop import check_loop, closed_loop, fused_loop
     from services.params import PARALLEL_FROM
     from services.world.world import BIN, PAIN
 
+    check_loop(world, brain, ticks, on_tick)
     if device != "cpu":
         from services.gpu import check_device, fused_loop_cuda
 

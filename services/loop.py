@@ -41,9 +41,11 @@ from services.world.world import (
 BLOCK_FROM = 64
 
 
-def brain_for(world: World, circuit: Circuit, params: Mapping | None = None, **engine_options) -> Brain:
+def brain_for(world: World, circuit: Circuit | str, params: Mapping | None = None, **engine_options) -> Brain:
     """A brain for the world's agents; agent a's netlogo order is drawn from the world's seed +
-    numbers[a] (as its arena). `params`: the brain's per-agent columns (services.params)."""
+    numbers[a] (as its arena). `circuit`: a Circuit, or a name or path for load_circuit. `params`:
+    the brain's per-agent columns (services.params)."""
+    circuit = circuit if isinstance(circuit, Circuit) else load_circuit(circuit)
     return Brain(
         circuit,
         SENSORS,
@@ -56,8 +58,32 @@ def brain_for(world: World, circuit: Circuit, params: Mapping | None = None, **e
     )
 
 
+def checked_seeds(seeds: Iterable[int]) -> list[int]:
+    """The insect numbers as a list; ValueError unless one or more, each a whole number >= 0."""
+    given = list(seeds)
+    whole = all(isinstance(s, int | np.integer) and not isinstance(s, bool) and s >= 0 for s in given)
+    if not given or not whole:
+        raise ValueError(f"seeds: insect numbers, whole numbers >= 0 (one or more), got {given[:8]}")
+    return given
+
+
+def check_loop(world: World, brain: Brain, ticks, on_tick=None) -> None:
+    """ValueError or TypeError, before a tick runs, where world and brain cannot run together for
+    `ticks` ticks: the compiled loop indexes both by insect and trusts them to agree."""
+    if isinstance(ticks, bool) or not isinstance(ticks, (int, np.integer)) or ticks < 0:
+        raise ValueError(f"ticks: a whole number >= 0, got {ticks!r}")
+    if world.agents != brain.agents:
+        raise ValueError(
+            f"the world has {world.agents} insect(s), the brain {brain.agents}: make the brain for this "
+            f"world (brain_for(world, circuit))"
+        )
+    if on_tick is not None and not callable(on_tick):
+        raise TypeError(f"on_tick: a function of the tick, or None, got {on_tick!r}")
+
+
 def closed_loop(world: World, brain: Brain, ticks: int, on_tick: Callable[[int], None] | None = None) -> None:
     """Run `ticks` ticks: sense -> brain -> act. `on_tick(t)` is called after each tick."""
+    check_loop(world, brain, ticks, on_tick)
     # a large shared arena keeps the per-tick kernels: its fused loop could not split the agents into blocks
     if on_tick is None and (brain.agents < PARALLEL_FROM or not world.shared):
         fused_loop(world, brain, ticks)
@@ -85,6 +111,7 @@ def fused_loop(
     tick t (services.learning.noxious_ticks). `blocks`: blocks of agents stepped on threads at
     once, each a whole stretch (default: one per thread from BLOCK_FROM agents in arenas of their
     own, else 1); the same result for any number."""
+    check_loop(world, brain, ticks)
     if blocks is None:
         blocks = get_num_threads() if world.agents >= BLOCK_FROM and not world.shared else 1
     if blocks < 1 or (blocks > 1 and world.shared):
@@ -186,7 +213,7 @@ def population(
 ) -> tuple[World, Brain]:
     """World and brain of every parameter setting on every seed, as one population: agent
     k * len(seeds) + j is setting k on seed j (`evaluate` has the arguments' meaning)."""
-    seeds = np.asarray(list(seeds), np.int64)
+    seeds = np.asarray(checked_seeds(seeds), np.int64)
     params_world, grid = params_for(preset, learned_after=learned_after), None
     if netlogo_seed is not None:  # the source's arena and heading for all; the seeds vary the order
         setup = spikinglab_setup(netlogo_seed, params_world)
@@ -244,7 +271,9 @@ def evaluate(
 
     `device`: "cpu", or "cuda" for an NVIDIA GPU (services/gpu.py, docs/gpu.md): the same results;
     refused in one line (RuntimeError) where numba-cuda or the GPU is missing."""
-    seeds = list(seeds)
+    seeds = checked_seeds(seeds)
+    if isinstance(ticks, bool) or not isinstance(ticks, (int, np.integer)) or ticks < 1:
+        raise ValueError(f"ticks: a whole number >= 1, got {ticks!r}")
     if device != "cpu":
         from services.gpu import check_device  # numba.cuda only when the device is asked for
 

@@ -61,7 +61,11 @@ def agent_columns(agents: int, params: Mapping | None, side: str | None = None) 
         if side is not None and p.side != side:
             raise ValueError(f"per-agent parameter {name} is the {p.side}'s, not the {side}'s")
         try:
-            column = np.broadcast_to(np.asarray(values, dtype=np.float64), (agents,)).copy()
+            numbers = np.asarray(values, dtype=np.float64)
+        except (ValueError, TypeError):
+            raise ValueError(f"per-agent parameter {name}: numbers, got {values!r}"[:200]) from None
+        try:
+            column = np.broadcast_to(numbers, (agents,)).copy()
         except ValueError:
             raise ValueError(
                 f"per-agent parameter {name}: {np.shape(values)} values for {agents} agents "

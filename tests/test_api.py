@@ -3,6 +3,9 @@
 import subprocess
 import sys
 
+import numpy as np
+import pytest
+
 import spikinglab
 
 from .processes import ROOT
@@ -30,3 +33,79 @@ def test_the_example_trains_a_population():
     assert collisions[-1] < collisions[0] / 2  # the population learns
     assert weights == sorted(weights) and weights[-1] > weights[0]  # BLACK->PAIN potentiated
     assert "of 8 insects learned within 30,000 ticks" in lines[-1]
+
+
+P = spikinglab.params_for("paper")
+C = spikinglab.load_circuit("insect")
+TWO = spikinglab.World(P, agents=2)
+# bad input to the API: a call, the error it raises (before any tick runs) and what its message says
+BAD_CALLS = [
+    (
+        "brain for other agents",
+        lambda: spikinglab.closed_loop(TWO, spikinglab.brain_for(spikinglab.World(P, 5), C), 10),
+        "the world has 2 insect(s), the brain 5",
+    ),
+    (
+        "negative ticks",
+        lambda: spikinglab.closed_loop(TWO, spikinglab.brain_for(TWO, C), -5),
+        "ticks: a whole number >= 0, got -5",
+    ),
+    (
+        "ticks not whole",
+        lambda: spikinglab.closed_loop(TWO, spikinglab.brain_for(TWO, C), 10.0),
+        "ticks: a whole number >= 0, got 10.0",
+    ),
+    (
+        "on_tick not a function",
+        lambda: spikinglab.closed_loop(TWO, spikinglab.brain_for(TWO, C), 5, on_tick=3),
+        "on_tick: a function",
+    ),
+    ("evaluate for 0 ticks", lambda: spikinglab.evaluate({"a_plus": 0.02}, 0), "ticks: a whole number >= 1, got 0"),
+    (
+        "seed not whole",
+        lambda: spikinglab.evaluate({"a_plus": 0.02}, 1000, seeds=[1.5]),
+        "seeds: insect numbers, whole numbers >= 0",
+    ),
+    ("no agents", lambda: spikinglab.World(P, agents=0), "agents: a whole number >= 1"),
+    ("seed negative", lambda: spikinglab.World(P, agents=2, seed=-1), "seed: a whole number >= 0"),
+    ("training a word", lambda: spikinglab.World(P, training="no"), "training and shared: True or False"),
+    (
+        "grid of unknown colours",
+        lambda: spikinglab.World(P, grid=np.full((P.width, P.height), 9, np.uint8)),
+        "grid: patch colours are 0..3, it holds [9]",
+    ),
+    (
+        "move step NaN",
+        lambda: spikinglab.params_for("paper", move_step=float("nan")),
+        "move_step must be a number above 0, got nan",
+    ),
+    (
+        "start outside",
+        lambda: spikinglab.params_for("paper", start=(500.0, 500.0)),
+        "start must be (x, y) within x 80..120",
+    ),
+    (
+        "initial weight above w_max",
+        lambda: spikinglab.brain_for(TWO, C, params={"initial_weight": 100}),
+        "weight 100.0 out of range [1.0, 15.0]",
+    ),
+    (
+        "learning value NaN",
+        lambda: C.with_learning_params(a_plus=float("nan")),
+        "a_plus must be a finite number, got nan",
+    ),
+    ("window too long", lambda: C.with_learning_params(window_pos=10**9), "the STDP window is at most 100,000 ticks"),
+    (
+        "per-agent word",
+        lambda: spikinglab.brain_for(TWO, C, params={"a_plus": "big"}),
+        "per-agent parameter a_plus: numbers, got 'big'",
+    ),
+]
+
+
+@pytest.mark.parametrize("case, call, says", BAD_CALLS, ids=[c[0] for c in BAD_CALLS])
+def test_bad_input_to_the_api_is_refused_naming_it(case, call, says):
+    with pytest.raises((ValueError, TypeError)) as refused:
+        call()
+    assert says in str(refused.value)
+    assert TWO.tick == 0  # no tick ran

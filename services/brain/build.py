@@ -289,7 +289,7 @@ def _variant(circuit: Circuit, values: dict) -> Circuit:
             circuit, synapses=tuple(dataclasses.replace(s, weight=w) if s.plastic else s for s in circuit.synapses)
         )
     fields = {k: v for k, v in values.items() if k in LEARNING_FIELDS}
-    return circuit.with_learning_params(**fields) if fields else circuit
+    return circuit.with_learning_params(**fields)  # with none, the initial weight's range is checked
 
 
 def learning_tables(circuit: Circuit, params: dict, agents: int) -> tuple:

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 import msgspec
+import numpy as np
 
 CIRCUITS_DIR = Path(str(resources.files("services.brain") / "circuits"))  # shipped with the package
 
@@ -430,7 +431,20 @@ def _actuators(check: _Checker, actuators: dict, neuron_names: tuple[str, ...]) 
     return dict(actuators)
 
 
+WHOLE_FIELDS = ("refractory_period", "window_neg", "window_pos")  # in ticks
+LONGEST_WINDOW = 100_000  # ticks each side: the W(dt) table holds a value per tick of the window
+
+
 def _check_type(t: NeuronType, fail) -> None:
+    for f in dataclasses.fields(t)[1:]:  # every field but the name is a number
+        value = getattr(t, f.name)
+        number = isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
+        if not number or not math.isfinite(value):
+            fail(f"{f.name} must be a finite number, got {value!r}")
+        if f.name in WHOLE_FIELDS and value != int(value):
+            fail(f"{f.name} must be a whole number of ticks, got {value!r}")
+    if max(-t.window_neg, t.window_pos) > LONGEST_WINDOW:
+        fail(f"the STDP window is at most {LONGEST_WINDOW:,} ticks each side, got {t.window_neg}..{t.window_pos}")
     if not t.floor <= t.rest < t.threshold:
         fail(f"need floor <= rest < threshold, got {t.floor}, {t.rest}, {t.threshold}")
     if not t.floor <= t.refractory_potential:  # the floor is the lowest potential a neuron can have

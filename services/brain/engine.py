@@ -804,11 +804,9 @@ class Engine:
 
     def set_weights(self, weights) -> None:
         """Replace all weights ([synapses] for every agent, or [A, synapses]); plastic ones must be in range."""
-        weights = (
-            np.broadcast_to(np.asarray(weights, dtype=np.float64), self.w.shape)
-            if np.ndim(weights) == 1
-            else np.asarray(weights, dtype=np.float64)
-        )
+        weights = np.asarray(weights, dtype=np.float64)
+        if weights.shape == (self.n_synapses,):
+            weights = np.broadcast_to(weights, self.w.shape)
         if weights.shape != self.w.shape:
             raise ValueError(f"weights must have shape {self.w.shape} or ({self.n_synapses},), got {weights.shape}")
         if not np.all(np.isfinite(weights)) or np.any(weights <= 0):

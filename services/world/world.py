@@ -93,6 +93,56 @@ class WorldParams:
     rewarding: tuple[int, ...] = (GREEN,)
     learned_after: int = 5000  # W: collision-free ticks that count as "learned"
 
+    def __post_init__(self):
+        """ValueError naming a value the world cannot take (the kernels trust every one)."""
+        problems = [f"{name} {why}" for name, why in self._problems()]
+        if problems:
+            raise ValueError("world parameters: " + "; ".join(problems))
+
+    def _problems(self):
+        """(field, what is wrong with its value) for each value the world cannot take."""
+
+        def number(x, low=-math.inf, above=False):
+            ok = isinstance(x, int | float | np.integer | np.floating) and not isinstance(x, bool) and math.isfinite(x)
+            return ok and (x > low if above else x >= low)
+
+        def whole(x, low=-math.inf):
+            return number(x, low) and x == int(x)
+
+        def checked(names, ok, what):
+            return ((k, f"{what}, got {getattr(self, k)!r}") for k in names if not ok(getattr(self, k)))
+
+        wholes = ("x_min", "x_max", "y_min", "y_max", "wall_from_y")
+        yield from checked(wholes, whole, "must be a whole number")
+        yield from checked(("wall_columns",), lambda xs: all(whole(x) for x in xs), "must be whole numbers")
+        if all(whole(getattr(self, k)) for k in wholes) and (self.width < 3 or self.height < 3):
+            yield (
+                "x_min .. x_max, y_min .. y_max",
+                f"must span 3 patches each way or more, got {self.width} x {self.height}",
+            )
+        fractions = (self.red_fraction, self.green_fraction)
+        if not all(number(f, 0) for f in fractions) or sum(fractions) > 1:
+            yield "red_fraction, green_fraction", f"must be in [0, 1] and add up to 1 or less, got {fractions}"
+        x, y = (self.x_min, self.x_max), (self.y_min, self.y_max)
+        yield from checked(
+            ("start",),
+            lambda s: (
+                isinstance(s, tuple | list)
+                and len(s) == 2
+                and all(number(c) for c in s)
+                and x[0] <= s[0] <= x[1]
+                and y[0] <= s[1] <= y[1]
+            ),
+            f"must be (x, y) within x {x[0]}..{x[1]}, y {y[0]}..{y[1]}",
+        )
+        yield from checked(("start_heading",), lambda h: h is None or number(h), "must be a number of degrees or None")
+        above_0 = ("view_distance", "ray_step", "rotation_step", "move_step")
+        yield from checked(above_0, lambda v: number(v, 0, above=True), "must be a number above 0")
+        yield from checked(("push", "pain_value", "reward_value"), lambda v: number(v, 0), "must be a number >= 0")
+        colours = lambda cs: all(whole(c, 0) and c < COLOURS for c in cs)  # noqa: E731
+        yield from checked(("noxious", "rewarding"), colours, f"must be patch colours 0..{COLOURS - 1}")
+        yield from checked(("learned_after",), lambda v: whole(v, 1), "must be a whole number of ticks >= 1")
+
     @property
     def start_x(self) -> float:
         return self.start[0]
@@ -298,10 +348,16 @@ class World:
         agent_params=None,
     ):
         self.params = p = params or WorldParams()
+        for name, value, low in (("agents", agents, 1), ("seed", seed, 0)):
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or not low <= value < 2**62:
+                raise ValueError(f"{name}: a whole number >= {low} (below 2**62), got {value!r}")
+        if not isinstance(training, bool | np.bool_) or not isinstance(shared, bool | np.bool_):
+            raise ValueError(f"training and shared: True or False, got {training!r} and {shared!r}")
         self.agents, self.seed, self.shared = agents, seed, shared
-        self.numbers = np.arange(agents, dtype=np.int64) if numbers is None else np.asarray(numbers, np.int64)
-        if self.numbers.shape != (agents,) or (self.numbers < 0).any():
-            raise ValueError(f"numbers: one agent number >= 0 per agent ({agents}), got {list(self.numbers)[:8]}")
+        given = np.arange(agents) if numbers is None else np.asarray(numbers)
+        self.numbers = given.astype(np.int64)
+        if given.shape != (agents,) or (self.numbers < 0).any() or (self.numbers != given).any():
+            raise ValueError(f"numbers: one whole number >= 0 per agent ({agents}), got {np.ravel(given).tolist()[:8]}")
         columns = agent_columns(agents, agent_params, "world")
         # per agent: degrees per ROTATE spike, patches per MOVE spike
         self.steps = np.column_stack(
@@ -315,6 +371,9 @@ class World:
         if grid is not None:
             if grid.shape != (p.width, p.height):
                 raise ValueError(f"grid shape {grid.shape} does not match the params' arena {(p.width, p.height)}")
+            if not np.isin(grid, np.arange(COLOURS)).all():
+                unknown = sorted(set(np.unique(grid).tolist()) - set(range(COLOURS)))
+                raise ValueError(f"grid: patch colours are 0..{COLOURS - 1}, it holds {unknown}")
         if shared and numbers is not None:
             raise ValueError("numbers: agents of a shared arena are its agents 0..A-1")
         n_arenas = 1 if shared else agents

@@ -106,7 +106,7 @@ def test_world_takes_the_sources_arena_and_heading():
 
 def test_another_arena_size_is_refused():
     with pytest.raises(ValueError, match="80..120"):
-        spikinglab_setup(7850, WorldParams(x_max=100))
+        spikinglab_setup(7850, WorldParams(x_max=110))
 
 
 def world_options(*argv: str):
