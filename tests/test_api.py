@@ -2,6 +2,7 @@
 
 import subprocess
 import sys
+from typing import Any
 
 import numpy as np
 import pytest
@@ -36,6 +37,7 @@ def test_the_example_trains_a_population():
 
 
 P = spikinglab.params_for("paper")
+WRONG: Any = lambda value: value  # a value of the wrong type, passed as a user might  # noqa: E731
 C = spikinglab.load_circuit("insect")
 TWO = spikinglab.World(P, agents=2)
 # bad input to the API: a call, the error it raises (before any tick runs) and what its message says
@@ -52,23 +54,23 @@ BAD_CALLS = [
     ),
     (
         "ticks not whole",
-        lambda: spikinglab.closed_loop(TWO, spikinglab.brain_for(TWO, C), 10.0),
+        lambda: spikinglab.closed_loop(TWO, spikinglab.brain_for(TWO, C), WRONG(10.0)),
         "ticks: a whole number >= 0, got 10.0",
     ),
     (
         "on_tick not a function",
-        lambda: spikinglab.closed_loop(TWO, spikinglab.brain_for(TWO, C), 5, on_tick=3),
+        lambda: spikinglab.closed_loop(TWO, spikinglab.brain_for(TWO, C), 5, on_tick=WRONG(3)),
         "on_tick: a function",
     ),
     ("evaluate for 0 ticks", lambda: spikinglab.evaluate({"a_plus": 0.02}, 0), "ticks: a whole number >= 1, got 0"),
     (
         "seed not whole",
-        lambda: spikinglab.evaluate({"a_plus": 0.02}, 1000, seeds=[1.5]),
+        lambda: spikinglab.evaluate({"a_plus": 0.02}, 1000, seeds=WRONG([1.5])),
         "seeds: insect numbers, whole numbers >= 0",
     ),
     ("no agents", lambda: spikinglab.World(P, agents=0), "agents: a whole number >= 1"),
     ("seed negative", lambda: spikinglab.World(P, agents=2, seed=-1), "seed: a whole number >= 0"),
-    ("training a word", lambda: spikinglab.World(P, training="no"), "training and shared: True or False"),
+    ("training a word", lambda: spikinglab.World(P, training=WRONG("no")), "training and shared: True or False"),
     (
         "grid of unknown colours",
         lambda: spikinglab.World(P, grid=np.full((P.width, P.height), 9, np.uint8)),
