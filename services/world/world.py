@@ -328,6 +328,28 @@ def _world_struct(arrays):
     return WorldStruct(*arrays)
 
 
+def checked_arguments(p: WorldParams, agents, seed, shared, grid, training, numbers) -> np.ndarray:
+    """World's arguments checked (ValueError naming a wrong one); the agents' numbers, int64 [A]."""
+    for name, value, low in (("agents", agents, 1), ("seed", seed, 0)):
+        if isinstance(value, bool) or not isinstance(value, int | np.integer) or not low <= value < 2**62:
+            raise ValueError(f"{name}: a whole number >= {low} (below 2**62), got {value!r}")
+    if not isinstance(training, bool | np.bool_) or not isinstance(shared, bool | np.bool_):
+        raise ValueError(f"training and shared: True or False, got {training!r} and {shared!r}")
+    given = np.arange(agents) if numbers is None else np.asarray(numbers)
+    whole = given.astype(np.int64)
+    if given.shape != (agents,) or (whole < 0).any() or (whole != given).any():
+        raise ValueError(f"numbers: one whole number >= 0 per agent ({agents}), got {np.ravel(given).tolist()[:8]}")
+    if shared and numbers is not None:
+        raise ValueError("numbers: agents of a shared arena are its agents 0..A-1")
+    if grid is not None:
+        if grid.shape != (p.width, p.height):
+            raise ValueError(f"grid shape {grid.shape} does not match the params' arena {(p.width, p.height)}")
+        if not np.isin(grid, np.arange(COLOURS)).all():
+            unknown = sorted(set(np.unique(grid).tolist()) - set(range(COLOURS)))
+            raise ValueError(f"grid: patch colours are 0..{COLOURS - 1}, it holds {unknown}")
+    return whole
+
+
 class World:
     """A insects in their arenas. `sense()` then `act(actions)` per tick.
 
@@ -348,16 +370,8 @@ class World:
         agent_params=None,
     ):
         self.params = p = params or WorldParams()
-        for name, value, low in (("agents", agents, 1), ("seed", seed, 0)):
-            if isinstance(value, bool) or not isinstance(value, int | np.integer) or not low <= value < 2**62:
-                raise ValueError(f"{name}: a whole number >= {low} (below 2**62), got {value!r}")
-        if not isinstance(training, bool | np.bool_) or not isinstance(shared, bool | np.bool_):
-            raise ValueError(f"training and shared: True or False, got {training!r} and {shared!r}")
+        self.numbers = checked_arguments(p, agents, seed, shared, grid, training, numbers)
         self.agents, self.seed, self.shared = agents, seed, shared
-        given = np.arange(agents) if numbers is None else np.asarray(numbers)
-        self.numbers = given.astype(np.int64)
-        if given.shape != (agents,) or (self.numbers < 0).any() or (self.numbers != given).any():
-            raise ValueError(f"numbers: one whole number >= 0 per agent ({agents}), got {np.ravel(given).tolist()[:8]}")
         columns = agent_columns(agents, agent_params, "world")
         # per agent: degrees per ROTATE spike, patches per MOVE spike
         self.steps = np.column_stack(
@@ -368,14 +382,6 @@ class World:
         )
         self.training = training
         self._custom_grid = grid
-        if grid is not None:
-            if grid.shape != (p.width, p.height):
-                raise ValueError(f"grid shape {grid.shape} does not match the params' arena {(p.width, p.height)}")
-            if not np.isin(grid, np.arange(COLOURS)).all():
-                unknown = sorted(set(np.unique(grid).tolist()) - set(range(COLOURS)))
-                raise ValueError(f"grid: patch colours are 0..{COLOURS - 1}, it holds {unknown}")
-        if shared and numbers is not None:
-            raise ValueError("numbers: agents of a shared arena are its agents 0..A-1")
         n_arenas = 1 if shared else agents
         self.grid = np.zeros((n_arenas, p.width, p.height), dtype=np.uint8)
         self.pos = np.zeros((agents, 2))
