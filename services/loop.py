@@ -21,7 +21,7 @@ from services.brain.build import TICK
 from services.brain.circuit import Circuit, load_circuit
 from services.brain.engine import DEFAULT_SEMANTICS, PARALLEL_FROM, range_tick
 from services.learning import quarter_collisions
-from services.params import AGENT_PARAMS, agent_columns, setting_count
+from services.params import AGENT_PARAMS, agent_columns, is_int, setting_count
 from services.world.netlogo_setup import spikinglab_setup
 from services.world.world import (
     ACTIONS,
@@ -61,17 +61,20 @@ def brain_for(world: World, circuit: Circuit | str, params: Mapping | None = Non
 def checked_seeds(seeds: Iterable[int]) -> list[int]:
     """The insect numbers as a list; ValueError unless one or more, each a whole number >= 0."""
     given = list(seeds)
-    whole = all(isinstance(s, int | np.integer) and not isinstance(s, bool) and s >= 0 for s in given)
-    if not given or not whole:
+    if not given or not all(is_int(s) and s >= 0 for s in given):
         raise ValueError(f"seeds: insect numbers, whole numbers >= 0 (one or more), got {given[:8]}")
     return given
+
+
+def check_ticks(ticks, low: int = 0) -> None:
+    if not is_int(ticks) or ticks < low:
+        raise ValueError(f"ticks: a whole number >= {low}, got {ticks!r}")
 
 
 def check_loop(world: World, brain: Brain, ticks, on_tick=None) -> None:
     """ValueError or TypeError, before a tick runs, where world and brain cannot run together for
     `ticks` ticks: the compiled loop indexes both by insect and trusts them to agree."""
-    if isinstance(ticks, bool) or not isinstance(ticks, (int, np.integer)) or ticks < 0:
-        raise ValueError(f"ticks: a whole number >= 0, got {ticks!r}")
+    check_ticks(ticks)
     if world.agents != brain.agents:
         raise ValueError(
             f"the world has {world.agents} insect(s), the brain {brain.agents}: make the brain for this "
@@ -272,8 +275,7 @@ def evaluate(
     `device`: "cpu", or "cuda" for an NVIDIA GPU (services/gpu.py, docs/gpu.md): the same results;
     refused in one line (RuntimeError) where numba-cuda or the GPU is missing."""
     seeds = checked_seeds(seeds)
-    if isinstance(ticks, bool) or not isinstance(ticks, (int, np.integer)) or ticks < 1:
-        raise ValueError(f"ticks: a whole number >= 1, got {ticks!r}")
+    check_ticks(ticks, 1)
     if device != "cpu":
         from services.gpu import check_device  # numba.cuda only when the device is asked for
 

@@ -9,6 +9,7 @@ settings costs no more than one setting.
 from __future__ import annotations
 
 import csv
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,6 +44,22 @@ AGENT_PARAMS = {
         AgentParam("move_step", "world", "patches moved per MOVE spike"),
     )
 }
+
+
+def is_int(value) -> bool:
+    """An int of Python or numpy, not a bool: what a count of agents or ticks, or a seed, must be."""
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
+def is_number(value) -> bool:
+    """A finite number of Python or numpy, not a bool: what a parameter's value must be."""
+    return (
+        isinstance(value, int | float | np.integer | np.floating)
+        and not isinstance(value, bool)
+        and math.isfinite(value)
+    )
+
+
 PARALLEL_FROM = 256  # agents; from here, engine and world kernels run across cores (below, thread start-up costs more)
 # the NeuronType fields the learning columns set, on every neuron a plastic synapse targets
 LEARNING_FIELDS = ("a_plus", "a_minus", "tau_plus", "tau_minus", "w_max")

@@ -18,7 +18,8 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 import msgspec
-import numpy as np
+
+from services.params import is_number
 
 CIRCUITS_DIR = Path(str(resources.files("services.brain") / "circuits"))  # shipped with the package
 
@@ -438,8 +439,7 @@ LONGEST_WINDOW = 100_000  # ticks each side: the W(dt) table holds a value per t
 def _check_type(t: NeuronType, fail) -> None:
     for f in dataclasses.fields(t)[1:]:  # every field but the name is a number
         value = getattr(t, f.name)
-        number = isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
-        if not number or not math.isfinite(value):
+        if not is_number(value):
             fail(f"{f.name} must be a finite number, got {value!r}")
         if f.name in WHOLE_FIELDS and value != int(value):
             fail(f"{f.name} must be a whole number of ticks, got {value!r}")

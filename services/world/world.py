@@ -23,7 +23,7 @@ from numba.core import types
 from numba.experimental import structref
 
 from services.kernels import Kernel
-from services.params import PARALLEL_FROM, agent_columns
+from services.params import PARALLEL_FROM, agent_columns, is_int, is_number
 from services.snapshots import copy_into
 from services.vocabulary import (
     BLACK,
@@ -103,8 +103,7 @@ class WorldParams:
         """(field, what is wrong with its value) for each value the world cannot take."""
 
         def number(x, low=-math.inf, above=False):
-            ok = isinstance(x, int | float | np.integer | np.floating) and not isinstance(x, bool) and math.isfinite(x)
-            return ok and (x > low if above else x >= low)
+            return is_number(x) and (x > low if above else x >= low)
 
         def whole(x, low=-math.inf):
             return number(x, low) and x == int(x)
@@ -331,7 +330,7 @@ def _world_struct(arrays):
 def checked_arguments(p: WorldParams, agents, seed, shared, grid, training, numbers) -> np.ndarray:
     """World's arguments checked (ValueError naming a wrong one); the agents' numbers, int64 [A]."""
     for name, value, low in (("agents", agents, 1), ("seed", seed, 0)):
-        if isinstance(value, bool) or not isinstance(value, int | np.integer) or not low <= value < 2**62:
+        if not is_int(value) or not low <= value < 2**62:
             raise ValueError(f"{name}: a whole number >= {low} (below 2**62), got {value!r}")
     if not isinstance(training, bool | np.bool_) or not isinstance(shared, bool | np.bool_):
         raise ValueError(f"training and shared: True or False, got {training!r} and {shared!r}")
