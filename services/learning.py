@@ -101,7 +101,14 @@ def quarter_collisions(bins) -> tuple[np.ndarray, np.ndarray]:
 def learning_time(collision_ticks, ticks: int, window: int, allowed: int = 0) -> int | None:
     """The tick of the last collision before the first `window` ticks that hold at most `allowed`
     collisions (0 when the run starts that way); None when no such window ended within `ticks`."""
-    c = np.asarray(collision_ticks, dtype=np.int64)
+    c = np.asarray(collision_ticks)
+    if c.ndim != 1 or (c.size and not np.issubdtype(c.dtype, np.integer)):
+        raise ValueError(f"collision_ticks must be a list of whole ticks, got {c.dtype} of shape {c.shape}")
+    if window < 1 or allowed < 0:
+        raise ValueError(f"window must be >= 1 and allowed >= 0, got window {window}, allowed {allowed}")
+    c = c.astype(np.int64)
+    if np.any(np.diff(c) < 0) or (c.size and (c[0] < 0 or c[-1] > ticks)):
+        raise ValueError(f"collision_ticks must be sorted ticks in 0..{ticks}, got {c[:8].tolist()}...")
     # a window starts just after collision i (or after tick 0, as the world counts) and is met when
     # the (allowed + 1)-th collision after that start comes `window` or more ticks later, or never
     starts = np.concatenate([[1], c + 1])

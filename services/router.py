@@ -20,7 +20,7 @@ DEFAULT_LISTEN = "tcp/0.0.0.0:7447"
 
 def parser() -> Parser:
     p = Parser(prog="spikinglab router", description="A Zenoh router for services on several machines.")
-    add_bus_args(p)
+    add_bus_args(p, group=False)  # it routes every group's keys
     return p
 
 

@@ -119,6 +119,7 @@ ARGUMENTS = [
         "argument --connect: 'localhost:7447' is not an endpoint",
     ),
     ("endpoint without port", "world --listen tcp/127.0.0.1", 2, "a tcp endpoint needs host:port"),
+    ("router given a group (it routes every group)", "router --group g", 2, "unrecognized arguments: --group g"),
     (
         "brain shard beyond its count",
         "brain --shard 4/3",

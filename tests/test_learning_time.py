@@ -1,6 +1,7 @@
 """Learning time from noxious ticks: the post-hoc definitions agree with the world's own counter."""
 
 import numpy as np
+import pytest
 
 from services.brain.circuit import load_circuit
 from services.learning import learning_time, noxious_ticks, stats
@@ -16,6 +17,21 @@ def test_definitions_on_hand_made_ticks():
     # at most one: after 10, ticks 11..44 hold 40 but end at 45 (34 ticks); after 45, 46..99 hold 70
     assert learning_time([3, 10, 40, 45, 70], 100, 50, allowed=1) == 45
     assert learning_time([3, 10, 40, 70], 100, 50, allowed=1) == 10  # 11..69 holds only 40
+
+
+@pytest.mark.parametrize(
+    "ticks_of_one, window, allowed, named",
+    [
+        ([70, 10], 50, 0, "sorted"),  # unsorted ticks used to read as a gap
+        ([3, 200], 50, 0, "sorted ticks in 0..100"),
+        ([3.5], 50, 0, "whole ticks"),
+        ([3], 0, 0, "window must be >= 1"),
+        ([3], 50, -1, "allowed >= 0"),
+    ],
+)
+def test_a_learning_time_of_ticks_that_cannot_be_a_runs_is_refused(ticks_of_one, window, allowed, named):
+    with pytest.raises(ValueError, match=named):
+        learning_time(ticks_of_one, 100, window, allowed)
 
 
 def test_censored_statistics():

@@ -61,7 +61,8 @@ def group_name(text: str) -> str:
         raise argparse.ArgumentTypeError(str(e)) from None
 
 
-def add_bus_args(parser: argparse.ArgumentParser) -> None:
+def add_bus_args(parser: argparse.ArgumentParser, group: bool = True) -> None:
+    """The bus options; `group` False for the router, which routes every group's keys."""
     bus = parser.add_argument_group("bus")
     bus.add_argument(
         "--connect",
@@ -85,12 +86,13 @@ def add_bus_args(parser: argparse.ArgumentParser) -> None:
         type=zenoh_config_file,
         help="a Zenoh JSON5 config file (TLS, access control: spikinglab certs writes them)",
     )
-    bus.add_argument(
-        "--group",
-        type=group_name,
-        default=keys.DEFAULT_GROUP,
-        help=f"the insect or population this service belongs to (default {keys.DEFAULT_GROUP})",
-    )
+    if group:
+        bus.add_argument(
+            "--group",
+            type=group_name,
+            default=keys.DEFAULT_GROUP,
+            help=f"the insect or population this service belongs to (default {keys.DEFAULT_GROUP})",
+        )
     bus.add_argument(
         "--cpu",
         type=at_least(0),
