@@ -17,7 +17,9 @@ import sys
 import numpy as np
 from tqdm import tqdm
 
-from services.cluster import ClusterError, address_option
+from services.cluster import ClusterError, address_option, check_cluster
+from services.options import at_least
+from services.world.world import BIN
 from spikinglab import evaluate
 
 try:
@@ -43,16 +45,21 @@ def cost(result, ticks):
 
 def main():
     p = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    p.add_argument("--generations", type=int, default=10)
-    p.add_argument("--ticks", type=int, default=60_000)
-    p.add_argument("--seeds", type=int, default=4)
-    p.add_argument("--population", type=int, default=8, help="candidates per generation")
+    p.add_argument("--generations", type=at_least(1), default=10)
+    # the cost reads the collisions of the run's last quarter: at least one bin of them
+    p.add_argument("--ticks", type=at_least(BIN), default=60_000)
+    p.add_argument("--seeds", type=at_least(1), default=4)
+    p.add_argument("--population", type=at_least(2), default=8, help="candidates per generation (CMA-ES: 2 or more)")
     p.add_argument("--cluster", type=address_option, metavar="ADDRESS", help="a Dask scheduler, tcp://HOST:PORT")
     args = p.parse_args()
     try:
+        if args.cluster is not None:
+            check_cluster(args.cluster)  # before the first generation's progress bar
         search(args)
     except ClusterError as e:
         p.exit(1, f"{p.prog}: {e}\n")
+    except KeyboardInterrupt:
+        p.exit(130, f"{p.prog}: interrupted (the generations above are the search so far)\n")
 
 
 def generation_costs(points, args):

@@ -24,6 +24,7 @@ from typing import cast
 
 import numpy as np
 
+log = logging.getLogger("spikinglab.cluster")
 CONNECT_S = 5  # a scheduler that does not answer within this is reported
 # insects per block, about: smaller blocks run slower per insect; more blocks show progress sooner,
 # balance the workers and lose less when a worker is lost
@@ -51,16 +52,24 @@ def address_option(text: str) -> str:
         raise argparse.ArgumentTypeError(str(e)) from None
 
 
-@contextmanager
-def connected(address: str):
-    """A Dask client of the scheduler at `address`, closed (and its unfinished tasks cancelled) on leaving."""
+def check_cluster(address: str) -> None:
+    """ClusterError unless the extra is installed and a Dask scheduler answers at `address`: a
+    command calls it before its study shows progress, a study again as it connects."""
     found = ADDRESS.fullmatch(cluster_address(address))
     assert found is not None  # cluster_address checked it
     try:
-        from distributed import Client
+        import distributed  # noqa: F401
     except ImportError:
         raise ClusterError("a cluster needs Dask distributed: pip install 'spikinglab[cluster]'") from None
     require_scheduler(address, found[1].strip("[]"), int(found[2]))
+
+
+@contextmanager
+def connected(address: str):
+    """A Dask client of the scheduler at `address`, closed (and its unfinished tasks cancelled) on leaving."""
+    check_cluster(address)
+    from distributed import Client
+
     try:
         client = Client(address, timeout=CONNECT_S, set_as_default=False)
     except (OSError, TimeoutError) as e:
@@ -115,6 +124,11 @@ def require_scheduler(address: str, host: str, port: int) -> None:
             f"something at {address} accepts connections but does not answer as Dask does within "
             f"{CONNECT_S} s: not a Dask scheduler (its dashboard's port?)"
         ) from None
+    except OSError:  # Dask's CommClosedError among them: what a tunnel does when nothing is behind it
+        raise ClusterError(
+            f"something at {address} took the connection and closed it without answering as Dask does: "
+            f"no Dask scheduler there (behind a tunnel or port forward, it may be down)"
+        ) from None
     except Exception:  # another protocol's bytes read as Dask's frames: any error (a MemoryError too)
         raise ClusterError(
             f"something at {address} answered, but not in Dask's protocol: not a Dask scheduler"
@@ -162,7 +176,7 @@ def in_blocks(
         from distributed import as_completed  # after connected(): it says when the extra is missing
         from distributed.scheduler import KilledWorker
 
-        threads = sum(cast(dict, client.nthreads()).values())  # a dict: the client is synchronous
+        threads = worker_threads(client, address)
         futures = {client.submit(task, s, j, pure=False): (s, j) for s, j in blocks(settings, seeds, threads)}
         done = 0
         try:
@@ -176,6 +190,25 @@ def in_blocks(
             ) from None
         except KilledWorker as e:  # the scheduler gave up on a block whose workers all died running it
             raise ClusterError(f"the study on {address} stopped after {done} of {len(futures)} blocks: {e}") from None
+
+
+def worker_threads(client, address: str) -> int:
+    """The cluster's worker threads, once it has a worker: a study cut into blocks for none would be
+    one block per BLOCK insects whatever the cluster becomes. Says so while it waits."""
+    threads = sum(cast(dict, client.nthreads()).values())  # a dict: the client is synchronous
+    if not threads:
+        log.warning("no worker on the cluster at %s yet: the study waits for one (docs/cluster.md)", address)
+    while not threads:
+        try:
+            client.wait_for_workers(1, timeout=CONNECT_S)
+        except TimeoutError:
+            pass
+        except OSError as e:  # the scheduler gone while waiting
+            raise ClusterError(
+                f"the scheduler at {address} went away while the study waited for a worker ({e})"
+            ) from None
+        threads = sum(cast(dict, client.nthreads()).values())
+    return threads
 
 
 def settings_of(params: Mapping, chosen: range) -> dict:

@@ -19,7 +19,7 @@ import numpy as np
 
 from services.brain.engine import DEFAULT_SEMANTICS
 from services.brain.engine_options import add_engine_args
-from services.cluster import ClusterError, address_option
+from services.cluster import ClusterError, address_option, check_cluster
 from services.gpu import DEVICES, check_device
 from services.interrupts import ctrl_c_held
 from services.learning import PAPER, all_definitions, noxious_ticks, plot_table1, quarter_collisions, stats
@@ -309,9 +309,14 @@ def main(argv=None) -> int:
                 spikinglab_setup(args.netlogo_seed, params_for(args.preset))  # its range and arena, before any run
         except (ValueError, RuntimeError) as e:
             p.error(str(e))
+        if args.cluster is not None:
+            check_cluster(args.cluster)  # before the progress bar: its one line alone
     except KeyboardInterrupt:
         print("spikinglab sweep: interrupted, no table written", file=sys.stderr)
         return 130
+    except ClusterError as e:
+        print(f"spikinglab sweep: {e}", file=sys.stderr)
+        return 1
     return run_into_folder(args)
 
 

@@ -228,22 +228,29 @@ def test_an_address_that_is_not_a_scheduler_is_named_in_one_line(cluster, tmp_pa
     address, _ = cluster
     with Client(address, timeout=30) as client:
         a_worker = next(iter(cast(dict, client.scheduler_info())["workers"]))
-    with socket.socket() as silent, socket.socket() as chatty:
-        for server in (silent, chatty):
+    with socket.socket() as silent, socket.socket() as chatty, socket.socket() as closing:
+        for server in (silent, chatty, closing):
             server.bind(("127.0.0.1", 0))
             server.listen()
-        ports = {"silent": silent.getsockname()[1], "chatty": chatty.getsockname()[1]}
+            server.settimeout(30)  # the test never waits on one for good
+        ports = {name: s.getsockname()[1] for name, s in (("silent", silent), ("chatty", chatty), ("closing", closing))}
 
         def chatter():  # answers every connection with what is not Dask's protocol
-            chatty.settimeout(30)  # the test never waits on it for good
             for _ in range(2):
                 connection, _ = chatty.accept()
                 with connection:
                     connection.sendall(b"HTTP/1.0 200 OK\r\n\r\n" + b"\xff" * 4096)
 
-        with ThreadPoolExecutor(1) as thread:
-            thread.submit(chatter)
+        def closer():  # closes every connection at once: a tunnel with no scheduler behind it
+            for _ in range(2):
+                closing.accept()[0].close()
+
+        with ThreadPoolExecutor(2) as threads:
+            threads.submit(chatter)
+            threads.submit(closer)
             cases = {
+                f"tcp://127.0.0.1:{ports['closing']}": "took the connection and closed it without answering as "
+                "Dask does: no Dask scheduler there (behind a tunnel or port forward, it may be down)",
                 a_worker: f"{a_worker} is a Dask Worker, not a scheduler: give the scheduler's address",
                 f"tcp://127.0.0.1:{ports['silent']}": "accepts connections but does not answer as Dask does within 5 s",
                 f"tcp://127.0.0.1:{ports['chatty']}": "answered, but not in Dask's protocol",
@@ -253,6 +260,30 @@ def test_an_address_that_is_not_a_scheduler_is_named_in_one_line(cluster, tmp_pa
             for wrong, said in cases.items():
                 with pytest.raises(ClusterError, match=re.escape(said)):
                     evaluate(PARAMS, 1000, [0], cluster=wrong)
+
+
+def test_a_study_on_a_cluster_with_no_worker_says_it_waits_and_runs_once_one_comes(tmp_path, caplog):
+    """A scheduler alone: the study says once that it waits for a worker, then runs on the one that
+    joins, cut into blocks for it, with one process's arrays."""
+    scheduler, address = start_scheduler(tmp_path)
+    processes, thread = [scheduler], ThreadPoolExecutor(1)
+    try:
+        study = thread.submit(evaluate, PARAMS, 1000, [0], cluster=address)
+        deadline = time.monotonic() + 30
+        while "no worker" not in caplog.text and not study.done() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert f"no worker on the cluster at {address} yet: the study waits for one" in caplog.text
+        assert not study.done()
+        processes.append(worker(address, "late", tmp_path))
+        on_cluster = study.result(timeout=300)
+    finally:
+        for p in processes[::-1]:  # the scheduler gone, a study still waiting ends: no wait on the thread for good
+            stop(p)
+        thread.shutdown(cancel_futures=True)
+    alone = evaluate(PARAMS, 1000, [0])
+    assert on_cluster.keys() == alone.keys()
+    for name in alone:
+        np.testing.assert_array_equal(on_cluster[name], alone[name])
 
 
 def test_ctrl_c_during_the_check_of_a_silent_scheduler_ends_the_sweep_at_once(tmp_path):

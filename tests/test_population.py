@@ -203,3 +203,24 @@ def test_a_large_population_on_every_core_runs_its_insects_as_a_small_one():
     np.testing.assert_array_equal(large.metrics.collisions[:3], small.metrics.collisions)
     np.testing.assert_array_equal(large.grid[:3], small.grid)
     np.testing.assert_array_equal(large_brain.engine.get_weights()[:3], small_brain.engine.get_weights())
+
+
+@pytest.mark.parametrize(
+    "option, said",
+    [
+        ("--generations 0", "argument --generations: must be at least 1, got 0"),  # printed a best of nothing
+        ("--population 1", "argument --population: must be at least 2, got 1"),  # CMA-ES's traceback
+        ("--seeds 0", "argument --seeds: must be at least 1, got 0"),
+        ("--ticks 500", "argument --ticks: must be at least 1,000, got 500"),
+    ],
+)
+def test_the_optimiser_example_refuses_a_search_it_cannot_run_in_one_line(option, said):
+    done = subprocess.run(
+        [sys.executable, ROOT / "examples" / "optimise.py", *option.split()],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 2 and done.stderr.strip().splitlines()[-1] == f"optimise.py: error: {said}"
+    assert "Traceback" not in done.stderr
