@@ -312,11 +312,39 @@ def read_launch_file(path: Path) -> tuple[list[Process], str | None]:
         processes.append(process)
     if not processes:
         raise LaunchError(f"{path} names no process: add a table such as [world]")
+    check_world_shards_agree(path, processes, parsed)
     check_brains_fit_worlds(path, processes, parsed)
     until = settings.get("until")
     if until is not None and until not in data:
         raise LaunchError(f"{path}, [launch]: until = {until!r} is not one of its processes ({', '.join(data)})")
     return processes, until
+
+
+def check_world_shards_agree(path: Path, processes: list[Process], parsed: dict[str, argparse.Namespace]) -> None:
+    """The world shards of a group in one file make one population: each shard once, and every one
+    with the options of shard 1 (where the file holds it) that they must share (the shards would
+    refuse to join, after the start; services/world/shards.py)."""
+    from services.options import config_from
+    from services.world.options import WorldOptions
+    from services.world.shards import differences, terms
+
+    taken: dict[tuple[str, int], str] = {}
+    leads = {}
+    worlds = [(p.name, parsed[p.name]) for p in processes if p.service == "world" and parsed[p.name].shard[1] > 1]
+    for name, args in sorted(worlds, key=lambda world: world[1].shard):
+        (i, n), where = args.shard, f"{path}, [{name}]"
+        if (args.group, i) in taken:
+            raise LaunchError(
+                f'{where}: shard = "{i}/{n}" is also [{taken[args.group, i]}]\'s: each shard is one process'
+            )
+        taken[args.group, i] = name
+        mine = terms(config_from(args, WorldOptions, whole=False), "", n, args.shards)
+        if i == 1:
+            leads[args.group] = mine
+        elif args.group in leads:
+            differ = differences(mine, leads[args.group])
+            if differ:
+                raise LaunchError(f"{where}: not of world shard 1's population: {'; '.join(differ)}")
 
 
 def check_brains_fit_worlds(path: Path, processes: list[Process], parsed: dict[str, argparse.Namespace]) -> None:

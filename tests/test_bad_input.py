@@ -52,6 +52,9 @@ def files(tmp_path_factory):
         '[world-1]\nservice = "world"\nagents = 2\nshard = "1/2"\n'
         '[world-2]\nservice = "world"\nagents = 2\nshard = "2/2"\n[brain]\nonce = true\n'
     )
+    shard = '[world-{}]\nservice = "world"\nagents = 4\nticks = {}\nshard = "{}/2"\n'
+    (folder / "shards-differ.toml").write_text(shard.format(1, 500, 1) + shard.format(2, 700, 2))
+    (folder / "shard-twice.toml").write_text(shard.format(1, 500, 1) + shard.format(2, 500, 1))
     (folder / "bad.toml").write_text(
         '[neurons]\nA = "regular"\n[[synapses]]\nfrom = "A"\nto = "B"\nweight = 5\ndelay = 1\n'
     )
@@ -294,6 +297,18 @@ CASES = [
         "launch {f}/unfit-pieces.toml",
         2,
         "unfit-pieces.toml, [brain]: world_shards = 1, but [world-1] is one of 2 world shards: set world_shards = 2",
+    ),
+    (
+        "launch file's world shards of two populations",
+        "launch {f}/shards-differ.toml",
+        2,
+        "shards-differ.toml, [world-2]: not of world shard 1's population: --ticks 700 here, 500 at world shard 1",
+    ),
+    (
+        "launch file's world shard twice",
+        "launch {f}/shard-twice.toml",
+        2,
+        'shard-twice.toml, [world-2]: shard = "1/2" is also [world-1]\'s: each shard is one process',
     ),
     (
         "launch brain in another group",

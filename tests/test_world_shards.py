@@ -147,6 +147,8 @@ def test_two_world_shards_and_brain_shards_run_bit_for_bit_as_one_process(tmp_pa
     assert len(runs) == 1  # one run id
     for j in range(1, brains + 1):
         assert "keeps checkpoints" not in (tmp_path / f"brain{j}.log").read_text()  # no shard's first tick says so
+    logs = [(tmp_path / name).read_text() for name in ("world1.log", *(f"brain{j}.log" for j in range(1, brains + 1)))]
+    assert all("-done left the bus" not in log for log in logs)  # a shard's "finished" token dropped: no warning
 
 
 @contextmanager
@@ -262,7 +264,7 @@ def test_a_world_shard_lost_mid_run_ends_the_lead_and_the_brain_with_an_error(tm
         assert finish(shards[0], 60, tmp_path / "brain1.log") == 1
     log = (tmp_path / "brain1.log").read_text()
     assert "(world-2of2 left the bus before the end of its ticks): its weights so far saved to" in log
-    assert "has no whole result (world-2of2 lost); --once ends here" in log
+    assert "has no whole result (world-2of2 left the bus before the end of its ticks); --once ends here" in log
     assert not (tmp_path / "weights1.npz").exists() and len(list(tmp_path.glob("weights1-*-tick*.npz"))) == 1
 
 
@@ -455,4 +457,7 @@ def test_the_lead_merges_no_shard_file_of_another_run(tmp_path, caplog):
     (tmp_path / "metrics.json").write_text("{}")
     merge_metrics(tmp_path, 2, [], "now")
     assert not (tmp_path / "metrics.json").exists()
-    assert "metrics-2of2.json in" in caplog.text and "is not run now's" in caplog.text
+    assert f"no metrics.json of run now in {tmp_path}: metrics-2of2.json of another run" in caplog.text
+    (tmp_path / "metrics-2of2.json").unlink()  # a shard with another --out
+    merge_metrics(tmp_path, 2, [], "now")
+    assert f"no metrics.json of run now in {tmp_path}: metrics-2of2.json not there" in caplog.text

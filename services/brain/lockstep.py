@@ -219,20 +219,26 @@ class LockStep:
         self.ending = None  # only now: a SIGTERM while the end is saved saves it again (run's except)
         if self.config.once:
             if lost:
-                log.error("run %s has no whole result (%s lost); --once ends here", order.run, ", ".join(lost))
+                log.error("run %s has no whole result (%s); --once ends here", order.run, "; ".join(lost))
                 self.exit_code = 1
             return True
         self.nodes = {}
         return False
 
     def lost_shards(self) -> list[str]:
-        """The world shards of the run served (but the lead, which ends it) that left the bus before
-        they finished their ticks: gone, and no -done token of this run seen, nor within DONE_GRACE_S
-        (each holds its token until the lead's end; one gone before this brain's first piece of the
-        run counts too)."""
+        """What became of each world shard of the run served (but the lead, which ends it) that left
+        the bus before it finished its ticks: gone, and no -done token of this run seen, nor within
+        DONE_GRACE_S (each holds its token until the lead's end; one gone before this brain's first
+        piece of the run counts too, and one never seen may be no shard of the world's)."""
         deadline = time.monotonic() + DONE_GRACE_S
         gone = [(w, d) for w, d in zip(self.worlds[1:], self.done) if not w.alive and not d.seen]
-        return [w.service for w, d in gone if not d.wait_seen(max(0.0, deadline - time.monotonic()))]
+        lost = [w for w, d in gone if not d.wait_seen(max(0.0, deadline - time.monotonic()))]
+        return [
+            f"{w.service} left the bus before the end of its ticks"
+            if w.seen  # else gone before this brain came, or no such shard
+            else f"{w.service} was never on the bus (--world-shards {self.config.world_shards}: the world's?)"
+            for w in lost
+        ]
 
     def end_run(self, order: Control) -> list[str]:
         """The run ended: the last state batch with the final weights, the stats, the weights saved;
@@ -253,7 +259,7 @@ class LockStep:
             )
         lost = self.lost_shards()
         if lost:
-            self.keep_learning(f"{', '.join(lost)} left the bus before the end of its ticks", order.tick)
+            self.keep_learning("; ".join(lost), order.tick)
         elif config.save and node.brain is not None:
             save_weights(config.save, self.weights(), node.circuit, tick=order.tick)
             log.info("weights saved to %s", config.save)

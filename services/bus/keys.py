@@ -77,9 +77,12 @@ def world_service(shard: tuple[int, int]) -> str:
     return "world" if shard[0] == 1 else f"world-{shard_name(shard)}"
 
 
+DONE = "-done"
+
+
 def world_done(shard: tuple[int, int]) -> str:
     """The name of the token world shard I of N holds once it has run its ticks: "world-2of3-done"."""
-    return world_service(shard) + "-done"
+    return world_service(shard) + DONE
 
 
 def brain_service(shard: tuple[int, int]) -> str:

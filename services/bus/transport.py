@@ -324,7 +324,9 @@ class Bus:
                 context = where()
             except Exception:  # a context is a courtesy: never a reason to miss the news
                 context = ""
-            if change == "down":
+            if change == "down" and service.endswith(keys.DONE):  # a shard's "finished" token, dropped as the run ends
+                log.info("the %s token is dropped%s", service, context)
+            elif change == "down":
                 log.warning("the %s left the bus%s", service, context)
             else:
                 log.info("the %s is on the bus%s", service, context)

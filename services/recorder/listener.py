@@ -186,6 +186,14 @@ class Listener:
                 ),
                 f"({type(held).__name__} of tick {held.tick})",
             )
+        silent = self.recorder.shards.silent()
+        if silent:
+            text = (
+                f"world shard {', '.join(silent)} sent no state: the population's ticks are joined from every "
+                f"shard's, so none were recorded (--publish-state on every world shard, docs/shards.md)"
+            )
+            self.recorder.event(text, "WARN")
+            log.warning("%s", text)
         self.recorder.close()
         for stream in [self.rec] if self.rec is self.first_stream else [self.rec, self.first_stream]:
             stream.flush()

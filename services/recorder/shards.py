@@ -18,6 +18,7 @@ import msgspec
 import numpy as np
 
 from services.bus.schemas import Array, BusError, WorldMap, WorldState
+from services.options import shard_slice
 from services.vocabulary import EVENT_COLUMNS
 from services.world.world import COLOURS
 
@@ -127,6 +128,14 @@ class ShardJoin:
     def complete(self) -> bool:
         """Whether every shard is known."""
         return bool(self.shards) and len(self.slices) == self.shards
+
+    def silent(self) -> list[str]:
+        """The shards ("I/N, agents a..b") that sent no state while another did: none of the
+        population's ticks can be joined without them."""
+        if not self.blocks:
+            return []
+        slices = [(i, shard_slice(self.population, (i, self.shards))) for i in range(1, self.shards + 1)]
+        return [f"{i}/{self.shards} (agents {lo}..{hi - 1})" for i, (lo, hi) in slices if lo not in self.blocks]
 
     def joined_map(self) -> WorldMap:
         self.map_sent = True

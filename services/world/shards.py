@@ -270,14 +270,17 @@ def merge_metrics(out: Path, shards: int, lost: list[str], run_id: str) -> None:
         return
     paths = [out / f"metrics-{keys.shard_name((i, shards))}.json" for i in range(1, shards + 1)]
     parts = [json.loads(p.read_text()) if p.exists() else {} for p in paths]
-    missing = [p.name for p, part in zip(paths, parts) if part.get("run") != run_id]
-    if missing:
+    absent = [p.name for p in paths if not p.exists()]
+    other = [p.name for p, part in zip(paths, parts) if p.exists() and part.get("run") != run_id]
+    if absent or other:
         whole.unlink(missing_ok=True)
+        said = [f"{', '.join(absent)} not there"] if absent else []
+        said += [f"{', '.join(other)} of another run"] if other else []
         log.warning(
-            "no metrics.json: %s in %s is not run %s's (a shard that has not stopped yet, or one with another --out)",
-            ", ".join(missing),
-            out,
+            "no metrics.json of run %s in %s: %s (a shard that has not stopped yet, or one with another --out)",
             run_id,
+            out,
+            "; ".join(said),
         )
         return
     whole.write_text(json.dumps(merged(parts)))

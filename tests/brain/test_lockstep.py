@@ -260,6 +260,20 @@ def test_a_world_shards_done_token_heard_just_after_its_leaving_still_counts(rou
     assert save.exists() and not list(tmp_path.glob("weights-*")) and served.exit_code == 0
 
 
+def test_a_world_shard_never_seen_is_named_as_perhaps_not_the_worlds(router, sessions, tmp_path, caplog):
+    """A brain of --world-shards 2 on a world of one shard (a slip by hand): the shard it waited for
+    was never on the bus, and its end says so rather than that the shard left."""
+    served = sessions.brain(connect=[router], options=["--world-shards", 2, "--save", tmp_path / "weights.npz"])
+    lead = World(sessions.open(connect=[router]))
+    lead.join()
+    wait_for(lambda: served.worlds[0].alive, 10, "the brain to see the world")
+    serve(served, range(10), first=0)
+    with caplog.at_level("INFO", logger="spikinglab.brain"):
+        lead.end("r1", 9)
+        wait_for(served.take_orders, 10, "the brain to end the run")
+    assert "without a whole result (world-2of2 was never on the bus (--world-shards 2: the world's?))" in caplog.text
+
+
 def test_each_run_served_judges_its_own_world_shards(router, sessions, tmp_path, caplog):
     """A brain that serves run after run (no --once): a world shard 2 that said it had finished r1
     does not cover r2's shard 2, which leaves without; r3's leaves before the brain's first piece

@@ -122,6 +122,17 @@ def test_ticks_one_shard_lost_are_left_out_of_every_shards():
     np.testing.assert_array_equal(arrays["pos"], whole["pos"][np.r_[0:40, 80:100]])
 
 
+def test_a_shard_that_sends_no_state_is_named():
+    """One shard publishing alone (--publish-state on shard 1 only) joins no tick: the recorder
+    names the shard whose state never came rather than end with an empty recording in silence."""
+    whole, join = population_state(), ShardJoin()
+    assert join.silent() == []
+    assert join.take(shard_state(whole, 0, 3, 0, TICKS, final=True)) == []
+    assert join.silent() == ["2/2 (agents 3..6)"]
+    join.take(shard_state(whole, 3, 7, 0, TICKS, final=True))
+    assert join.silent() == []
+
+
 def forged(whole):
     """Shard states that are not of a shard of the population the recording holds, and why."""
     return [
