@@ -268,6 +268,25 @@ def test_a_world_shard_lost_mid_run_ends_the_lead_and_the_brain_with_an_error(tm
     assert not (tmp_path / "weights1.npz").exists() and len(list(tmp_path.glob("weights1-*-tick*.npz"))) == 1
 
 
+def test_a_world_shard_started_again_when_the_run_is_under_way_says_so_and_stays_off(tmp_path):
+    """World shard 2 killed mid-run and started again: the lead named the run only until every shard
+    had joined, so the new one would wait for a name without end; it says the run is under way and
+    ends (exit 2) once the lead has been on the bus naming none for 10 s."""
+    with shards_on_a_router(tmp_path, "wu", 1, 10**8) as (worlds, shards):
+        wait_for(lambda: " ticks, seed " in (tmp_path / "world1.log").read_text(), 120, "the run to start")
+        worlds[1].kill()
+        bus = ("--group", "wu", "--connect", endpoint(tmp_path, "router"))
+        world = ("--ticks", 10**8, "--seed", SEED, "--agents", AGENTS, "--params", options(tmp_path).params)
+        again = start("world", *bus, *world, "--shard", "2/2", "--out", tmp_path, log=tmp_path / "again.log")
+        try:
+            assert finish(again, 60, tmp_path / "again.log") == 2
+        finally:
+            again.kill()
+    said = (tmp_path / "again.log").read_text()
+    assert "world shard 2/2: world shard 1 is on the bus of group wu but has named no run for 10 s: its run is " in said
+    assert "under way, every shard joined (a shard cannot join a run under way: start the run again" in said
+
+
 def test_the_lead_lost_mid_run_ends_the_once_brains_that_served_it(tmp_path):
     """kill -9 of world shard 1: a sharded world keeps no checkpoints, so no run comes back to go
     on; each `--once` brain shard keeps its learning so far once, says so and ends (exit 1), not

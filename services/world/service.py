@@ -117,7 +117,7 @@ def run(config: WorldConfig, session) -> int:
         try:
             mine = shards.terms(config.world, "", config.shard[1], config.shards)
             bus, terms = shards.join(session, config.bus.group, config.shard, mine)
-        except (shards.ShardTwice, shards.ShardsDisagree) as e:
+        except (shards.ShardTwice, shards.ShardsDisagree, shards.RunUnderWay) as e:
             log.error("%s", e)
             return 2
     else:

@@ -29,6 +29,7 @@ from .options import WorldOptions
 log = logging.getLogger("spikinglab.world")
 SAY_EVERY = 5.0  # seconds between "waiting for ..." lines
 DUPLICATE_S = 2.0  # how long a starting shard watches for another process as that shard
+UNDER_WAY_S = 10.0  # the lead on the bus this long naming no run: its run is under way (it names within ms)
 INTERRUPTED_WAIT_S = 10.0  # a run cut short: how long the lead waits at most for the others to stop at its end
 
 # per-agent lists of metrics.json, in the population's order when the shards' are joined
@@ -104,6 +105,10 @@ def differences(mine: RunTerms, lead: RunTerms) -> list[str]:
     ]
 
 
+class RunUnderWay(ValueError):
+    """The lead runs a run that every shard joined already: this shard came too late to join it."""
+
+
 class ShardTwice(ValueError):
     """Another process is this world shard already, on the bus or waiting to join it."""
 
@@ -176,13 +181,25 @@ def lead(bus: Bus, mine: RunTerms, run_id: str, shard: tuple[int, int]) -> None:
 
 def follow(session, group: str, shard: tuple[int, int], mine: RunTerms) -> RunTerms:
     """The run the lead shard names (before this shard joins the bus); ShardsDisagree where the
-    lead's options differ from `mine`."""
-    inbox = Inbox(session, keys.world_run(group), RunTerms)
+    lead's options differ from `mine`, RunUnderWay where the lead has been on the bus for
+    UNDER_WAY_S naming none (it stops once every shard has joined: this one came too late)."""
+    inbox, lead = Inbox(session, keys.world_run(group), RunTerms), Presence(session, group, "world")
     try:
         named = inbox.get(timeout=1.0)  # a lead on the bus names the run every 0.2 s
+        lead_since, said = None, -SAY_EVERY
         while not isinstance(named, RunTerms):
-            log.info("world shard %d/%d: waiting for world shard 1/%d to name the run", *shard, shard[1])
-            named = inbox.get(timeout=SAY_EVERY)
+            now = time.monotonic()
+            lead_since = (lead_since or now) if lead.alive else None
+            if lead_since is not None and now - lead_since > UNDER_WAY_S:
+                raise RunUnderWay(
+                    f"world shard {shard[0]}/{shard[1]}: world shard 1 is on the bus of group {group} but has named "
+                    f"no run for {UNDER_WAY_S:.0f} s: its run is under way, every shard joined (a shard cannot join "
+                    f"a run under way: start the run again, every shard)"
+                )
+            if now - said >= SAY_EVERY:
+                log.info("world shard %d/%d: waiting for world shard 1/%d to name the run", *shard, shard[1])
+                said = now
+            named = inbox.get(timeout=1.0)
         found = differences(mine, named)
         if found:
             raise ShardsDisagree(
@@ -192,6 +209,7 @@ def follow(session, group: str, shard: tuple[int, int], mine: RunTerms) -> RunTe
         return named
     finally:
         inbox.close()
+        lead.close()
 
 
 def end_run(bus: Bus, control: Outbox, shard: tuple[int, int], order: Control, interrupted: bool) -> list[str]:
