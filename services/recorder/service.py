@@ -42,7 +42,12 @@ log = logging.getLogger("spikinglab.recorder")
 
 def parser() -> argparse.ArgumentParser:
     p = Parser(prog="spikinglab record", description="Record a run to a Rerun file.")
-    p.add_argument("--out", type=output_file, help="the .rrd file (default runs/<date>-<time>/recording.rrd)")
+    p.add_argument(
+        "--out",
+        type=output_file,
+        help="the .rrd file (default runs/<date>-<time>/recording.rrd; an earlier one there is kept as "
+        "<name>.previous.rrd)",
+    )
     p.add_argument(
         "--viewer",
         metavar="URL",
@@ -153,6 +158,7 @@ def run(config: RecorderConfig, session) -> int:
     serve, group = config.serve or config.web, config.bus.group
     out = config.out or Path("runs") / f"{datetime.datetime.now():%Y%m%d-%H%M%S}" / "recording.rrd"
     out.parent.mkdir(parents=True, exist_ok=True)
+    keep_earlier(out)
     rec = open_recording(config, out, f"{group}-{out.parent.name}", serving=serve)
     if serve:
         log.info("serving the run live: rerun rerun+http://127.0.0.1:%d/proxy", config.grpc_port)
@@ -210,6 +216,15 @@ def can_serve(config: RecorderConfig) -> bool:
             log.error("port %d is in use: nothing can be served there (choose another with %s)", number, option)
             return False
     return True
+
+
+def keep_earlier(out: Path) -> None:
+    """An earlier recording at `out` (a launch file's fixed --out) moved to <name>.previous.rrd: a
+    run that ends before its first tick must not leave an empty file in its place."""
+    if out.is_file() and out.stat().st_size > 0:
+        kept = out.with_name(f"{out.stem}.previous{out.suffix}")
+        out.replace(kept)
+        log.info("%s held an earlier recording: kept as %s", out, kept)
 
 
 def open_recording(

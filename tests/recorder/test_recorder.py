@@ -364,3 +364,22 @@ def test_the_trail_is_cut_where_the_insect_was_put_back_and_nowhere_else(tmp_pat
     trail = read(tmp_path / "trail.rrd")["/world/trail/agent0"]
     pieces = dict(zip(trail["tick"], (len(strips) for strips in trail["LineStrips2D:strips"])))
     assert pieces == {0: 0, 50: 1, 100: 1, 150: 2}  # tick 0: one position, no line yet
+
+
+def test_a_recorder_keeps_an_earlier_recording_at_its_out_until_it_has_its_own(tmp_path):
+    """A launch file's fixed --out: the run that follows may end before its first tick (refused by
+    a shard, say); the earlier recording is kept as recording.previous.rrd, never emptied."""
+    out, earlier = tmp_path / "recording.rrd", b"an earlier run's recording"
+    out.write_bytes(earlier)
+    recorder = start("record", "--listen", endpoint(tmp_path, "rec"), "--out", out, log=tmp_path / "recorder.log")
+    try:
+        wait_for(lambda: "recording group" in (tmp_path / "recorder.log").read_text(), 60, "the recorder to start")
+        recorder.send_signal(signal.SIGINT)
+        finish(recorder, 30, tmp_path / "recorder.log")
+    finally:
+        recorder.kill()
+    assert (tmp_path / "recording.previous.rrd").read_bytes() == earlier
+    assert out.exists() and out.read_bytes() != earlier
+    assert f"{out} held an earlier recording: kept as {tmp_path / 'recording.previous.rrd'}" in (
+        tmp_path / "recorder.log"
+    ).read_text()
