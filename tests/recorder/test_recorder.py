@@ -380,6 +380,7 @@ def test_a_recorder_keeps_an_earlier_recording_at_its_out_until_it_has_its_own(t
         recorder.kill()
     assert (tmp_path / "recording.previous.rrd").read_bytes() == earlier
     assert out.exists() and out.read_bytes() != earlier
-    assert f"{out} held an earlier recording: kept as {tmp_path / 'recording.previous.rrd'}" in (
-        tmp_path / "recorder.log"
-    ).read_text()
+    assert (
+        f"{out} held an earlier recording: kept as {tmp_path / 'recording.previous.rrd'}"
+        in (tmp_path / "recorder.log").read_text()
+    )
