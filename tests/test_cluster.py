@@ -3,12 +3,14 @@ separate processes, as on several machines. A study split into blocks gives one 
 bit for bit, and still does when a worker is killed (kill -9) while it holds a block: the scheduler
 runs that block again on another worker. Without a cluster, nothing of Dask (or Ray) is imported."""
 
+import contextlib
 import json
 import re
 import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import cast
@@ -241,9 +243,13 @@ def test_an_address_that_is_not_a_scheduler_is_named_in_one_line(cluster, tmp_pa
                 with connection:
                     connection.sendall(b"HTTP/1.0 200 OK\r\n\r\n" + b"\xff" * 4096)
 
-        def closer():  # closes every connection at once: a tunnel with no scheduler behind it
-            for _ in range(2):
-                closing.accept()[0].close()
+        closed = threading.Event()
+        closing.settimeout(0.1)
+
+        def closer():  # closes every connection at once, as a tunnel with no scheduler behind it does
+            while not closed.is_set():
+                with contextlib.suppress(TimeoutError):
+                    closing.accept()[0].close()
 
         with ThreadPoolExecutor(2) as threads:
             threads.submit(chatter)
@@ -257,9 +263,12 @@ def test_an_address_that_is_not_a_scheduler_is_named_in_one_line(cluster, tmp_pa
                 "tcp://nosuchhost.invalid:8786": "no host 'nosuchhost.invalid' (in tcp://nosuchhost.invalid:8786): "
                 "the name does not resolve",
             }
-            for wrong, said in cases.items():
-                with pytest.raises(ClusterError, match=re.escape(said)):
-                    evaluate(PARAMS, 1000, [0], cluster=wrong)
+            try:
+                for wrong, said in cases.items():
+                    with pytest.raises(ClusterError, match=re.escape(said)):
+                        evaluate(PARAMS, 1000, [0], cluster=wrong)
+            finally:
+                closed.set()
 
 
 def test_a_study_on_a_cluster_with_no_worker_says_it_waits_and_runs_once_one_comes(tmp_path, caplog):
