@@ -430,8 +430,8 @@ def main(argv=None) -> int:
         p.error("which launch file? a .toml path, or one of the shipped: " + ", ".join(shipped()))
     try:
         processes, until = read_launch_file(args.file)
-    except LaunchError as e:
-        log.error("%s", e)
+    except LaunchError as e:  # a usage error, named as every command names its own
+        print(f"{p.prog}: {e}", file=sys.stderr)
         return 2
     if args.logs:
         args.logs.mkdir(parents=True, exist_ok=True)
