@@ -42,13 +42,10 @@ def device_problem() -> str | None:
     if cuda.is_available():
         return None
     if getattr(cuda, "implementation", "") != "NVIDIA":  # numba's own CUDA target, without numba-cuda
-        return (
-            "numba-cuda is not installed: pip install 'spikinglab[gpu]' on a machine with an NVIDIA GPU, "
-            "or use the CPU path (the default)"
-        )
+        return "numba-cuda is not installed: pip install 'spikinglab[gpu]' on a machine with an NVIDIA GPU"
     return (
         "no CUDA GPU or driver found (numba.cuda.is_available() is False): run on a machine with an NVIDIA GPU "
-        "and its driver, or use the CPU path (the default)"
+        "and its driver"
     )
 
 
@@ -68,7 +65,7 @@ def check_device(device: str, cluster: str | None = None) -> None:
         raise ValueError("device and cluster: choose one (the cluster's workers run on their CPUs)")
     problem = device_problem()
     if problem is not None:
-        raise RuntimeError(f"device={device!r} refused: {problem}")
+        raise RuntimeError(f"device={device!r} refused: {problem}, or use the CPU path (the default)")
 
 
 def fused_loop_cuda(

@@ -36,6 +36,7 @@ def files(tmp_path_factory):
     (folder / "badmode.json5").write_text('{mode: "boss"}\n')
     (folder / "list.json5").write_text('["tls/127.0.0.1:7447"]\n')
     (folder / "occupied").write_text("a file, not a folder\n")
+    (folder / "soak" / "brain.json").mkdir(parents=True)  # where the soak's brain writes its stats
     save_weights(folder / "two.npz", Engine(circuit, agents=2), circuit)
     (folder / "sweeps" / "done").mkdir(parents=True)
     (folder / "sweeps" / "done" / "table.md").write_text("an earlier sweep's table\n")
@@ -203,10 +204,28 @@ ARGUMENTS = [
     ("fake brick reporting every 0 s", "fake-brick --report-every 0", 2, "argument --report-every: must be a number"),
     ("certs for no host name", "certs c --host bad!name", 2, "argument --host: expected an IP address or a host"),
     ("launch file missing", "launch {f}/none.toml", 2, "no launch file"),
+    (
+        "bench robot bin beyond a run",
+        "bench robot --seconds 1 --bin 10",
+        2,
+        "argument --bin: 10 s is longer than a run",
+    ),
+    (
+        "bench engine two cases alone",
+        "bench engine --calls --evaluate",
+        2,
+        "argument --evaluate: not allowed with argument --calls",
+    ),
 ]
 # what only a process shows (a run's validation, a port in use, Zenoh's word): id, arguments ({f}: the
 # input files, {busy}: a port in use, {closed}: a port where nothing listens), exit code, the one line
 CASES = [
+    (
+        "bench soak with a process that cannot start",  # its wait for the run held the bench for good
+        "bench soak --ticks 10000 --out {f}/soak",
+        1,
+        "the brain ended before the run started (exit 2)",
+    ),
     (
         "run circuit for another body",
         "run --circuit conditioning",

@@ -142,7 +142,7 @@ def test_bench_gpu_prints_its_figures_under_the_simulator_and_is_refused_without
     assert figures["simulator"] and figures["agents"] == 2 and figures["device"] > 0 and figures["cpu"] > 0
     if not device_present():
         done = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True)
-        assert done.returncode != 0 and done.stderr.startswith("spikinglab bench gpu: refused: ")
+        assert done.returncode == 2 and done.stderr.startswith("spikinglab bench gpu: refused: ")
         assert len(done.stderr.strip().splitlines()) == 1, done.stderr
 
 

@@ -154,16 +154,28 @@ def evaluate_rate(insects: int, ticks: int) -> dict:
 
 def parser() -> Parser:
     p = Parser(prog="spikinglab bench engine", description=(__doc__ or "").splitlines()[0])
-    p.add_argument("--ticks", type=at_least(1), default=200_000, help="ticks per pass for one agent")
-    p.add_argument("--agents", type=at_least(1), default=1000, help="agents in the batch case")
-    p.add_argument("--batch-ticks", type=at_least(1), default=500, help="ticks per pass in the batch case")
+    p.add_argument(
+        "--ticks",
+        type=at_least(1),
+        default=200_000,
+        help="ticks per pass for one agent; calls with --calls (default 200,000)",
+    )
+    p.add_argument("--agents", type=at_least(1), default=1000, help="agents in the batch case (default 1,000)")
+    p.add_argument(
+        "--batch-ticks", type=at_least(1), default=500, help="ticks per pass in the batch case (default 500)"
+    )
     p.add_argument("--repeats", type=at_least(1), default=3, help="passes of each case, the best reported (default 3)")
-    p.add_argument("--rounds", type=at_least(1), default=20, help="rounds of the two batch engines in turns (ratio)")
-    p.add_argument("--calls", action="store_true", help="only where one agent's step() goes, per call")
-    p.add_argument("--orders", action="store_true", help="only the netlogo engine's orders against phased, in turns")
-    p.add_argument("--evaluate", action="store_true", help="only evaluate()'s agent-ticks/s")
-    p.add_argument("--insects", type=at_least(1), default=1024, help="insects in the --evaluate case")
-    p.add_argument("--evaluate-ticks", type=at_least(1), default=20_000, help="ticks in the --evaluate case")
+    p.add_argument(
+        "--rounds", type=at_least(1), default=20, help="rounds of the two batch engines in turns (ratio; default 20)"
+    )
+    only = p.add_mutually_exclusive_group()
+    only.add_argument("--calls", action="store_true", help="only where one agent's step() goes, per call")
+    only.add_argument("--orders", action="store_true", help="only the netlogo engine's orders against phased, in turns")
+    only.add_argument("--evaluate", action="store_true", help="only evaluate()'s agent-ticks/s")
+    p.add_argument("--insects", type=at_least(1), default=1024, help="insects in the --evaluate case (default 1,024)")
+    p.add_argument(
+        "--evaluate-ticks", type=at_least(1), default=20_000, help="ticks in the --evaluate case (default 20,000)"
+    )
     return p
 
 
@@ -176,7 +188,9 @@ def main(argv=None) -> dict:
 
     circuit = load_circuit("insect").with_learning_rate(0.04)
     if args.calls:
-        return call_costs(circuit, args.ticks, args.repeats)
+        result = call_costs(circuit, args.ticks, args.repeats)
+        print(json.dumps(result))
+        return result
     if args.orders:
         result = order_split(circuit, args.agents, args.batch_ticks, args.rounds)
         print(json.dumps(result))
@@ -199,10 +213,11 @@ def main(argv=None) -> dict:
 
         feeds = random_feeds(rng, circuit, args.batch_ticks, args.agents)
         batch_rate = best_rate(batch, feeds, args.repeats, agents=args.agents)
-        spikes = int(batch.run(feeds[:100]).sum())
+        counted = feeds[:100]
+        spikes = int(batch.run(counted).sum())
         print(
             f"{semantics}: A = {args.agents} {batch_rate:,.0f} agent-ticks/s on {os.cpu_count()} cores "
-            f"({spikes / args.agents / 100:.2f} spikes per agent per tick; training on)"
+            f"({spikes / args.agents / len(counted):.2f} spikes per agent per tick; training on)"
         )
         prefix = "" if semantics == "phased" else f"{semantics}_"
         result[f"{prefix}single_ticks_per_s"] = round(single_rate)

@@ -240,7 +240,7 @@ def main(argv=None) -> dict:
             f"{key:36} {c.get('tried', 0):9,} {c.get('rejected', 0):9,} {c.get('refused', 0):8,} "
             f"{c.get('taken', 0):7,} {c.get('escapes', 0):8,}"
         )
-    print("(each payload is decoded as every kind it may be expected as, and as any kind: 8 outcomes)")
+    print(f"(each payload is decoded as every kind it may be expected as, and as any kind: {len(KINDS) + 1} outcomes)")
     if escape:
         print("first escape:\n" + escape)
     figures = {"examples": args.examples, "keys": table, "escapes": sum(c.get("escapes", 0) for c in table.values())}

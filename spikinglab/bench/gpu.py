@@ -76,12 +76,19 @@ def main(argv=None) -> dict:
         "--warmup", type=at_least(1), default=10, help="device ticks before the timing: the compile (default 10)"
     )
     p.add_argument("--cpu-ticks", type=at_least(1), default=200, help="ticks timed on the CPU (default 200)")
-    p.add_argument("--semantics", choices=SEMANTICS, default=DEFAULT_SEMANTICS, help="the engine's semantics")
-    p.add_argument("--order", choices=("random", "file"), default="random", help="the netlogo semantics' order")
+    p.add_argument(
+        "--semantics",
+        choices=SEMANTICS,
+        default=DEFAULT_SEMANTICS,
+        help=f"the engine's semantics (default {DEFAULT_SEMANTICS})",
+    )
+    p.add_argument(
+        "--order", choices=("random", "file"), default="random", help="the netlogo semantics' order (default random)"
+    )
     args = p.parse_args(argv)
     problem = device_problem()
     if problem is not None:
-        raise SystemExit(f"spikinglab bench gpu: refused: {problem}")
+        p.exit(2, f"{p.prog}: refused: {problem}\n")  # a device is what this benchmark measures
     simulator = simulated()
     order = f", {args.order} order" if args.semantics == "netlogo" else ""
     print(

@@ -115,7 +115,7 @@ def parser() -> Parser:
         "--ticks",
         type=at_least(2),
         default=20_000,
-        help="ticks of the one-agent bus runs (rates are measured after the first)",
+        help="ticks of the one-agent bus runs (rates are measured after the first; default 20,000)",
     )
     p.add_argument("--agents", type=at_least(1), default=1000, help="agents of the batch cases (default 1000)")
     p.add_argument(
@@ -129,7 +129,12 @@ def parser() -> Parser:
     p.add_argument(
         "--repeats", type=at_least(1), default=3, help="runs of each bus case (default 3; the median is reported)"
     )
-    p.add_argument("--semantics", choices=SEMANTICS, default=DEFAULT_SEMANTICS, help="the brain's engine semantics")
+    p.add_argument(
+        "--semantics",
+        choices=SEMANTICS,
+        default=DEFAULT_SEMANTICS,
+        help=f"the brain's engine semantics (default {DEFAULT_SEMANTICS})",
+    )
     return p
 
 

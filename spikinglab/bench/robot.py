@@ -165,15 +165,17 @@ def table_of(results: dict[str, list], args) -> tuple[str, dict]:
         }
     table = (
         f"Collisions per minute (ultrasonic < 5 cm), mean over {args.seeds} seeds, "
-        f"`spikinglab bench robot --seconds {args.seconds:.0f} --seeds {args.seeds} --spin-ms {args.spin_ms}`\n\n"
-        + "\n".join(rows)
-        + "\n"
+        f"`spikinglab bench robot --seconds {args.seconds:g} --seeds {args.seeds} --bin {args.bin:g} "
+        f"--spin-ms {args.spin_ms}`\n\n" + "\n".join(rows) + "\n"
     )
     return table, summary
 
 
 def main(argv=None) -> dict:
-    args = parser().parse_args(argv)
+    p = parser()
+    args = p.parse_args(argv)
+    if args.bin > args.seconds:  # the table would have no column
+        p.error(f"argument --bin: {args.bin:g} s is longer than a run (--seconds {args.seconds:g})")
     args.out.mkdir(parents=True, exist_ok=True)
     results = run_all(args)
     table, summary = table_of(results, args)

@@ -54,14 +54,22 @@ def fuzz(endpoints: list[str], per_s: float, stop: threading.Event, counts: dict
 
 def main(argv=None) -> dict:
     p = Parser(prog="spikinglab bench soak", description=(__doc__ or "").splitlines()[0])
-    p.add_argument("--ticks", type=at_least(10_000), default=1_000_000, help="lock-step: the run's ticks")
     p.add_argument(
-        "--fuzz-per-s", type=positive, default=200.0, help="lock-step: malformed messages per second, all keys"
+        "--ticks",
+        type=at_least(10_000),
+        default=1_000_000,
+        help="lock-step: the run's ticks (at least 10,000; default 1,000,000)",
+    )
+    p.add_argument(
+        "--fuzz-per-s",
+        type=positive,
+        default=200.0,
+        help="lock-step: malformed messages per second, all keys (default 200)",
     )
     p.add_argument("--robot", action="store_true", help="the free-running brain, gateway and fake brick instead")
     p.add_argument("--seconds", type=at_least(10), default=600, help="robot: how long the gateway runs (default 600)")
     p.add_argument("--clock", type=positive, default=1000.0, help="robot: the brain's clock in Hz (default 1000)")
-    p.add_argument("--sample-s", type=positive, default=2.0, help="how often RSS is read")
+    p.add_argument("--sample-s", type=positive, default=2.0, help="how often RSS is read, in seconds (default 2)")
     p.add_argument(
         "--out",
         type=output_folder,
@@ -100,18 +108,23 @@ def lockstep_soak(args, out: Path) -> dict:
             ),
         }
         stop, counts = threading.Event(), {"sent": 0}
-        # the fuzzer starts once the run has: on the plain bus the first map, layout or sensors set the
-        # run that recorder and brain serve, a forged one too (docs/security.md: the secured bus stops that)
-        while " run " not in (out / "world.log").read_text() or "brain for" not in (out / "brain.log").read_text():
-            time.sleep(0.1)
         fuzzer = threading.Thread(target=fuzz, args=([world_ep, brain_ep], args.fuzz_per_s, stop, counts))
-        fuzzer.start()
         try:
+            # the fuzzer starts once the run has: on the plain bus the first map, layout or sensors set the
+            # run that recorder and brain serve, a forged one too (docs/security.md: the secured bus stops that)
+            while " run " not in (out / "world.log").read_text() or "brain for" not in (out / "brain.log").read_text():
+                gone = {name: p.poll() for name, p in processes.items() if p.poll() is not None}
+                if gone:  # one that ended before the run started would hold this wait for good
+                    name = next(iter(gone))
+                    raise SystemExit(f"the {name} ended before the run started (exit {gone[name]}): {out / name}.log")
+                time.sleep(0.1)
+            fuzzer.start()
             samples, wall = sample_until(processes, processes["world"], args.sample_s)
             ended(processes, {"world": 0, "brain": 60, "recorder": 120}, out / "world.log")
         finally:
             stop.set()
-            fuzzer.join()
+            if fuzzer.is_alive():
+                fuzzer.join()
             stop_all(processes)
     metrics = json.loads((out / "metrics.json").read_text())
     ticks_per_s = metrics["ticks_per_s"]
@@ -153,9 +166,8 @@ def robot_soak(args, out: Path) -> dict:
     brain = json.loads((out / "brain.json").read_text())
     result = {key: brain[key] for key in ("ticks", "hz", "late_ms_median", "late_ms_p99", "late_ms_max")}
     for name, (slope, end) in slopes(samples, wall, 3600, "hour").items():
-        if name != "fake-brick":
-            result[f"{name}_rss_mb_end"] = end
-            result[f"{name}_rss_slope_mb_per_hour"] = round(slope, 2)
+        result[f"{name.replace('-', '_')}_rss_mb_end"] = end
+        result[f"{name.replace('-', '_')}_rss_slope_mb_per_hour"] = round(slope, 2)
     print(
         f"{brain['ticks']:,} brain ticks at {brain['hz']:,.1f} Hz over {wall:.0f} s; lateness median "
         f"{brain['late_ms_median']} ms, p99 {brain['late_ms_p99']} ms, max {brain['late_ms_max']} ms"
@@ -203,6 +215,7 @@ def slopes(samples: list, wall: float, seconds_per_unit: float, unit: str) -> di
         t = np.array([t for t, s in half if name in s])
         mb = np.array([s[name] for _, s in half if name in s])
         if len(t) < 3:
+            print(f"{name:10s} RSS: {len(t)} samples in the second half, too few for a slope (run longer)")
             continue
         slope = float(np.polyfit(t, mb, 1)[0]) * seconds_per_unit
         peak = max(s[name] for _, s in samples if name in s)
