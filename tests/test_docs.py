@@ -45,7 +45,8 @@ HOME = {  # the commands a doc is about: an option it names without naming a com
     },
 }
 OPTION = r"--[a-z][\w-]*"
-COMMAND = re.compile(r"(?:^|(?<=[\s/(]))(?<!from )spikinglab +(bench +[a-z][\w-]*|[a-z][\w-]*)")
+# a command, not a command's message ("spikinglab launch: ...")
+COMMAND = re.compile(r"(?:^|(?<=[\s/(]))(?<!from )spikinglab +(bench +[a-z][\w-]*|[a-z][\w-]*)(?![\w:-])")
 UNITS = {"ms": 1e-3, "s": 1.0}  # a time stated in the docs, to seconds
 
 
