@@ -204,6 +204,7 @@ ARGUMENTS = [
     ("fake brick reporting every 0 s", "fake-brick --report-every 0", 2, "argument --report-every: must be a number"),
     ("certs for no host name", "certs c --host bad!name", 2, "argument --host: expected an IP address or a host"),
     ("launch file missing", "launch {f}/none.toml", 2, "no launch file"),
+    ("bench gpu order of phased", "bench gpu --semantics phased --order file", 2, "the phased semantics has none"),
     (
         "bench robot bin beyond a run",
         "bench robot --seconds 1 --bin 10",

@@ -86,6 +86,8 @@ def main(argv=None) -> dict:
         "--order", choices=("random", "file"), default="random", help="the netlogo semantics' order (default random)"
     )
     args = p.parse_args(argv)
+    if args.semantics == "phased" and args.order != "random":
+        p.error("argument --order: the netlogo semantics' order; the phased semantics has none")
     problem = device_problem()
     if problem is not None:
         p.exit(2, f"{p.prog}: refused: {problem}\n")  # a device is what this benchmark measures
