@@ -261,6 +261,19 @@ def motor_actions(message: Motor, run: str) -> dict:
     return dict(zip(message.names, actions[0].tolist()))
 
 
+def staleness(published: np.ndarray, polls: int, reading: int, now: float, max_age: float) -> str | None:
+    """How old reading `reading` is, where older than `max_age` seconds; None where fresh enough (or
+    negative: a command that answers no reading). `published`: the publication times of the last
+    len(published) of `polls` readings, reading k at k % len(published)."""
+    if reading < 0:
+        return None
+    back = polls - reading
+    if back > len(published):  # its time is no longer kept: seconds old at any poll rate
+        return f"{back} readings back"
+    age = now - published[reading % len(published)]
+    return None if age <= max_age else f"{age * 1000:.0f} ms old"
+
+
 class Gateway:
     """The robot side: poll and publish in the calling thread, motor commands and safety in another."""
 
@@ -408,19 +421,16 @@ class Gateway:
         """Whether `message` answers a reading older than --max-command-age (a brain that stalled
         and now catches up): dropped, counted, logged. BusError for a reading not yet published."""
         polls = self.stats["polls"]
-        if message.reading < 0:
-            return False
         if message.reading >= polls:
             raise BusError(f"does not fit the run: answers reading {message.reading}, the robot has published {polls}")
-        published = self.published[message.reading % READINGS_KEPT] if polls - message.reading < READINGS_KEPT else 0
-        age = time.monotonic() - published
-        if age <= self.config.max_command_age:
+        how_old = staleness(self.published, polls, message.reading, time.monotonic(), self.config.max_command_age)
+        if how_old is None:
             return False
         self.stats["stale_commands"] += 1
         if self.stats["stale_commands"] <= 5 or self.stats["stale_commands"] % 1000 == 0:
             log.warning(
-                "dropped a motor command answering a reading %.0f ms old (%d dropped so far)",
-                age * 1000,
+                "dropped a motor command answering a reading %s (%d dropped so far)",
+                how_old,
                 self.stats["stale_commands"],
             )
         return True

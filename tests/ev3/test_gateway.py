@@ -10,9 +10,10 @@ import numpy as np
 from services.bus import keys
 from services.bus.schemas import Array, Motor, encode
 from services.ev3_gateway.fake_brick import BEACON_PORT, FakeBrick
+from services.ev3_gateway.service import staleness
 from services.vocabulary import INSECT_ACTIONS
 
-from ..processes import Watcher, connecting, endpoint, finish, gateway_and_brain, start, wait_for
+from ..processes import Watcher, connecting, endpoint, finish, gateway_and_brain, start, wait_for, wait_for_driving
 from ..recordings import read
 from ..sockets import listeners
 
@@ -29,6 +30,7 @@ def test_robot_chain_senses_moves_survives_a_lost_link_and_stops_without_a_brain
         processes = [recorder, gateway, brain]
         try:
             # the pacemaker keeps the insect walking: MOVE spikes -> forward 500 ms on both drive motors
+            wait_for_driving(tmp_path)
             wait_for(lambda: any(c.kind == "time_sync" and c.turn == 0 for c in brick.commands), 60, "a forward")
             forward = next(c for c in brick.commands if c.kind == "time_sync" and c.turn == 0)
             assert (forward.ports, forward.ms, forward.speed) == (0b0110, 500, 50)
@@ -79,6 +81,7 @@ def test_a_stalled_brain_stops_the_robot_and_sends_no_backlog_when_it_resumes(tm
     with FakeBrick() as brick:
         gateway, brain = gateway_and_brain(tmp_path, ["--stats", tmp_path / "gateway.json"])
         try:
+            wait_for_driving(tmp_path)
             wait_for(lambda: sum(c.kind == "time_sync" for c in brick.commands) > 10, 60, "the insect walking")
             time.sleep(1.0)
             before = len(brick.commands)
@@ -121,6 +124,7 @@ def test_a_link_gone_silent_is_noticed_the_robot_stops_by_itself_and_nothing_arr
         gateway, brain = gateway_and_brain(tmp_path, ["--stats", tmp_path / "gateway.json"])
         log = tmp_path / "gateway.log"
         try:
+            wait_for_driving(tmp_path)
             wait_for(lambda: sum(c.kind == "time_sync" for c in brick.commands) > 10, 60, "the insect walking")
             dropped_at = time.monotonic()
             brick.drop_link(2.0)
@@ -203,12 +207,20 @@ def test_commands_answering_old_or_unpublished_readings_are_dropped(tmp_path):
     assert "dropped a motor command answering a reading" in (tmp_path / "gateway.log").read_text()
 
 
+def test_a_reading_is_stale_by_its_publication_time_or_by_count_once_its_time_is_not_kept():
+    published = np.zeros(4)
+    published[[1, 2, 3, 0]] = [10.0, 10.1, 10.2, 10.3]  # readings 5..8 of 9, at 5 % 4 = 1 onwards
+    assert staleness(published, 9, 8, now=10.4, max_age=0.2) is None
+    assert staleness(published, 9, 5, now=10.4, max_age=0.2) == "400 ms old"
+    assert staleness(published, 9, 4, now=10.4, max_age=0.2) == "5 readings back"  # not the clock's age
+    assert staleness(published, 9, -1, now=10.4, max_age=0.2) is None  # answers no reading
+
+
 def test_the_brain_drives_a_simulated_ev3(tmp_path):
     log = tmp_path / "gateway.log"
     gateway, brain = gateway_and_brain(tmp_path, ["--backend", "sim", "--stats", tmp_path / "gateway.json"])
     try:
-        # the brain compiles its kernels at its first reading (a minute on a cold cache and a busy machine)
-        wait_for(lambda: "a brain drives the robot" in log.read_text(), 180, "the brain to drive")
+        wait_for_driving(tmp_path)
         time.sleep(2.0)
         gateway.send_signal(signal.SIGTERM)
         assert finish(gateway, 30, log) == 0
