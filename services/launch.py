@@ -145,8 +145,9 @@ def spawn(
     return subprocess.Popen(command, stdout=output, stderr=stderr, env=env, cwd=cwd, start_new_session=True)
 
 
-def stop(popen: subprocess.Popen, timeout: float = STOP_S) -> None:
-    """SIGTERM (a service writes what it has, as on Ctrl-C), then SIGKILL after `timeout`."""
+def stop(popen: subprocess.Popen, timeout: float = STOP_S) -> bool:
+    """SIGTERM (a service writes what it has, as on Ctrl-C), then SIGKILL after `timeout`. Whether
+    it ended by itself."""
     if popen.poll() is None:
         popen.terminate()
         try:
@@ -154,6 +155,8 @@ def stop(popen: subprocess.Popen, timeout: float = STOP_S) -> None:
         except subprocess.TimeoutExpired:
             popen.kill()
             popen.wait()
+            return False
+    return True
 
 
 class Child:
@@ -275,7 +278,8 @@ class Launcher:
             self.stop(name)
 
     def stop(self, name: str, timeout: float = STOP_S) -> None:
-        stop(self.children[name].popen, timeout)
+        if not stop(self.children[name].popen, timeout):
+            log.warning("the %s did not end within %.0f s of its SIGTERM; killed it", name, timeout)
 
     def ending_order(self) -> list[str]:
         """Start order (the world first writes what it has), but a router or a fake brick last:

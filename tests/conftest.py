@@ -6,7 +6,8 @@ the rest alone).
 
   process:  starts processes (services, a run, pip)
   realtime: its outcome depends on wall-clock timing: the free-running brain (--clock), the
-            gateway (its safety stops and motor timeout), the simulated robot, a quiet time
+            gateway (its safety stops and motor timeout), the simulated robot, a quiet time; a
+            shipped launch file that runs one of these, named in the test or a parameter of it
   viewer:   needs a browser, a display or a Vulkan driver; skipped with the reason where the system
             lacks them, failed instead under CI (scripts/test.sh installs them there)
   unit:     none of these
@@ -19,16 +20,39 @@ import inspect
 import os
 import re
 import shutil
+import tomllib
 from functools import cache
 from pathlib import Path
 
 import pytest
+
+from services.launch import shipped
 
 PROCESS = re.compile(r"(?<![\w.])(start|spawn)\(|\bsubprocess\.|\bPopen\(|\bLauncher\(|\bsys\.executable\b")
 REALTIME = re.compile(
     r'"--clock"|(?<![\w.])start\(\s*"gateway"|"spikinglab", "gateway", "--listen"'
     r"|\bgateway_and_brain\(|\bSimBackend\(|\bquiet_s=|assert .*\bmonotonic\(\) -"
 )
+LAUNCHED = re.compile(r'\blaunch_file\(\s*"([\w-]+)"')  # a shipped launch file named in a test
+
+
+@cache
+def realtime_launch_files() -> frozenset[str]:
+    """The shipped launch files that run a gateway or a free-running brain."""
+
+    def realtime(table: str, options: dict) -> bool:
+        return options.get("service", table) == "gateway" or "clock" in options
+
+    files = {name: tomllib.loads(path.read_text()) for name, path in shipped().items()}
+    return frozenset(name for name, data in files.items() if any(realtime(t, o) for t, o in data.items()))
+
+
+def runs_in_realtime(item: pytest.Function, source: str) -> bool:
+    params = getattr(item, "callspec", None)
+    named = {*LAUNCHED.findall(source), *(v for v in (params.params.values() if params else ()) if isinstance(v, str))}
+    return bool(REALTIME.search(source) or named & realtime_launch_files())
+
+
 # what a viewer test runs, and the system package it needs for that
 VIEWERS = {
     re.compile(r"\bsync_playwright\b"): "chromium",
@@ -87,7 +111,7 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             name
             for name, found in (
                 ("process", PROCESS.search(source)),
-                ("realtime", REALTIME.search(source)),
+                ("realtime", runs_in_realtime(item, source)),
                 ("viewer", needs),
             )
             if found

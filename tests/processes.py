@@ -75,6 +75,13 @@ def gateway_and_brain(folder: Path, gateway=(), brain=()) -> tuple[subprocess.Po
     return robot_chain(endpoint(folder, "gateway"), endpoint(folder, "brain"), 1000, gateway, brain, folder, ROOT)
 
 
+def wait_for_driving(folder: Path) -> None:
+    """Until gateway_and_brain's gateway follows the brain: the brain compiles its kernels at its
+    first reading, a minute and more on a cold kernel cache and a busy machine."""
+    log = folder / "gateway.log"
+    wait_for(lambda: "a brain drives the robot" in log.read_text(), 180, "the brain to drive the robot")
+
+
 def world_and_brain(folder: Path, world=(), brain=()) -> tuple[subprocess.Popen, subprocess.Popen]:
     """A world and a brain that serves its one run, lock-step, both publishing their state, with
     their further options, listening on world.sock and brain.sock in `folder` and logging into

@@ -31,6 +31,7 @@ from .processes import (
     running_with,
     start,
     wait_for,
+    wait_for_driving,
     wait_for_ticks,
     world_and_brain,
 )
@@ -154,6 +155,7 @@ def test_kill_9_of_the_gateway_the_brain_says_so_and_goes_on(tmp_path):
     with FakeBrick() as brick:
         gateway, brain = gateway_and_brain(tmp_path, brain=["--save", tmp_path / "w.npz"])
         try:
+            wait_for_driving(tmp_path)
             wait_for(lambda: len(brick.commands) > 5, 60, "the robot to move")
             gateway.kill()
             killed_at = time.monotonic()

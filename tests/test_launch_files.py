@@ -134,7 +134,10 @@ def launched(tmp_path: Path, name: str, ports: dict[str, int]) -> Launched:
             services = process_tree(run.pid)[1:]
             interrupted_at = time.monotonic()
             run.send_signal(signal.SIGINT)
-            _, err = run.communicate(timeout=60)
+            try:
+                _, err = run.communicate(timeout=60)
+            except subprocess.TimeoutExpired as e:
+                raise AssertionError(f"{name} still ending 60 s after Ctrl-C: {e.stderr}\n{log.read_text()}") from None
             ended_s = time.monotonic() - interrupted_at
             left = [p.cmdline() for p in services if p.is_running() and p.status() != psutil.STATUS_ZOMBIE]
         finally:
