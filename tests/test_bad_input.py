@@ -212,6 +212,14 @@ ARGUMENTS = [
         "argument --bin: 10 s is longer than a run",
     ),
     (
+        "bench scale links with shards",
+        "bench scale --links --world-shards 2",
+        2,
+        "argument --links: measures the chain's links in this process, with no --world-shards",
+    ),
+    ("bench soak robot for ticks", "bench soak --robot --ticks 20000", 2, "argument --ticks: the lock-step soak's"),
+    ("bench soak lock-step for seconds", "bench soak --clock 500", 2, "argument --clock: with --robot only"),
+    (
         "bench engine two cases alone",
         "bench engine --calls --evaluate",
         2,

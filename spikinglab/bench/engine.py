@@ -231,7 +231,8 @@ def main(argv=None) -> dict:
     ratios = [best_rate(netlogo, netlogo_feeds, 1) / best_rate(phased, phased_feeds, 1) for _ in range(args.rounds)]
     result[f"netlogo_over_phased_batch{args.agents}_median"] = round(float(np.median(ratios)), 3)
     print(
-        f"netlogo / phased at A = {args.agents}, {args.rounds} rounds in turns: median {np.median(ratios):.2f} "
+        f"netlogo / phased at A = {args.agents}, {args.rounds} round{'s' * (args.rounds != 1)} in turns: "
+        f"median {np.median(ratios):.2f} "
         f"(min {min(ratios):.2f}, max {max(ratios):.2f})"
     )
     print(json.dumps(result))

@@ -54,21 +54,16 @@ def fuzz(endpoints: list[str], per_s: float, stop: threading.Event, counts: dict
 
 def main(argv=None) -> dict:
     p = Parser(prog="spikinglab bench soak", description=(__doc__ or "").splitlines()[0])
+    # each mode's options without defaults here: one given in the other mode is refused, not ignored
     p.add_argument(
-        "--ticks",
-        type=at_least(10_000),
-        default=1_000_000,
-        help="lock-step: the run's ticks (at least 10,000; default 1,000,000)",
+        "--ticks", type=at_least(10_000), help="lock-step: the run's ticks (at least 10,000; default 1,000,000)"
     )
     p.add_argument(
-        "--fuzz-per-s",
-        type=positive,
-        default=200.0,
-        help="lock-step: malformed messages per second, all keys (default 200)",
+        "--fuzz-per-s", type=positive, help="lock-step: malformed messages per second, all keys (default 200)"
     )
     p.add_argument("--robot", action="store_true", help="the free-running brain, gateway and fake brick instead")
-    p.add_argument("--seconds", type=at_least(10), default=600, help="robot: how long the gateway runs (default 600)")
-    p.add_argument("--clock", type=positive, default=1000.0, help="robot: the brain's clock in Hz (default 1000)")
+    p.add_argument("--seconds", type=at_least(10), help="robot: how long the gateway runs (default 600)")
+    p.add_argument("--clock", type=positive, help="robot: the brain's clock in Hz (default 1000)")
     p.add_argument("--sample-s", type=positive, default=2.0, help="how often RSS is read, in seconds (default 2)")
     p.add_argument(
         "--out",
@@ -76,6 +71,21 @@ def main(argv=None) -> dict:
         help="keep the logs, metrics and recording here (default: a temporary folder)",
     )
     args = p.parse_args(argv)
+    for option, default, robot in (
+        ("--ticks", 1_000_000, False),
+        ("--fuzz-per-s", 200.0, False),
+        ("--seconds", 600, True),
+        ("--clock", 1000.0, True),
+    ):
+        name = option[2:].replace("-", "_")
+        if getattr(args, name) is None:
+            setattr(args, name, default)
+        elif robot != args.robot:
+            p.error(
+                f"argument {option}: with --robot only"
+                if robot
+                else f"argument {option}: the lock-step soak's, not --robot's"
+            )
     with tempfile.TemporaryDirectory() as tmp:
         out = args.out or Path(tmp)
         out.mkdir(parents=True, exist_ok=True)
