@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
+import signal
 import subprocess
 import sys
 import time
@@ -13,7 +15,7 @@ import psutil
 import pytest
 
 import services.launch
-from services.launch import Launcher, Process, local_endpoints, shipped
+from services.launch import Child, Launcher, Process, local_endpoints, shipped
 from spikinglab import cli
 
 from .launching import READY, launch, launch_file
@@ -165,6 +167,23 @@ def test_finish_stops_what_did_not_end_in_time_and_then_the_endless_services(tmp
         launcher.stop_all()
         folder.cleanup()
     assert ended == {"router": 0, "brick": 0, "gateway": 0}, ended  # each stopped the clean way (SIGTERM)
+
+
+def test_a_service_that_does_not_end_on_its_sigterm_is_killed_and_named(caplog):
+    ignoring = (
+        "import signal, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); print('ready', flush=True); time.sleep(60)"
+    )
+    stubborn = subprocess.Popen([sys.executable, "-c", ignoring], stdout=subprocess.PIPE, text=True)
+    try:
+        assert stubborn.stdout is not None and stubborn.stdout.readline() == "ready\n"
+        launcher = Launcher(colour=False)
+        launcher.children["stubborn"] = Child(Process("stubborn", "stubborn"), stubborn, None, None)
+        with caplog.at_level(logging.WARNING, logger="spikinglab.launch"):
+            launcher.stop("stubborn", timeout=1)
+    finally:
+        stubborn.kill()
+    assert stubborn.returncode == -signal.SIGKILL
+    assert caplog.messages == ["the stubborn did not end within 1 s of its SIGTERM; killed it"]
 
 
 def test_ctrl_c_while_the_launch_file_is_read_is_one_line(monkeypatch, capsys):
