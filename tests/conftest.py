@@ -20,6 +20,9 @@ import inspect
 import os
 import re
 import shutil
+import subprocess
+import sys
+import time
 import tomllib
 from functools import cache
 from pathlib import Path
@@ -27,6 +30,8 @@ from pathlib import Path
 import pytest
 
 from services.launch import shipped
+
+from .warm_up import SIZES
 
 PROCESS = re.compile(r"(?<![\w.])(start|spawn)\(|\bsubprocess\.|\bPopen\(|\bLauncher\(|\bsys\.executable\b")
 REALTIME = re.compile(
@@ -99,6 +104,26 @@ def reached_source(item: pytest.Function) -> str:
         seen.add(name)
         todo += [other for other in functions if other not in seen and re.search(rf"\b{other}\b", functions[name])]
     return "\n".join([own, *(functions[name] for name in seen)])
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """The kernel cache warmed before any test (tests/warm_up.py), once: by pytest-xdist's
+    controller before it starts its workers, not by each worker."""
+    config = session.config
+    if hasattr(config, "workerinput") or config.option.collectonly:
+        return
+    terminal = config.pluginmanager.get_plugin("terminalreporter")
+    say = terminal.write_line if terminal else print
+    say("compiling the services' kernels into the kernel cache (minutes where it is empty: python -m tests.warm_up)")
+    started = time.monotonic()
+    root = Path(__file__).parent.parent
+    command = [sys.executable, "-m", "tests.warm_up"]
+    warming = [subprocess.Popen([*command, str(n)], cwd=root, stderr=subprocess.PIPE, text=True) for n in SIZES]
+    for process in warming:
+        err = process.communicate()[1].strip()
+        if process.returncode:  # the tests that compile the kernels fail too, and say more
+            say(f"the kernels' warm-up failed: {err.splitlines()[-1] if err else f'exit {process.returncode}'}")
+    say(f"kernels ready in {time.monotonic() - started:.1f} s")
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
