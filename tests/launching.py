@@ -17,8 +17,8 @@ READY = {  # patterns of lines that say a launch file's services are all up and 
     "sharded-simulation": (TICKING,),
     "sharded-worlds": (TICKING,),
     "secure-simulation": (TICKING, "recording group"),
-    # the brain's first motor message: its kernels compiled (on a first run long after it is on the
-    # bus, and a Ctrl-C meanwhile waits for the compile to end: docs/launch.md)
+    # the brain's first motor message: its kernels compiled (on a first run, before it joins the bus,
+    # and a Ctrl-C meanwhile waits for the compile to end: docs/launch.md)
     "robot": ("first reading published", "a brain drives the robot", "recording group"),
     "secure-robot": ("first reading published", "a brain drives the robot", "recording group"),
     "remote-world": ("waiting for a brain", "recording group"),  # its world waits for a brain from elsewhere

@@ -76,8 +76,8 @@ def gateway_and_brain(folder: Path, gateway=(), brain=()) -> tuple[subprocess.Po
 
 
 def wait_for_driving(folder: Path) -> None:
-    """Until gateway_and_brain's gateway follows the brain: the brain compiles its kernels at its
-    first reading, a minute and more on a cold kernel cache and a busy machine."""
+    """Until gateway_and_brain's gateway follows the brain: the brain compiles its kernels before it
+    joins the bus, a minute and more on a cold kernel cache and a busy machine."""
     log = folder / "gateway.log"
     wait_for(lambda: "a brain drives the robot" in log.read_text(), 180, "the brain to drive the robot")
 

@@ -65,6 +65,20 @@ class BrainNode:
         self.kept_by_world = ""  # the last run whose world said it keeps a checkpoint (one it may resume)
         self.quiet_s, self.heard_at = quiet_s, 0.0  # when the run served last asked (monotonic)
 
+    def compile_kernels(self) -> None:
+        """Compile (or load from the kernel cache) the kernels of a one-agent brain, as start() will
+        for a robot's first reading. A free-running brain does it before it subscribes to anything:
+        on an empty cache the compile holds the interpreter for most of a minute, and a robot's
+        readings, thousands a second, left the bus's callbacks waiting until the brain's session
+        lapsed (the gateway saw the brain leave the bus, 17 s into the compile)."""
+        options = {"seed": 0, **{k: v for k, v in self.engine_options.items() if v is not None}}
+        sensors = tuple(self.circuit.sensors)
+        brain = Brain(self.circuit, sensors, tuple(self.circuit.actuators), training=self.training, **options)
+        nothing = np.full((1, len(sensors)), np.nan)
+        brain.step(nothing)  # as the brain steps when its reading is stale
+        nothing.flags.writeable = False
+        brain.step(nothing)  # and on a reading: a read-only view of the message, another type to numba
+
     @property
     def running(self) -> Brain:
         """The brain of the run served (start() makes it)."""

@@ -171,6 +171,8 @@ def run(config: BrainConfig, session) -> int:
             keys.alive(group, service),
         )
         return 1
+    if config.clock:
+        new_node().compile_kernels()
     bus = Bus(session, group, service)
     try:
         return FreeRunning(config, bus, new_node()).run() if config.clock else LockStep(config, bus, new_node).run()

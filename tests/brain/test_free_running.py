@@ -1,12 +1,64 @@
 """The free-running brain's clock: its lateness statistics take the same memory after any number
-of ticks, and their quantiles are those of every tick's lateness, within a bin."""
+of ticks, and their quantiles are those of every tick's lateness, within a bin. Its kernels are
+compiled before it joins the bus."""
 
+import subprocess
 import sys
+import textwrap
 
 import numpy as np
 import pytest
 
 from services.brain.free_running import Clock, Lateness
+
+from ..processes import ROOT
+
+# a robot's first reading and the ticks after it, as the free-running brain steps them, counting the
+# kernels that numba compiles for them (or loads from its cache: compiled there on an empty one)
+FIRST_READING = textwrap.dedent(
+    """
+    import sys
+    import numpy as np
+    from numba.core.dispatcher import Dispatcher
+    from services.brain.circuit import load_circuit
+    from services.brain.node import BrainNode
+    from services.bus.schemas import Array, Sensors, decode, encode
+    from services.vocabulary import INSECT_SENSORS
+
+    added = []
+    compile_once = Dispatcher.compile
+
+    def counted(dispatcher, signature):
+        before = len(dispatcher.overloads)
+        entry = compile_once(dispatcher, signature)
+        added.extend([dispatcher.py_func.__name__] * (len(dispatcher.overloads) - before))
+        return entry
+
+    node = BrainNode(load_circuit("insect"), free_running=True, semantics="netlogo", order="random", seed=None)
+    if sys.argv[1] == "compiled":
+        node.compile_kernels()
+    Dispatcher.compile = counted
+    values = Array.of(np.full((1, len(INSECT_SENSORS)), 3.0))
+    reading = decode(encode(Sensors(tick=0, names=INSECT_SENSORS, values=values, run="r")))
+    node.start(reading)
+    node.running.step(reading.values.numpy("values", "<f8", 2))  # a reading: a read-only view of the message
+    node.running.step(np.full((1, len(INSECT_SENSORS)), np.nan))  # none fresh
+    print(" ".join(added))
+    """
+)
+
+
+def test_the_kernels_compiled_before_the_bus_are_all_that_a_robots_ticks_call():
+    """On an empty kernel cache a compile holds the interpreter most of a minute: subscribed to a
+    robot's readings, the brain's session lapsed meanwhile (docs/robot.md)."""
+    compiles = {}
+    for case in ("compiled", "not compiled"):
+        done = subprocess.run(
+            [sys.executable, "-c", FIRST_READING, case], cwd=ROOT, capture_output=True, text=True, timeout=300
+        )
+        assert done.returncode == 0, done.stderr
+        compiles[case] = done.stdout.split()
+    assert compiles["compiled"] == [] and compiles["not compiled"], compiles  # the control: the same ticks compile
 
 
 def test_lateness_quantiles_are_those_of_all_ticks_within_half_a_percent():
