@@ -171,11 +171,12 @@ def run(config: BrainConfig, session) -> int:
             keys.alive(group, service),
         )
         return 1
-    if config.clock:
-        new_node().compile_kernels()
+    robot = new_node() if config.clock else None  # free-running: one node, for the robot's runs
+    if robot is not None:
+        robot.compile_kernels()  # before the bus: docs/robot.md
     bus = Bus(session, group, service)
     try:
-        return FreeRunning(config, bus, new_node()).run() if config.clock else LockStep(config, bus, new_node).run()
+        return FreeRunning(config, bus, robot).run() if robot is not None else LockStep(config, bus, new_node).run()
     finally:
         bus.close()
 
