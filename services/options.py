@@ -42,6 +42,20 @@ class Parser(argparse.ArgumentParser):
                 self.error(str(e))
         return parsed, extras
 
+    def mode_defaults(self, args: argparse.Namespace, mode: str, options: dict) -> None:
+        """Options that serve some modes of a command only: declared with no default, so that one
+        given in a mode it does not serve is a usage error rather than ignored; each left out takes
+        its default here. `mode`: the flag that chose the mode ("--robot"), or "" for none;
+        `options`: {"--option": (default, the modes it serves)}. The help states the defaults."""
+        for option, (default, modes) in options.items():
+            name = option[2:].replace("-", "_")
+            if getattr(args, name) is None:
+                setattr(args, name, default)
+            elif mode not in modes:
+                self.error(
+                    f"argument {option}: " + (f"not with {mode}" if "" in modes else f"only with {' or '.join(modes)}")
+                )
+
     def error(self, message: str):
         if not self.exit_on_error:
             raise UsageError(message)

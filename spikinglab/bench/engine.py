@@ -157,30 +157,39 @@ def parser() -> Parser:
     p.add_argument(
         "--ticks",
         type=at_least(1),
-        default=200_000,
         help="ticks per pass for one agent; calls with --calls (default 200,000)",
     )
-    p.add_argument("--agents", type=at_least(1), default=1000, help="agents in the batch case (default 1,000)")
-    p.add_argument(
-        "--batch-ticks", type=at_least(1), default=500, help="ticks per pass in the batch case (default 500)"
-    )
-    p.add_argument("--repeats", type=at_least(1), default=3, help="passes of each case, the best reported (default 3)")
-    p.add_argument(
-        "--rounds", type=at_least(1), default=20, help="rounds of the two batch engines in turns (ratio; default 20)"
-    )
+    # each option without a default here, as it serves some of the modes only (main's mode_defaults)
+    p.add_argument("--agents", type=at_least(1), help="agents in the batch case (default 1,000)")
+    p.add_argument("--batch-ticks", type=at_least(1), help="ticks per pass in the batch case (default 500)")
+    p.add_argument("--repeats", type=at_least(1), help="passes of each case, the best reported (default 3)")
+    p.add_argument("--rounds", type=at_least(1), help="rounds of the two batch engines in turns (ratio; default 20)")
     only = p.add_mutually_exclusive_group()
     only.add_argument("--calls", action="store_true", help="only where one agent's step() goes, per call")
     only.add_argument("--orders", action="store_true", help="only the netlogo engine's orders against phased, in turns")
     only.add_argument("--evaluate", action="store_true", help="only evaluate()'s agent-ticks/s")
-    p.add_argument("--insects", type=at_least(1), default=1024, help="insects in the --evaluate case (default 1,024)")
-    p.add_argument(
-        "--evaluate-ticks", type=at_least(1), default=20_000, help="ticks in the --evaluate case (default 20,000)"
-    )
+    p.add_argument("--insects", type=at_least(1), help="insects in the --evaluate case (default 1,024)")
+    p.add_argument("--evaluate-ticks", type=at_least(1), help="ticks in the --evaluate case (default 20,000)")
     return p
 
 
 def main(argv=None) -> dict:
-    args = parser().parse_args(argv)
+    p = parser()
+    args = p.parse_args(argv)
+    mode = next((f"--{m}" for m in ("calls", "orders", "evaluate") if getattr(args, m)), "")
+    p.mode_defaults(
+        args,
+        mode,
+        {
+            "--ticks": (200_000, ("", "--calls")),
+            "--agents": (1000, ("", "--orders")),
+            "--batch-ticks": (500, ("", "--orders")),
+            "--repeats": (3, ("", "--calls")),
+            "--rounds": (20, ("", "--orders")),
+            "--insects": (1024, ("--evaluate",)),
+            "--evaluate-ticks": (20_000, ("--evaluate",)),
+        },
+    )
     if args.evaluate:
         result = evaluate_rate(args.insects, args.evaluate_ticks)
         print(json.dumps(result))

@@ -137,7 +137,7 @@ def bounds(worlds: int, shards: int, ticks_per_s: float, cores: int, round_trips
 def main(argv=None) -> dict:
     p = Parser(prog="spikinglab bench scale", description=(__doc__ or "").partition("\n\n")[0])
     p.add_argument("--agents", type=at_least(1), default=16_000, help="the population (default 16000)")
-    # no defaults here: --links takes neither, and one given with it is refused rather than ignored
+    # no defaults here (Parser.mode_defaults): --links takes neither
     p.add_argument("--shards", type=at_least(1), nargs="+", help="brain shards per case (default 1 2 4 8)")
     p.add_argument("--world-shards", type=at_least(1), nargs="+", help="world shards per case (default 1)")
     p.add_argument(
@@ -148,16 +148,13 @@ def main(argv=None) -> dict:
     )
     p.add_argument("--links", action="store_true", help="only the chain's links in this process, one thread")
     args = p.parse_args(argv)
+    p.mode_defaults(
+        args, "--links" if args.links else "", {"--shards": ([1, 2, 4, 8], ("",)), "--world-shards": ([1], ("",))}
+    )
     if args.links:
-        given = [
-            option for option, counts in (("--shards", args.shards), ("--world-shards", args.world_shards)) if counts
-        ]
-        if given:
-            p.error(f"argument --links: measures the chain's links in this process, with no {' or '.join(given)}")
         result = links(args.agents, args.ticks)
         print(json.dumps(result))
         return result
-    args.shards, args.world_shards = args.shards or [1, 2, 4, 8], args.world_shards or [1]
     for option, counts in (("--shards", args.shards), ("--world-shards", args.world_shards)):
         if max(counts) > args.agents:
             p.error(f"argument {option}: {max(counts)} shards of {args.agents:,} agents: at most one shard per agent")

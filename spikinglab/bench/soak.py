@@ -54,7 +54,7 @@ def fuzz(endpoints: list[str], per_s: float, stop: threading.Event, counts: dict
 
 def main(argv=None) -> dict:
     p = Parser(prog="spikinglab bench soak", description=(__doc__ or "").splitlines()[0])
-    # each mode's options without defaults here: one given in the other mode is refused, not ignored
+    # each mode's options without defaults here (Parser.mode_defaults)
     p.add_argument(
         "--ticks", type=at_least(10_000), help="lock-step: the run's ticks (at least 10,000; default 1,000,000)"
     )
@@ -71,21 +71,16 @@ def main(argv=None) -> dict:
         help="keep the logs, metrics and recording here (default: a temporary folder)",
     )
     args = p.parse_args(argv)
-    for option, default, robot in (
-        ("--ticks", 1_000_000, False),
-        ("--fuzz-per-s", 200.0, False),
-        ("--seconds", 600, True),
-        ("--clock", 1000.0, True),
-    ):
-        name = option[2:].replace("-", "_")
-        if getattr(args, name) is None:
-            setattr(args, name, default)
-        elif robot != args.robot:
-            p.error(
-                f"argument {option}: with --robot only"
-                if robot
-                else f"argument {option}: the lock-step soak's, not --robot's"
-            )
+    p.mode_defaults(
+        args,
+        "--robot" if args.robot else "",
+        {
+            "--ticks": (1_000_000, ("",)),
+            "--fuzz-per-s": (200.0, ("",)),
+            "--seconds": (600, ("--robot",)),
+            "--clock": (1000.0, ("--robot",)),
+        },
+    )
     with tempfile.TemporaryDirectory() as tmp:
         out = args.out or Path(tmp)
         out.mkdir(parents=True, exist_ok=True)
