@@ -467,7 +467,7 @@ def test_the_scale_benchmark_refuses_impossible_cases_before_starting():
         assert len(done.stderr.splitlines()) == 1 and "at most one shard per agent" in done.stderr
 
 
-def test_the_lead_merges_no_shard_file_of_another_run(tmp_path, caplog):
+def test_the_lead_merges_no_shard_file_of_another_run_nor_one_half_written(tmp_path, caplog):
     """A folder that holds world shard 2's file of an earlier run (shard 2 of this run had not
     stopped yet): no metrics.json, not one that mixes two runs, and the earlier run's goes too."""
     part = {"run": "now", "agents": 1, "ticks": 10, "partial": False, "rejected_messages": {}}
@@ -480,3 +480,6 @@ def test_the_lead_merges_no_shard_file_of_another_run(tmp_path, caplog):
     (tmp_path / "metrics-2of2.json").unlink()  # a shard with another --out
     merge_metrics(tmp_path, 2, [], "now")
     assert f"no metrics.json of run now in {tmp_path}: metrics-2of2.json not there" in caplog.text
+    (tmp_path / "metrics-2of2.json").write_text(json.dumps(part)[:20])  # caught half written
+    merge_metrics(tmp_path, 2, [], "now")
+    assert f"{tmp_path}: metrics-2of2.json unreadable (Unterminated string" in caplog.text

@@ -287,13 +287,12 @@ def merge_metrics(out: Path, shards: int, lost: list[str], run_id: str) -> None:
         whole.unlink(missing_ok=True)
         return
     paths = [out / f"metrics-{keys.shard_name((i, shards))}.json" for i in range(1, shards + 1)]
-    parts = [json.loads(p.read_text()) if p.exists() else {} for p in paths]
-    absent = [p.name for p in paths if not p.exists()]
-    other = [p.name for p, part in zip(paths, parts) if p.exists() and part.get("run") != run_id]
-    if absent or other:
+    parts = [shard_metrics(p) for p in paths]
+    said = [f"{p.name} {part}" for p, part in zip(paths, parts) if isinstance(part, str)]
+    other = [p.name for p, part in zip(paths, parts) if isinstance(part, dict) and part.get("run") != run_id]
+    said += [f"{', '.join(other)} of another run"] if other else []
+    if said:
         whole.unlink(missing_ok=True)
-        said = [f"{', '.join(absent)} not there"] if absent else []
-        said += [f"{', '.join(other)} of another run"] if other else []
         log.warning(
             "no metrics.json of run %s in %s: %s (a shard that has not stopped yet, or one with another --out)",
             run_id,
@@ -301,8 +300,20 @@ def merge_metrics(out: Path, shards: int, lost: list[str], run_id: str) -> None:
             "; ".join(said),
         )
         return
-    whole.write_text(json.dumps(merged(parts)))
+    whole.write_text(json.dumps(merged([part for part in parts if isinstance(part, dict)])))
     log.info("metrics of %d world shards merged into %s", shards, whole)
+
+
+def shard_metrics(path: Path) -> dict | str:
+    """A shard's metrics file, or what is wrong with it: "not there", or unreadable (one being
+    written as an interrupted lead gives up waiting for its shard)."""
+    try:
+        part = json.loads(path.read_text())
+    except FileNotFoundError:
+        return "not there"
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        return f"unreadable ({e})"
+    return part if isinstance(part, dict) else "unreadable (not a JSON object)"
 
 
 def merged(parts: list[dict]) -> dict:
