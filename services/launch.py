@@ -148,15 +148,24 @@ def spawn(
 def stop(popen: subprocess.Popen, timeout: float = STOP_S) -> bool:
     """SIGTERM (a service writes what it has, as on Ctrl-C), then SIGKILL after `timeout`. Whether
     it ended by itself."""
-    if popen.poll() is None:
-        popen.terminate()
+    return stop_together([popen], timeout) == []
+
+
+def stop_together(popens: list[subprocess.Popen], timeout: float = STOP_S) -> list[int]:
+    """SIGTERM to each at once, then SIGKILL to those still running `timeout` s later: the places
+    in `popens` of those killed."""
+    for popen in popens:
+        if popen.poll() is None:
+            popen.terminate()
+    deadline, killed = time.monotonic() + timeout, []
+    for k, popen in enumerate(popens):
         try:
-            popen.wait(timeout)
+            popen.wait(max(deadline - time.monotonic(), 0.0))
         except subprocess.TimeoutExpired:
             popen.kill()
             popen.wait()
-            return False
-    return True
+            killed.append(k)
+    return killed
 
 
 class Child:
@@ -278,17 +287,32 @@ class Launcher:
             self.stop(name)
 
     def stop(self, name: str, timeout: float = STOP_S) -> None:
-        if not stop(self.children[name].popen, timeout):
-            log.warning("the %s did not end within %.0f s of its SIGTERM; killed it", name, timeout)
+        self.stop_in_order([name], timeout)
+
+    def stop_in_order(self, names: list[str], timeout: float = STOP_S) -> None:
+        """SIGTERM to each in turn, but to each run of processes of one service at once (a sharded
+        brain's, a sharded world's): a process given `timeout` s to end, not one after the other."""
+        for _, run in itertools.groupby(names, key=lambda name: self.children[name].process.service):
+            together = list(run)
+            for k in stop_together([self.children[name].popen for name in together], timeout):
+                log.warning("the %s did not end within %.0f s of its SIGTERM; killed it", together[k], timeout)
 
     def ending_order(self) -> list[str]:
         """Start order (the world first writes what it has), but a router or a fake brick last:
-        the others still need them to say goodbye."""
-        return sorted(self.children, key=lambda name: self.children[name].process.service in ENDLESS)
+        the others still need them to say goodbye. Processes of one service side by side."""
+        first = {}  # each service where its first process starts
+        for k, name in enumerate(self.children):
+            first.setdefault(self.children[name].process.service, k)
+        return sorted(
+            self.children,
+            key=lambda name: (
+                self.children[name].process.service in ENDLESS,
+                first[self.children[name].process.service],
+            ),
+        )
 
     def stop_all(self, timeout: float = 5.0) -> None:
-        for name in self.ending_order():
-            self.stop(name, timeout)
+        self.stop_in_order(self.ending_order(), timeout)
         for child in self.children.values():
             if child.reader is not None:
                 child.reader.join(1)
@@ -458,8 +482,7 @@ def main(argv=None) -> int:
         except KeyboardInterrupt:
             order = launcher.ending_order()
             log.warning("interrupted: ending %s in order", ", ".join(order))
-            for name in order:
-                launcher.stop(name)
+            launcher.stop_in_order(order)
             return 130
     except KeyboardInterrupt:
         return 130

@@ -186,6 +186,33 @@ def test_a_service_that_does_not_end_on_its_sigterm_is_killed_and_named(caplog):
     assert caplog.messages == ["the stubborn did not end within 1 s of its SIGTERM; killed it"]
 
 
+def test_the_processes_of_one_service_are_sent_their_sigterm_together(tmp_path, caplog):
+    """Three brain shards compiling at a Ctrl-C (which they take once the kernel is ready) are each
+    given the stop's time at once, not in turn (three times as long), and each one killed is named."""
+    noting = (
+        "import pathlib, signal, sys, time\n"
+        "signal.signal(signal.SIGTERM, lambda *_: pathlib.Path(sys.argv[1]).write_text(str(time.time())))\n"
+        "print('ready', flush=True)\n"
+        "time.sleep(60)"
+    )
+    launcher, notes = Launcher(colour=False), [tmp_path / f"{k}" for k in range(3)]
+    stubborn = [
+        subprocess.Popen([sys.executable, "-c", noting, note], stdout=subprocess.PIPE, text=True) for note in notes
+    ]
+    try:
+        for k, popen in enumerate(stubborn):
+            assert popen.stdout is not None and popen.stdout.readline() == "ready\n"
+            launcher.children[f"brain-{k + 1}"] = Child(Process(f"brain-{k + 1}", "brain"), popen, None, None)
+        with caplog.at_level(logging.WARNING, logger="spikinglab.launch"):
+            launcher.stop_in_order(launcher.ending_order(), timeout=2)
+    finally:
+        for popen in stubborn:
+            popen.kill()
+    sigterm_at = [float(note.read_text()) for note in notes]
+    assert max(sigterm_at) - min(sigterm_at) < 1  # in turn: 2 s apart
+    assert caplog.messages == [f"the brain-{k} did not end within 2 s of its SIGTERM; killed it" for k in (1, 2, 3)]
+
+
 def test_ctrl_c_while_the_launch_file_is_read_is_one_line(monkeypatch, capsys):
     """Ctrl-C as launch reads its file (importing each service's options takes about a second),
     before any process started: one line and exit 130, not a traceback."""
