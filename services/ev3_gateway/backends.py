@@ -7,12 +7,14 @@
     stop()               motors off now
     close()
 
-Any failure of the link surfaces as RobotLinkError, whatever the transport said.
+Any failure of the link surfaces as RobotLinkError, whatever the transport said; what this
+machine lacks for a link (missing_for) as LinkUnavailable, when the EV3 backend is made.
 """
 
 from __future__ import annotations
 
 import math
+import platform
 import socket
 import struct
 import threading
@@ -34,6 +36,32 @@ LINK_TIMEOUT_S = 0.5  # a brick that does not answer within this is lost (ev3-dc
 
 class RobotLinkError(ConnectionError):
     """The robot cannot be reached or stopped answering."""
+
+
+class LinkUnavailable(Exception):
+    """This machine lacks what the link needs, which no retry can bring: the gateway does not start."""
+
+
+def missing_for(protocol: str) -> str | None:
+    """What this machine lacks for an EV3 link over `protocol`, in words with how to get it; None
+    where nothing is missing (the brick itself may still be absent: that is retried)."""
+    if protocol == "Bluetooth" and not hasattr(socket, "AF_BLUETOOTH"):
+        return (
+            "--protocol Bluetooth needs Bluetooth sockets (socket.AF_BLUETOOTH), which this Python was built "
+            "without: use a Python built with BlueZ's headers (the Linux distribution's python3 is), or --protocol "
+            "USB or WiFi"
+        )
+    if protocol == "USB" and platform.system() != "Darwin":  # ev3-dc reaches USB through hidapi on macOS
+        import usb.core
+
+        try:
+            usb.core.find(find_all=True)  # picks a backend; the devices are listed only when iterated
+        except usb.core.NoBackendError:
+            return (
+                "--protocol USB needs libusb, which pyusb does not find on this machine: install it "
+                "(Debian, Ubuntu, Raspberry Pi OS: sudo apt install libusb-1.0-0) and start the gateway again"
+            )
+    return None
 
 
 @dataclass(frozen=True)
@@ -96,6 +124,9 @@ class EV3Backend(Backend):
             import ev3_dc
         except ImportError:
             raise RobotLinkError("the ev3 backend needs the ev3-dc package: pip install 'spikinglab[ev3]'") from None
+        missing = missing_for(protocol)
+        if missing:
+            raise LinkUnavailable(missing)
         self._dc = ev3_dc
         w, dc = wiring, ev3_dc
         self._read_ops = b"".join(

@@ -16,7 +16,9 @@ when its token goes, when it was not heard for --motor-timeout (200 ms: stalled,
 broken), and when no motor command came within --motor-timeout after the last one ended. A
 command answering a reading older than --max-command-age (a brain catching up after a stall) is
 dropped and counted. A dying thread stops the gateway and its motors. A broken robot link is
-reported and retried every second; the brain keeps running meanwhile.
+reported and retried every second; the brain keeps running meanwhile. A link this machine cannot
+make (no libusb for USB, no Bluetooth sockets in this Python) is refused before the bus: no retry
+would bring it.
 """
 
 from __future__ import annotations
@@ -42,7 +44,17 @@ from services.options import Parser, at_least, not_negative, number, output_file
 from services.runtime import service_main
 from services.vocabulary import INSECT_SENSORS
 
-from .backends import BLACK, GREEN, RED, EV3Backend, Reading, RobotLinkError, SimBackend, Wiring
+from .backends import (
+    BLACK,
+    GREEN,
+    RED,
+    EV3Backend,
+    LinkUnavailable,
+    Reading,
+    RobotLinkError,
+    SimBackend,
+    Wiring,
+)
 
 log = logging.getLogger("spikinglab.gateway")
 READINGS_KEPT = 1 << 16  # publication times of the last readings (seconds' worth at any poll rate)
@@ -493,6 +505,9 @@ def main(argv=None) -> int:
         """Before the bus: wiring refused, a map file unread, or the simulated floor built (seconds)."""
         try:
             made["backend"] = backend_from(config)
+        except LinkUnavailable as e:  # not a usage error: this machine lacks a piece the options need
+            log.error("%s", e)
+            raise SystemExit(1) from None
         except (RobotLinkError, ValueError, OSError) as e:
             log.error("%s", e)
             raise SystemExit(2) from None
