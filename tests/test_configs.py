@@ -20,7 +20,7 @@ SERVICES = {
         brain.BrainConfig,
         ["--shard", "2/3", "--clock", "1000", "--params", "p.csv", "--a-plus", "0.03"],
     ),
-    "gateway": (gateway.parser, gateway.GatewayConfig, ["--backend", "sim", "--sim-map", "m.txt", "--host", "00:16"]),
+    "gateway": (gateway.parser, gateway.GatewayConfig, ["--backend", "sim", "--sim-map", "m.txt"]),
     "recorder": (recorder.parser, recorder.RecorderConfig, ["--detail", "0,3", "--viewer", "rerun+http://h:1/proxy"]),
     "world": (
         world.parser,

@@ -27,6 +27,7 @@ import argparse
 import json
 import logging
 import math
+import re
 import signal
 import sys
 import threading
@@ -66,7 +67,11 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--backend", choices=("ev3", "sim"), default="ev3", help="a real EV3 (default) or a simulated one")
     robot = p.add_argument_group("EV3")
     robot.add_argument("--protocol", choices=("WiFi", "USB", "Bluetooth"), default="WiFi")
-    robot.add_argument("--host", help="the brick's MAC address (Bluetooth: required; WiFi/USB: picks one of several)")
+    robot.add_argument(
+        "--host",
+        type=mac_address,
+        help="the brick's MAC address, e.g. 00:16:53:42:2B:99 (Bluetooth: required; WiFi/USB: picks one of several)",
+    )
     w = Wiring()
     robot.add_argument("--touch-port", type=int, default=w.touch, choices=range(1, 5))
     robot.add_argument("--colour-port", type=int, default=w.colour, choices=range(1, 5))
@@ -106,6 +111,13 @@ def parser() -> argparse.ArgumentParser:
     )
     add_bus_args(p)
     return p
+
+
+def mac_address(text: str) -> str:
+    """--host: a MAC address, as ev3-dc matches a brick's (six pairs of hex digits, colons between)."""
+    if not re.fullmatch(r"[0-9A-Fa-f]{2}(:[0-9A-Fa-f]{2}){5}", text):
+        raise argparse.ArgumentTypeError(f"expected the brick's MAC address, e.g. 00:16:53:42:2B:99; got {text!r}")
+    return text.upper()
 
 
 def robot_options_fit(args: argparse.Namespace) -> None:

@@ -1,5 +1,5 @@
-"""The gateway's options as a user meets them: a link this machine cannot make is one line and an
-exit before the bus, never retried for good."""
+"""The gateway's options as a user meets them: a --host that is no MAC address and a link this
+machine cannot make are each one line and an exit before the bus, never retried for good."""
 
 import socket
 import subprocess
@@ -20,6 +20,15 @@ def gateway(*args: str) -> subprocess.CompletedProcess:
 def ended_saying(done: subprocess.CompletedProcess, code: int, says: str) -> None:
     assert (done.returncode, done.stderr.count("\n")) == (code, 1), done.stderr
     assert says in done.stderr and "Traceback" not in done.stderr, done.stderr
+
+
+@pytest.mark.parametrize("host", ["zz", "00:16:53:42:2B", "0016.5342.2B99", "00:16:53:42:2B:9Z"])
+def test_a_host_that_is_no_mac_address_is_refused(host):
+    ended_saying(
+        gateway("--protocol", "Bluetooth", "--host", host),
+        2,
+        f"argument --host: expected the brick's MAC address, e.g. 00:16:53:42:2B:99; got {host!r}",
+    )
 
 
 def no_libusb() -> bool:
