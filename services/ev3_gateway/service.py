@@ -63,33 +63,42 @@ SMELL_OF_COLOUR = {BLACK: "smell_black", RED: "smell_red", GREEN: "smell_green"}
 
 
 def parser() -> argparse.ArgumentParser:
-    p = Parser(prog="spikinglab gateway", description="The robot's side of the bus.", together=[robot_options_fit])
+    p = Parser(
+        prog="spikinglab gateway",
+        description="The robot's side of the bus.",
+        together=[lambda args: one_backends_options(p, args), robot_options_fit],
+    )
     p.add_argument("--backend", choices=("ev3", "sim"), default="ev3", help="a real EV3 (default) or a simulated one")
+    # each backend's options without defaults here (one_backends_options)
     robot = p.add_argument_group("EV3")
-    robot.add_argument("--protocol", choices=("WiFi", "USB", "Bluetooth"), default="WiFi")
+    robot.add_argument("--protocol", choices=("WiFi", "USB", "Bluetooth"), help="the link to the brick (default WiFi)")
     robot.add_argument(
         "--host",
         type=mac_address,
         help="the brick's MAC address, e.g. 00:16:53:42:2B:99 (Bluetooth: required; WiFi/USB: picks one of several)",
     )
     w = Wiring()
-    robot.add_argument("--touch-port", type=int, default=w.touch, choices=range(1, 5))
-    robot.add_argument("--colour-port", type=int, default=w.colour, choices=range(1, 5))
-    robot.add_argument("--ultrasonic-port", type=int, default=w.ultrasonic, choices=range(1, 5))
-    robot.add_argument("--motors", default=w.motors, help=f"the two drive motor ports (default {w.motors})")
-    robot.add_argument("--speed", type=int, default=w.speed, help="forward speed, -100..100")
-    robot.add_argument("--spin-speed", type=int, default=w.spin_speed, help="spin speed, 0..100")
+    for option, default in (
+        ("--touch-port", w.touch),
+        ("--colour-port", w.colour),
+        ("--ultrasonic-port", w.ultrasonic),
+    ):
+        robot.add_argument(option, type=int, choices=range(1, 5), help=f"1-4 (default {default})")
+    robot.add_argument("--motors", help=f"the two drive motor ports (default {w.motors})")
+    robot.add_argument("--speed", type=int, help=f"forward speed, -100..100 (default {w.speed})")
+    robot.add_argument("--spin-speed", type=int, help=f"spin speed, 0..100 (default {w.spin_speed})")
     sim = p.add_argument_group("simulated EV3")
-    sim.add_argument("--sim-seed", type=at_least(0), default=0)
-    sim.add_argument("--sim-map", type=Path)
-    sim.add_argument("--sim-patch-cm", type=positive, default=30.0, help="the floor's squares (default 30 cm)")
+    sim.add_argument("--sim-seed", type=at_least(0), help="the simulated world's seed (default 0)")
+    sim.add_argument(
+        "--sim-map", type=Path, help="the floor: a map file, as the world's --map (default: the paper's floor)"
+    )
+    sim.add_argument("--sim-patch-cm", type=positive, help="the floor's squares (default 30 cm)")
     sim.add_argument(
         "--sim-object-cm",
         type=positive,
-        default=15.0,
         help="the objects in the centre of black and red squares (default 15 cm)",
     )
-    sim.add_argument("--link-ms", type=not_negative, default=5.0, help="simulated link round trip (default 5 ms)")
+    sim.add_argument("--link-ms", type=not_negative, help="simulated link round trip (default 5 ms)")
     add_safety_args(p)
     p.add_argument(
         "--max-polls",
@@ -118,6 +127,31 @@ def mac_address(text: str) -> str:
     if not re.fullmatch(r"[0-9A-Fa-f]{2}(:[0-9A-Fa-f]{2}){5}", text):
         raise argparse.ArgumentTypeError(f"expected the brick's MAC address, e.g. 00:16:53:42:2B:99; got {text!r}")
     return text.upper()
+
+
+def one_backends_options(p: Parser, args: argparse.Namespace) -> None:
+    """An option of one backend given with the other is refused (it would be ignored); each left out
+    takes its default here."""
+    w = Wiring()
+    ev3 = {
+        "--protocol": "WiFi",
+        "--host": None,
+        "--touch-port": w.touch,
+        "--colour-port": w.colour,
+        "--ultrasonic-port": w.ultrasonic,
+        "--motors": w.motors,
+        "--speed": w.speed,
+        "--spin-speed": w.spin_speed,
+    }
+    sim = {"--sim-seed": 0, "--sim-map": None, "--sim-patch-cm": 30.0, "--sim-object-cm": 15.0, "--link-ms": 5.0}
+    p.mode_defaults(
+        args,
+        "--backend sim" if args.backend == "sim" else "",
+        {
+            **{option: (default, ("",)) for option, default in ev3.items()},
+            **{option: (default, ("--backend sim",)) for option, default in sim.items()},
+        },
+    )
 
 
 def robot_options_fit(args: argparse.Namespace) -> None:
