@@ -2,6 +2,9 @@
 and brain and world that meet only through a router."""
 
 import json
+import os
+import re
+import subprocess
 import threading
 import time
 
@@ -12,12 +15,14 @@ from services.brain.checkpoint import load_weights
 from services.brain.circuit import load_circuit
 from services.bus import keys
 from services.bus.schemas import VERSION, Array, BusError, Control, Motor, Sensors, decode, encode
+from services.launch import spawn
 from services.loop import brain_for, closed_loop
 from services.recorder.screenshot import last_tick
 from services.world.world import World
 from spikinglab.bench.fuzz import EXAMPLES
 
 from .processes import (
+    ROOT,
     Watcher,
     connecting,
     continued_where_lost,
@@ -201,3 +206,34 @@ def test_clients_started_before_their_router_wait_for_it(tmp_path):
         world.kill()
         brain.kill()
     assert json.loads((tmp_path / "metrics.json").read_text())["ticks"] == 1500
+
+
+def test_a_world_whose_terminal_is_gone_still_writes_its_result(tmp_path):
+    """A launcher killed with kill -9 closes the pipe that shows its services' output; the world's
+    progress bar then writes into nothing, and the world, sent SIGTERM with it, must still write
+    the ticks done (it died of the broken pipe, its metrics lost)."""
+    world_ep, brain_ep = endpoint(tmp_path, "world"), endpoint(tmp_path, "brain")
+    world = spawn(
+        "world",
+        ["--listen", world_ep, "--ticks", 1_000_000, "--progress", "--out", tmp_path],
+        subprocess.PIPE,
+        cwd=ROOT,
+    )
+    brain = start("brain", "--listen", brain_ep, "--connect", world_ep, "--once", log=tmp_path / "brain.log")
+    try:
+        assert world.stdout is not None  # PIPE
+        shown = b""
+        while not re.search(rb"\d+(\.\d+)?k/1\.00M", shown):  # the bar past 1,000 ticks (1.50k/1.00M)
+            chunk = os.read(world.stdout.fileno(), 4096)
+            assert chunk, f"the world ended: {shown.decode(errors='replace')[-2000:]}"
+            shown += chunk
+        world.stdout.close()
+        time.sleep(2)  # the bar's next updates meet the closed pipe
+        assert world.poll() is None, "the world died of the closed pipe"
+        world.terminate()
+        assert finish(world, 60) == 130
+    finally:
+        world.kill()
+        brain.kill()
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["partial"] and 1000 < metrics["ticks"] < 1_000_000

@@ -68,13 +68,22 @@ class Progress:
         m = self.world.metrics
         recent = m.bins[-1].mean() if m.bins else m.collisions.mean() * 1000 / max(tick, 1)
         self.bar.set_postfix_str(f"collisions/1k {recent:.1f}, food {m.food.mean():.0f}", refresh=False)
-        self.bar.update(tick - self._shown)
+        self._show(lambda bar: bar.update(tick - self._shown))
         self._shown = tick
 
     def close(self, tick: int) -> None:
-        if self.bar is not None:
-            self.bar.update(tick - self._shown)
-            self.bar.close()
+        self._show(lambda bar: (bar.update(tick - self._shown), bar.close()))
+
+    def _show(self, draw) -> None:
+        """Draw on the bar; where its terminal is gone (a launcher killed: the pipe it read closed),
+        the run goes on without one, so that it still writes its result."""
+        if self.bar is None:
+            return
+        try:
+            draw(self.bar)
+        except OSError:
+            self.bar.disable = True  # its close, at exit, would write again
+            self.bar = None
 
 
 class Trajectory:
