@@ -15,6 +15,7 @@ The last line printed is JSON. Run: `spikinglab bench engine` or `python -m spik
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import os
@@ -173,7 +174,9 @@ def parser() -> Parser:
     return p
 
 
-def main(argv=None) -> dict:
+def arguments(argv=None) -> argparse.Namespace:
+    """The options, each left out given the default of the case it serves; one given to a case it
+    does not serve is refused."""
     p = parser()
     args = p.parse_args(argv)
     mode = next((f"--{m}" for m in ("calls", "orders", "evaluate") if getattr(args, m)), "")
@@ -190,6 +193,11 @@ def main(argv=None) -> dict:
             "--evaluate-ticks": (20_000, ("--evaluate",)),
         },
     )
+    return args
+
+
+def main(argv=None) -> dict:
+    args = arguments(argv)
     if args.evaluate:
         result = evaluate_rate(args.insects, args.evaluate_ticks)
         print(json.dumps(result))
