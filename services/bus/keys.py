@@ -78,6 +78,9 @@ def world_service(shard: tuple[int, int]) -> str:
 
 
 DONE = "-done"
+# <service>-leaving: held by a service for the moment it leaves the bus of its own accord (its
+# token then goes), so that the others tell an orderly end from a process killed or lost
+LEAVING = "-leaving"
 
 
 def world_done(shard: tuple[int, int]) -> str:

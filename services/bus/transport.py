@@ -316,9 +316,15 @@ class Bus:
         tick this one has reached): a killed process is seen within milliseconds, a frozen one
         when its lease ends (about 10 s), one behind a dead router with the router."""
 
+        leaving: set[str] = set()  # services that said they leave of their own accord
+
         def on_change(change: str, key: str) -> None:
             service = key.rsplit("/", 1)[-1]
             if service == self.service or keys.WAITING in service:  # one waiting is said when it joins
+                return
+            if service.endswith(keys.LEAVING):
+                if change == "up":
+                    leaving.add(service.removesuffix(keys.LEAVING))
                 return
             try:
                 context = where()
@@ -326,8 +332,10 @@ class Bus:
                 context = ""
             if change == "down" and service.endswith(keys.DONE):  # a shard's "finished" token, dropped as the run ends
                 log.info("the %s token is dropped%s", service, context)
-            elif change == "down":
-                log.warning("the %s left the bus%s", service, context)
+            elif change == "down":  # an orderly end is news; a process killed or lost, a warning
+                orderly = service in leaving
+                leaving.discard(service)
+                log.log(logging.INFO if orderly else logging.WARNING, "the %s left the bus%s", service, context)
             else:
                 log.info("the %s is on the bus%s", service, context)
 
@@ -344,8 +352,13 @@ class Bus:
                 item.close()
             except Exception:  # already gone with the session: nothing left to release
                 pass
+        try:  # said before its token goes, on the same session: the others see the two in that order
+            leaving = self.session.liveliness().declare_token(keys.alive(self.group, self.service + keys.LEAVING))
+        except zenoh.ZError:  # the session already gone
+            leaving = None
         self._token.undeclare()
-        close_session(self.session)
+        close_session(self.session)  # and with it `leaving`
+        del leaving
 
 
 def wait_for_subscriber(outbox: Outbox, what: str, presence: Presence | None = None, every: float = 5.0) -> None:
