@@ -82,6 +82,11 @@ BAD_CALLS = [
         "move_step must be a number above 0, got nan",
     ),
     (
+        "unknown world parameter",
+        lambda: spikinglab.params_for("paper", bogus=1),
+        "unknown world parameter(s) bogus",
+    ),
+    (
         "start outside",
         lambda: spikinglab.params_for("paper", start=(500.0, 500.0)),
         "start must be (x, y) within x 80..120",

@@ -133,6 +133,16 @@ def world_from(options: WorldOptions, shards: int = 1, shard: tuple[int, int] = 
         params, grid = dataclasses.replace(params, start_heading=setup.heading), setup.grid
     columns = side_of(file_for_agents(options.params, options.agents) if options.params else {}, "world")
     lo, hi = shard_slice(options.agents, shard)
+    try:
+        return made_world(options, params, grid, columns, lo, hi, numbered=shard[1] > 1)
+    except MemoryError as e:
+        raise ValueError(
+            f"--agents {hi - lo:,}: the world of so many does not fit in this machine's memory ({e})"
+        ) from None
+
+
+def made_world(options: WorldOptions, params, grid, columns: dict, lo: int, hi: int, numbered: bool) -> World:
+    """World_from's world of agents lo..hi-1 of the population."""
     return World(
         params,
         agents=hi - lo,
@@ -140,6 +150,6 @@ def world_from(options: WorldOptions, shards: int = 1, shard: tuple[int, int] = 
         shared=options.shared,
         grid=grid,
         training=not options.no_training,
-        numbers=np.arange(lo, hi) if shard[1] > 1 else None,
+        numbers=np.arange(lo, hi) if numbered else None,
         agent_params={name: column if len(column) == 1 else column[lo:hi] for name, column in columns.items()},
     )

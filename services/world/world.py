@@ -186,8 +186,12 @@ PRESETS = {
 
 
 def params_for(preset: str = "paper", **overrides) -> WorldParams:
+    """The world's parameters of a preset, some overridden; ValueError naming an unknown one."""
     if preset not in PRESETS:
         raise ValueError(f"unknown world preset {preset!r} (known: {', '.join(PRESETS)})")
+    unknown = sorted(set(overrides) - {f.name for f in dataclasses.fields(WorldParams)})
+    if unknown:
+        raise ValueError(f"unknown world parameter(s) {', '.join(unknown)} (WorldParams has no such field)")
     return dataclasses.replace(WorldParams(), **{**PRESETS[preset], **overrides})
 
 
