@@ -32,8 +32,18 @@ from services.brain.circuit import Circuit, CircuitError, load_circuit
 from services.brain.engine import PARALLEL_FROM
 from services.brain.engine_options import add_engine_args, brain_params
 from services.launch import STOP_S, Launcher, Process, local_endpoints, options_for
-from services.options import Parser, agent_list, at_least, config_from, folder_name, ip_address, output_folder, positive
-from services.run_folder import KEPT_PARAMS, RunFolderError, failed, started_with, take
+from services.options import (
+    Parser,
+    UsageError,
+    agent_list,
+    at_least,
+    config_from,
+    folder_name,
+    ip_address,
+    output_folder,
+    positive,
+)
+from services.run_folder import KEPT_PARAMS, STARTED_WITH, RunFolderError, failed, started_with, take
 from services.run_report import learning_rate, plot, plot_trajectory, rates_text, recording_status, report, summarise
 from services.world.options import WorldOptions, add_world_args, world_from
 from services.world.world import BIN, SENSORS, MapError
@@ -135,7 +145,13 @@ def resumed(p: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.Na
             f"argument --resume: the run goes on with the options it was started with ({shlex.join(started)}); "
             f"leave out {', '.join('--' + k.replace('_', '-') for k in sorted(given))}"
         )
-    options = p.parse_args(started)
+    p.exit_on_error = False  # an error names the file the options came from, not the command line
+    try:
+        options = p.parse_args(started)
+    except (argparse.ArgumentError, UsageError) as e:
+        p.exit_on_error = True
+        p.error(f"argument --resume: {folder / STARTED_WITH} holds options this run refuses: {e}")
+    p.exit_on_error = True
     for k in RESUME_MAY_CHANGE:  # as given now, where given
         if getattr(args, k) != defaults[k]:
             setattr(options, k, getattr(args, k))
@@ -217,6 +233,8 @@ class RunProcesses:
         world.options.update(
             listen=world_ep, out=folder, progress=not args.quiet, checkpoint_every=args.checkpoint_every, **on_the_bus
         )
+        if world_log is None:  # its lines in the run's folder too, as the others'
+            world.options["log_file"] = folder / "world.log"
         brain = Process("brain", "brain", options_for("brain", args), log=folder / "brain.log")
         brain.options.update(
             listen=brain_ep,

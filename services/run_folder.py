@@ -24,21 +24,34 @@ class RunFolderError(ValueError):
 
 
 def checkpoint_tick(folder: Path) -> int | None:
-    """The tick of the run's last checkpoint in `folder` (None: none kept, the run finished or never got to one)."""
+    """The tick of the run's last checkpoint in `folder` (None: none kept, the run finished or never
+    got to one). RunFolderError where the world's or the brain's checkpoint of it is damaged: a run
+    resumed from it would go on without what it learned."""
     path = folder / "checkpoint" / CHECKPOINT
     if not path.exists():
         return None
     try:
-        return int(snapshots.read(path)[1]["tick"])
-    except (ValueError, KeyError, TypeError):
-        return None
+        meta = snapshots.read(path)[1]
+        tick, run = int(meta["tick"]), meta["run"]
+        brain = folder / "checkpoint" / f"brain-{run}-tick{tick}.npz"
+        if not brain.exists():  # kept after the world's: a run killed between the two has none
+            raise ValueError(f"{brain}: not there (the brain's checkpoint of tick {tick:,})")
+        snapshots.read(brain)
+    except (ValueError, KeyError, TypeError) as e:
+        raise RunFolderError(f"cannot resume the run in {folder}: {e}") from None
+    return tick
 
 
 def take(folder: Path, args: argparse.Namespace, argv: list[str]) -> int | None:
     """Make `folder` the run's: a new run's (never over the learning of another run), or the
     interrupted run's that --resume goes on with. Keeps the options and the --params file of a new
     run (args.params then names the copy kept); returns the tick a resumed run goes on from."""
-    resume_at = checkpoint_tick(folder)
+    try:
+        resume_at = checkpoint_tick(folder)
+    except RunFolderError:
+        if args.resume:
+            raise
+        resume_at = -1  # damaged: an interrupted run all the same
     if args.resume and resume_at is None:
         raise RunFolderError(
             f"nothing to resume in {folder}: no checkpoint (the run finished, or stopped before its first at "
@@ -68,7 +81,10 @@ def started_with(folder: Path) -> list[str]:
 
 def resume_hint(folder: Path) -> str:
     """How an interrupted run goes on, when it kept a checkpoint."""
-    tick = checkpoint_tick(folder)
+    try:
+        tick = checkpoint_tick(folder)
+    except RunFolderError as e:
+        return f"; {e}"
     return "" if tick is None else f"; go on from its checkpoint at tick {tick:,}: spikinglab run --resume {folder}"
 
 

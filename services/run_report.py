@@ -169,12 +169,13 @@ def plot(folder: Path, summary: dict) -> None:
     ax.set(
         xlabel="tick",
         ylabel="collision events per 1,000 ticks",
-        title=f"Insect learning to avoid walls and predators ({rates_text(p)}, seed {p['seed']})",
+        title=f"Insect learning to avoid walls and predators ({rates_text(p)}, seed {p['seed']})"
+        + partial_mark(summary),
     )
     ax.grid(alpha=0.3)
     ax.legend(loc="upper right")
     fig.tight_layout()
-    fig.savefig(folder / "collisions.png")
+    fig.savefig(folder / "collisions.png", metadata={"Title": ax.get_title()})
     plt.close(fig)
 
 
@@ -213,10 +214,20 @@ def plot_trajectory(folder: Path, summary: dict) -> None:
             ax.plot(piece[:, 0], piece[:, 1], color="tab:blue", lw=1)
         ax.set(title=title, xticks=[], yticks=[])
     p = summary["parameters"]
-    fig.suptitle(f"The insect's path (seed {p['seed']}, {rates_text(p)}, {p['semantics']} semantics)")
+    fig.suptitle(
+        f"The insect's path (seed {p['seed']}, {rates_text(p)}, {p['semantics']} semantics)" + partial_mark(summary)
+    )
     fig.tight_layout()
-    fig.savefig(folder / "trajectory.png")
+    fig.savefig(folder / "trajectory.png", metadata={"Title": fig.get_suptitle()})
     plt.close(fig)
+
+
+def partial_mark(summary: dict) -> str:
+    """A plot title's second line where the run was interrupted, as the terminal says it."""
+    head = summary["headline"]
+    if not head["partial"]:
+        return ""
+    return f"\nPARTIAL: interrupted after {head['ticks_done']:,} of {summary['parameters']['ticks']:,} ticks"
 
 
 def viewer_shown() -> str:
@@ -238,10 +249,7 @@ def report(folder: Path, summary: dict) -> None:
     w = summary["final_weights"]
     mean = {k: float(np.mean(v)) for k, v in w.items()}
     if head["partial"]:
-        print(
-            f"\nPARTIAL: interrupted after {head['ticks_done']:,} of {summary['parameters']['ticks']:,} ticks"
-            + resume_hint(folder)
-        )
+        print(partial_mark(summary) + resume_hint(folder))
     print(
         f"\ncollisions: {head['collisions_first_quarter']:.0f} in the first quarter, "
         f"{head['collisions_last_quarter']:.0f} in the last quarter "

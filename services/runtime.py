@@ -78,6 +78,10 @@ def process_main(name: str, parser: argparse.ArgumentParser, run, argv=None, int
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     os.environ.setdefault("GOMP_SPINCOUNT", "1000")
     args = parser.parse_args(argv)
+    if getattr(args, "log_file", None):  # a service shown on the terminal as it is (world --log-file)
+        copy = logging.FileHandler(args.log_file)
+        copy.setFormatter(logging.getLogger().handlers[0].formatter)
+        logging.getLogger().addHandler(copy)
     take_interrupts(signal.SIGTERM)
     guard_threads()
     try:

@@ -2,6 +2,7 @@
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -24,12 +25,13 @@ def spikinglab(*args, timeout=180):
     )
 
 
-def test_run_writes_summary_plot_and_weights(tmp_path):
-    done = spikinglab(
-        "run", "--ticks", 3000, "--seed", 4, "--a-plus", 0.04, "--runs", tmp_path, "--id", "r1", "--quiet"
-    )
+def test_run_writes_summary_plot_weights_and_logs(tmp_path):
+    done = spikinglab("run", "--ticks", 3000, "--seed", 4, "--a-plus", 0.04, "--runs", tmp_path, "--id", "r1")
     assert done.returncode == 0, done.stderr
     folder = tmp_path / "r1"
+    for service in ("world", "brain", "recorder"):  # the world's beside its progress bar on the terminal
+        assert " INFO " in (folder / f"{service}.log").read_text(), service
+    assert "3000 ticks in" in (folder / "world.log").read_text() and "3000 ticks in" in done.stderr
     summary = json.loads((folder / "summary.json").read_text())
     assert summary["parameters"]["ticks"] == 3000 and summary["parameters"]["seed"] == 4
     assert summary["parameters"]["a_plus"] == 0.04
@@ -214,8 +216,19 @@ def test_ctrl_c_writes_a_partial_result_and_leaves_nothing_running(tmp_path):
     head = json.loads((tmp_path / "r" / "summary.json").read_text())["headline"]
     assert head["partial"] is True and 0 < head["ticks_done"] < 200_000
     assert "PARTIAL: interrupted after" in out
-    assert (tmp_path / "r" / "collisions.png").exists() and (tmp_path / "r" / "weights.npz").exists()
+    assert (tmp_path / "r" / "weights.npz").exists()
+    for plot in ("collisions.png", "trajectory.png"):  # their titles (PNG text) say so too
+        assert f"PARTIAL: interrupted after {head['ticks_done']:,} of 200,000 ticks" in plot_title(
+            tmp_path / "r" / plot
+        )
     assert not running_with(str(tmp_path))
+
+
+def plot_title(path) -> str:
+    from PIL import Image
+
+    with Image.open(path) as png:
+        return png.text["Title"]  # type: ignore[attr-defined]  # a PngImageFile's
 
 
 def test_a_dead_service_ends_the_run_and_is_named(tmp_path):
@@ -238,7 +251,8 @@ def test_a_run_stopped_in_its_first_thousand_ticks_still_plots(tmp_path):
     summary = {
         "collisions_per_1000_ticks": [[]],
         "learning_time": [None],
-        "parameters": {"a_plus": 0.02, "a_minus": 0.02, "seed": 0, "learned_after": 5000},
+        "parameters": {"a_plus": 0.02, "a_minus": 0.02, "seed": 0, "learned_after": 5000, "ticks": 100_000},
+        "headline": {"partial": True, "ticks_done": 612},
     }
     plot(tmp_path, summary)  # no finished bin yet: an empty plot, not a traceback after Ctrl-C
     assert (tmp_path / "collisions.png").stat().st_size > 0
@@ -266,6 +280,16 @@ def test_an_interrupted_run_goes_on_with_resume_and_ends_as_an_uninterrupted_one
     again = spikinglab("run", *options, "--runs", tmp_path, "--id", "r", "--quiet")
     assert again.returncode == 2 and f"go on with it: spikinglab run --resume {tmp_path / 'r'}" in again.stderr
     assert spikinglab("run", "--resume", tmp_path / "r", "--ticks", 50).returncode == 2  # only its own options
+    for damaged in ("world.npz", "brain-*-tick4000.npz"):  # truncated: the run would go on without its learning
+        copy = tmp_path / damaged.partition("-")[0]
+        shutil.copytree(tmp_path / "r", copy)
+        (path,) = (copy / "checkpoint").glob(damaged)
+        path.write_bytes(path.read_bytes()[:100])
+        refused = spikinglab("run", "--resume", copy, "--quiet")
+        assert (
+            refused.returncode == 2
+            and f"cannot resume the run in {copy}: {path}: not a run checkpoint" in refused.stderr
+        )
     study.write_text("a_plus,a_minus,move_step\n0.01,0.01,1.2\n")  # the run goes on with the values it began with
     resumed = spikinglab("run", "--resume", tmp_path / "r", "--quiet")
     assert resumed.returncode == 0, resumed.stderr

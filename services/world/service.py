@@ -24,7 +24,7 @@ from services.bus import keys
 from services.bus.config import BusConfig, add_bus_args
 from services.bus.schemas import Control, RunTerms, Sensors, new_run_id
 from services.bus.transport import Bus, wait_for_subscriber
-from services.options import Parser, at_least, output_folder
+from services.options import Parser, at_least, output_file, output_folder
 from services.options import shard as shard_of_n
 from services.runtime import service_main
 
@@ -53,6 +53,11 @@ def parser() -> argparse.ArgumentParser:
         help="publish poses and events every tick (recorder; a world shard: its slice's, which the recorder joins)",
     )
     p.add_argument("--progress", action="store_true", help="show a progress bar")
+    p.add_argument(
+        "--log-file",
+        type=output_file,
+        help="also write the log's lines here (they stay on the terminal, beside the progress bar)",
+    )
     p.add_argument(
         "--shards",
         type=at_least(1),
@@ -95,6 +100,7 @@ class WorldConfig:
     out: Path | None
     publish_state: bool
     progress: bool
+    log_file: Path | None  # read by services.runtime, which sets up the log
     shards: int
     shard: tuple[int, int]
     checkpoint: Path | None
