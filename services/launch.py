@@ -102,6 +102,10 @@ class Process:
             action = actions.get("--" + key.replace("_", "-"))
             if action is None:
                 continue  # the parser names it
+            if isinstance(action, argparse._HelpAction):  # it would print the help and start nothing
+                raise LaunchError(f"{where}: {key}: not an option of a process (spikinglab {self.service} --help)")
+            if action.nargs != 0 and isinstance(value, bool):  # false would leave the default, silently
+                raise LaunchError(f"{where}: {key} = {str(value).lower()}: takes a value, not true or false")
             if action.nargs == 0 and not isinstance(value, bool):
                 raise LaunchError(f"{where}: {key} = {value!r}: a switch, true or false")
             if isinstance(value, (list, tuple)) and not isinstance(action, argparse._AppendAction):
@@ -343,7 +347,7 @@ def read_launch_file(path: Path) -> tuple[list[Process], str | None]:
     check_world_shards_agree(path, processes, parsed)
     check_brains_fit_worlds(path, processes, parsed)
     until = settings.get("until")
-    if until is not None and until not in data:
+    if until is not None and (not isinstance(until, str) or until not in data):
         raise LaunchError(f"{path}, [launch]: until = {until!r} is not one of its processes ({', '.join(data)})")
     return processes, until
 
@@ -448,6 +452,8 @@ def main(argv=None) -> int:
     logging.basicConfig(level=logging.INFO, format="launch: %(message)s", stream=sys.stderr)
     p = parser()
     args = p.parse_args(argv)
+    if args.list and args.file is not None:
+        p.error("argument --list: names the shipped launch files, and starts none: give no file with it")
     if args.list:
         files = shipped()
         width = max(map(len, files))

@@ -42,6 +42,11 @@ def files(tmp_path_factory):
     (folder / "sweeps" / "done" / "table.md").write_text("an earlier sweep's table\n")
     (folder / "list.toml").write_text("[world]\nticks = [1000, 2000]\n")
     (folder / "word.toml").write_text('[world]\npublish_state = "yes"\n')
+    (folder / "false.toml").write_text("[world]\nticks = false\n")
+    (folder / "edited" / "command.json").parent.mkdir()
+    (folder / "edited" / "command.json").write_text('{"argv": ["--ticks", "zz"]}')  # a run's options, edited by hand
+    (folder / "help.toml").write_text("[world]\nhelp = true\n")
+    (folder / "until-list.toml").write_text('[launch]\nuntil = ["world"]\n[world]\nticks = 1000\n')
     (folder / "typo.csv").write_text("a_plsu,w_max\n0.02,15\n")
     (folder / "rows.csv").write_text("a_plus\n0.01\n0.02\n0.03\n")
     (folder / "word.csv").write_text("a_plus,move_step\n0.02,1\n0.02,fast\n")
@@ -355,6 +360,21 @@ CASES = [
     ("launch file unknown service", "launch {f}/noservice.toml", 2, "noservice.toml, [mind]: unknown service 'mind'"),
     ("launch file list for one value", "launch {f}/list.toml", 2, "[world]: ticks = [1000, 2000]: takes one value"),
     ("launch file switch given a word", "launch {f}/word.toml", 2, "[world]: publish_state = 'yes': a switch"),
+    ("launch file value given false", "launch {f}/false.toml", 2, "[world]: ticks = false: takes a value"),
+    ("launch file asks for help", "launch {f}/help.toml", 2, "[world]: help: not an option of a process"),
+    (
+        "launch file until a list",
+        "launch {f}/until-list.toml",
+        2,
+        "[launch]: until = ['world'] is not one of its processes (world)",
+    ),
+    ("launch list and a file", "launch --list simulation", 2, "argument --list: names the shipped launch files"),
+    (
+        "run resumed with options edited",
+        "run --resume {f}/edited",
+        2,
+        "edited/command.json holds options this run refuses: argument --ticks: expected a whole number, got 'zz'",
+    ),
     ("run weights of other agents", "run --load {f}/two.npz", 2, "two.npz: weights of 2 agents, the run has 1"),
     ("run circuit not text", "run --circuit {f}/two.npz", 2, "two.npz: not a circuit file (not text"),
 ]
@@ -363,7 +383,7 @@ CASES = [
 def arguments(command: str, tmp_path, **places) -> list[str]:
     """The row's command line, its outputs in tmp_path."""
     argv = command.format(**places).split()
-    if argv[0] in ("run", "sweep") and "--runs" not in argv:
+    if argv[0] in ("run", "sweep") and "--runs" not in argv and "--resume" not in argv:  # a resumed run's folder
         argv += ["--runs", str(tmp_path / "runs")]
     elif argv[0] == "conditioning":
         argv += ["--out", str(tmp_path / "figures")]
