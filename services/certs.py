@@ -137,9 +137,35 @@ def make_ca(folder: Path, days: int):
     return key, cert
 
 
+class UnreadableCA(ValueError):
+    """The CA in the folder cannot be used; the text names the file and why."""
+
+
+def _pem(path: Path, load, what: str):
+    """`load` of the PEM file at `path`, or UnreadableCA naming it."""
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise UnreadableCA(f"cannot read {path}: {e.strerror}") from None
+    if not data.strip():
+        raise UnreadableCA(f"{path} is empty, not {what}") from None
+    try:
+        return load(data)
+    except (ValueError, TypeError) as e:  # TypeError: a key with a password
+        reason = re.sub(r" See https://\S+ for more details\.", "", str(e))
+        raise UnreadableCA(f"{path} is not {what}: {reason}") from None
+
+
 def load_ca(folder: Path):
-    key = serialization.load_pem_private_key((folder / "ca.key").read_bytes(), password=None)
-    return key, x509.load_pem_x509_certificate((folder / "ca.pem").read_bytes())
+    key = _pem(
+        folder / "ca.key",
+        lambda data: serialization.load_pem_private_key(data, None),
+        "a PEM private key without a password",
+    )
+    cert = _pem(folder / "ca.pem", x509.load_pem_x509_certificate, "a PEM certificate")
+    if key.public_key() != cert.public_key():
+        raise UnreadableCA(f"{folder / 'ca.key'} is not the key of {folder / 'ca.pem'}")
+    return key, cert
 
 
 def make_certificate(folder: Path, role: str, hosts: list[str], ca_key, ca_cert, days: int) -> None:
@@ -253,6 +279,17 @@ def host_name(text: str) -> str:
     return text
 
 
+MOST_DAYS = 36_500  # 100 years; X.509 dates end with the year 9999
+
+
+def days(text: str) -> int:
+    """--days: 1 to MOST_DAYS."""
+    value = at_least(1)(text)
+    if value > MOST_DAYS:
+        raise argparse.ArgumentTypeError(f"must be at most {MOST_DAYS:,} (100 years), got {value:,}")
+    return value
+
+
 def parser() -> Parser:
     p = Parser(prog="spikinglab certs", description=(__doc__ or "").partition("\n")[0])
     p.add_argument("folder", type=Path, metavar="DIR", help="where to write them (made if missing)")
@@ -265,13 +302,33 @@ def parser() -> Parser:
         help="a name or address the router is reached at, besides localhost and 127.0.0.1 "
         "(repeatable; e.g. --host 192.168.1.10 --host lab-pc.local)",
     )
-    p.add_argument("--days", type=at_least(1), default=365, help="how long the certificates are valid (default 365)")
+    p.add_argument(
+        "--days",
+        type=days,
+        default=365,
+        help=f"how long the certificates are valid, 1 to {MOST_DAYS:,} (default 365)",
+    )
     p.add_argument(
         "--new-ca",
         action="store_true",
         help="make a new CA even if DIR has one (every machine then needs the new files)",
     )
     return p
+
+
+def existing_ca(folder: Path):
+    """The CA in `folder` to sign with, (key, certificate), or None where it has neither ca.pem nor
+    ca.key; UnreadableCA where it has one without the other (a new CA there would cut off every
+    machine that trusts the old one) or one that cannot be used."""
+    here = [name for name in ("ca.pem", "ca.key") if (folder / name).exists()]
+    if not here:
+        return None
+    if len(here) == 1:
+        missing = "ca.key" if here == ["ca.pem"] else "ca.pem"
+        raise UnreadableCA(
+            f"{folder / here[0]} is here but {missing} is not: bring {missing} back, or choose another folder"
+        )
+    return load_ca(folder)
 
 
 def main(argv=None) -> int:
@@ -282,13 +339,20 @@ def main(argv=None) -> int:
         print(f"spikinglab certs: {folder} is a file, not a folder for the certificates", file=sys.stderr)
         return 2
     try:
+        ca = None if args.new_ca else existing_ca(folder)
+    except UnreadableCA as e:
+        print(
+            f"spikinglab certs: {e} (--new-ca makes a new CA: every machine then needs the new files)", file=sys.stderr
+        )
+        return 2
+    try:
         folder.mkdir(parents=True, exist_ok=True)
         os.chmod(folder, 0o700)
-        if (folder / "ca.key").exists() and not args.new_ca:
-            ca_key, ca_cert = load_ca(folder)
-            log.info("using the CA in %s (--new-ca makes a new one)", folder)
-        else:
+        if ca is None:
             ca_key, ca_cert = make_ca(folder, args.days)
+        else:
+            ca_key, ca_cert = ca
+            log.info("using the CA in %s (--new-ca makes a new one)", folder)
         hosts = ["localhost", "127.0.0.1", *args.host]
         for role in PUTS:
             make_certificate(folder, role, hosts, ca_key, ca_cert, args.days)
@@ -297,7 +361,9 @@ def main(argv=None) -> int:
         print(f"spikinglab certs: cannot write the certificates in {folder}: {e}", file=sys.stderr)
         return 1
     print(f"wrote a CA, certificates and Zenoh configs for {', '.join(PUTS)} in {folder}")
-    print("copy ca.pem and a role's .pem, .key and .json5 to the machine that runs it; keep ca.key safe")
+    print(
+        "copy ca.pem and a role's .pem, .key and .json5 to the same path on the machine that runs it; keep ca.key safe"
+    )
     return 0
 
 

@@ -79,6 +79,69 @@ def test_certs_makes_a_ca_and_a_certificate_and_config_per_role(tmp_path):
     assert x509.load_pem_x509_certificate((folder / "ca.pem").read_bytes()) == ca
 
 
+def files_in(folder) -> dict[str, bytes]:
+    return {path.name: path.read_bytes() for path in folder.iterdir()}
+
+
+def certs_refused(argv: list[str], capsys) -> str:
+    """`spikinglab certs` with `argv` ended as a usage error (exit 2): its one line on stderr."""
+    assert certs.main(argv) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    return err
+
+
+@pytest.mark.parametrize("kept, lost", [("ca.pem", "ca.key"), ("ca.key", "ca.pem")])
+def test_certs_refuses_a_folder_with_half_a_ca_and_changes_nothing(tmp_path, capsys, kept, lost):
+    """A new CA there would cut off every machine that trusts the old one: only --new-ca makes it."""
+    folder = tmp_path / "certs"
+    assert certs.main([str(folder)]) == 0
+    (folder / lost).unlink()
+    before = files_in(folder)
+    err = certs_refused([str(folder)], capsys)
+    assert f"{folder / kept} is here but {lost} is not" in err
+    assert files_in(folder) == before
+    assert certs.main([str(folder), "--new-ca"]) == 0
+    assert (folder / lost).exists() and (folder / kept).read_bytes() != before[kept]
+
+
+@pytest.mark.parametrize(
+    "name, content, says",
+    [
+        ("ca.key", b"", "ca.key is empty, not a PEM private key"),
+        ("ca.key", b"garbage\n", "ca.key is not a PEM private key without a password: "),
+        ("ca.pem", b"garbage\n", "ca.pem is not a PEM certificate: "),
+        ("ca.key", None, "ca.key is not the key of "),  # another CA's key
+    ],
+    ids=["empty key", "garbage key", "garbage certificate", "another CA's key"],
+)
+def test_certs_names_the_ca_file_it_cannot_use_and_changes_nothing(tmp_path, capsys, name, content, says):
+    folder, other = tmp_path / "certs", tmp_path / "other"
+    assert certs.main([str(folder)]) == 0 and certs.main([str(other)]) == 0
+    (folder / name).write_bytes((other / name).read_bytes() if content is None else content)
+    before = files_in(folder)
+    err = certs_refused([str(folder)], capsys)
+    assert f"{folder / name}" in err and says in err
+    assert files_in(folder) == before
+
+
+def test_certs_refuses_days_past_its_bound_before_making_anything(tmp_path, capsys):
+    folder = tmp_path / "certs"
+    with pytest.raises(SystemExit) as ended:
+        certs.main([str(folder), "--days", str(certs.MOST_DAYS + 1)])
+    assert ended.value.code == 2
+    assert f"argument --days: must be at most {certs.MOST_DAYS:,}" in capsys.readouterr().err
+    assert not folder.exists()
+
+
+def test_certificates_of_the_longest_days_open_a_session(tmp_path):
+    """The bound's certificates are ones Zenoh's TLS takes."""
+    folder = tmp_path / "certs"
+    assert certs.main([str(folder), "--days", str(certs.MOST_DAYS)]) == 0
+    with router_on(folder / "router.json5", tmp_path / "router.log") as endpoint:
+        session_as("viewer", folder, endpoint).close()
+
+
 def test_a_peer_without_a_valid_certificate_cannot_connect(secure_bus, tmp_path):
     endpoint, folder = secure_bus
     with session_as("viewer", folder, endpoint) as viewer:  # the control: a certificate of the CA connects
