@@ -32,7 +32,16 @@ class BusConfigError(ValueError):
 
 
 NOTHING_ANSWERS_AFTER = 10.0  # seconds: then a --connect that reached nobody is reported
-PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream", "unixpipe", "vsock", "serial")
+# what this Zenoh can listen and connect on (its unixpipe, vsock and serial are not built in)
+PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream")
+# transport.link.tls's fields that name a file (what `spikinglab certs` writes into its configs)
+TLS_FILES = (
+    "root_ca_certificate",
+    "listen_certificate",
+    "listen_private_key",
+    "connect_certificate",
+    "connect_private_key",
+)
 
 
 def endpoint(text: str) -> str:
@@ -124,7 +133,28 @@ def zenoh_config_file(text: str) -> dict:
         raise argparse.ArgumentTypeError(f"{text} is not a JSON5 config: {e}") from None
     if not isinstance(settings, dict):
         raise argparse.ArgumentTypeError(f"{text} should hold one JSON5 object {{...}}, not {type(settings).__name__}")
+    missing = missing_tls_file(settings)
+    if missing:
+        raise argparse.ArgumentTypeError(f"{text}: {missing} (copy it there, or edit the path in {text})")
     return {"file": text, "settings": settings}
+
+
+def missing_tls_file(settings: dict) -> str | None:
+    """The first certificate or key file the config names that cannot be read, with why; Zenoh
+    itself says only that a TLS link timed out, or that a key is missing."""
+    tls = settings
+    for name in ("transport", "link", "tls"):
+        tls = tls.get(name) if isinstance(tls, dict) else None
+    if not isinstance(tls, dict):
+        return None
+    for field in TLS_FILES:
+        path = tls.get(field)
+        if isinstance(path, str):
+            try:
+                Path(path).open("rb").close()
+            except OSError as e:
+                return f"transport.link.tls.{field} {path}: {e.strerror}"
+    return None
 
 
 def make_config(connect=(), listen=(), config_file: dict | None = None, mode: str | None = None) -> zenoh.Config:
