@@ -46,10 +46,17 @@ PUTS = {
 # role -> the liveliness tokens (below spikinglab/<group>/alive/) its process may hold; a role not
 # named holds the one of its name. $* is any text within a chunk: the shards' tokens, "world-2of3"
 # (and "world-2of3-done" once it has run its ticks, "world-2of3-waiting-<session id>" until it has
-# joined), "brain-2of3"
+# joined), "brain-2of3"; and each, as it leaves of its own accord, that name + "-leaving"
 TOKENS = {
-    "world": ("world", "world-$*of$*", "world-$*of$*-done", "world-$*of$*-waiting-$*"),
-    "brain": ("brain", "brain-$*of$*"),
+    "world": (
+        "world",
+        "world-$*of$*",
+        "world-$*of$*-done",
+        "world-$*of$*-waiting-$*",
+        "world-leaving",
+        "world-$*of$*-leaving",
+    ),
+    "brain": ("brain", "brain-$*of$*", "brain-leaving", "brain-$*of$*-leaving"),
 }
 EVERY_GROUP = f"{keys.PREFIX}/*"
 READ = {  # what every role may do: subscribe to any key of any group and be sent what is put there
@@ -218,7 +225,9 @@ def access_control() -> dict:
                 "permission": "allow",
                 "flows": ["ingress"],
                 "messages": ["liveliness_token"],
-                "key_exprs": [f"{EVERY_GROUP}/alive/{token}" for token in TOKENS.get(role, (role,))],
+                "key_exprs": [
+                    f"{EVERY_GROUP}/alive/{token}" for token in TOKENS.get(role, (role, role + keys.LEAVING))
+                ],
             }
         )
         role_rules.append(f"{role} alive")

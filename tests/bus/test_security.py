@@ -310,19 +310,22 @@ TRIED_TOKENS = (
     "world-2of3-done",
     "world-2of3-waiting-1f2e3d",
     "world-x",
+    "world-leaving",
     "brain",
     "brain-2of3",
+    "brain-2of3-leaving",
     "gateway",
+    "gateway-leaving",
     "viewer",
     "recorder",
 )
 ARRIVES = {
     "world": (
         {"sensors", "sensors/2of3", "control", "state/world", "state/map", "world/run"},
-        {"world", "world-2of3", "world-2of3-done", "world-2of3-waiting-1f2e3d"},
+        {"world", "world-2of3", "world-2of3-done", "world-2of3-waiting-1f2e3d", "world-leaving"},
     ),
-    "brain": ({"motor", "state/brain"}, {"brain", "brain-2of3"}),
-    "gateway": ({"sensors", "control"}, {"gateway"}),
+    "brain": ({"motor", "state/brain"}, {"brain", "brain-2of3", "brain-2of3-leaving"}),
+    "gateway": ({"sensors", "control"}, {"gateway", "gateway-leaving"}),
     "viewer": (set(), {"viewer"}),
     "recorder": (set(), {"recorder"}),
 }
