@@ -54,7 +54,11 @@ def on_interrupt(signum, frame) -> None:
         _listen()
     if not _pending.is_set():  # a second Ctrl-C meanwhile is the same interrupt
         _pending.set()
-        print("interrupted: stopping once the kernel being compiled is ready", file=sys.stderr, flush=True)
+        print(
+            "interrupted: stopping once the kernel being compiled (or loaded from the cache) is ready",
+            file=sys.stderr,
+            flush=True,
+        )
 
 
 def take_interrupts(*signals: int) -> None:

@@ -37,10 +37,13 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
+from services.brain.brain import check_sensors
+from services.brain.circuit import load_circuit
 from services.commands import ENDLESS, PARENT, SERVICES
 from services.interrupts import ctrl_c_held
 from services.options import Parser, UsageError, output_folder
 from services.params import file_for_agents
+from services.world.world import SENSORS
 
 log = logging.getLogger("spikinglab.launch")
 COLOURS = (36, 33, 35, 32, 34, 31)  # ANSI: cyan, yellow, magenta, green, blue, red
@@ -409,6 +412,10 @@ def check_brains_fit_worlds(path: Path, processes: list[Process], parsed: dict[s
         if (args.group, i) in shards_taken:
             raise LaunchError(f"{where}: shard {i}/{n} is also [{shards_taken[args.group, i]}]'s")
         shards_taken[args.group, i] = brain.name
+        try:  # as `spikinglab run` checks its circuit
+            check_sensors(load_circuit(args.circuit), SENSORS)
+        except ValueError as e:
+            raise LaunchError(f"{where}: {e}") from None
         if args.params is not None:
             try:
                 file_for_agents(args.params, world.agents, f"agents of [{world_name}]")
@@ -478,7 +485,7 @@ def main(argv=None) -> int:
             log.info(
                 "started %s%s",
                 ", ".join(p.name for p in processes),
-                f"; until the {until} ends" if until else "; Ctrl-C ends them",
+                f"; until the {until} ends" if until else f"; Ctrl-C ends {'them' if len(processes) > 1 else 'it'}",
             )
             failure = launcher.watch(until)
             if failure is None:

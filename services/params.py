@@ -172,7 +172,7 @@ def file_for_agents(path: Path, agents: int, said_by: str = "--agents") -> dict[
     rows = file_rows(columns)
     if rows not in (1, agents):
         raise ValueError(
-            f"parameter file {path}: {rows} rows of values for {agents} agents ({said_by}): give one "
-            f"row for all of them, or one per agent"
+            f"parameter file {path}: {rows} rows of values for {agents} agent{'s' * (agents != 1)} ({said_by}): "
+            f"give one row for all of them, or one per agent"
         )
     return columns

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import signal
 import sys
 
 from services.commands import BENCHMARKS, COMMANDS
@@ -52,7 +53,7 @@ def main(argv: list[str] | None = None) -> None:
     if argv[0] == "--version":
         print(f"spikinglab {version()}")
         return
-    take_interrupts()  # Ctrl-C: KeyboardInterrupt, but never inside a kernel's compile
+    take_interrupts(signal.SIGTERM)  # Ctrl-C and SIGTERM: KeyboardInterrupt, never inside a kernel's compile
     name, rest = argv[0], argv[1:]
     if name == "bench":
         if rest[:1] in (["-h"], ["--help"]):

@@ -43,6 +43,7 @@ def files(tmp_path_factory):
     (folder / "list.toml").write_text("[world]\nticks = [1000, 2000]\n")
     (folder / "word.toml").write_text('[world]\npublish_state = "yes"\n')
     (folder / "false.toml").write_text("[world]\nticks = false\n")
+    (folder / "unfit-circuit.toml").write_text('[world]\nticks = 500\n[brain]\ncircuit = "conditioning"\n')
     (folder / "edited" / "command.json").parent.mkdir()
     (folder / "edited" / "command.json").write_text('{"argv": ["--ticks", "zz"]}')  # a run's options, edited by hand
     (folder / "help.toml").write_text("[world]\nhelp = true\n")
@@ -360,6 +361,12 @@ CASES = [
     ("launch file unknown service", "launch {f}/noservice.toml", 2, "noservice.toml, [mind]: unknown service 'mind'"),
     ("launch file list for one value", "launch {f}/list.toml", 2, "[world]: ticks = [1000, 2000]: takes one value"),
     ("launch file switch given a word", "launch {f}/word.toml", 2, "[world]: publish_state = 'yes': a switch"),
+    (
+        "launch brain of a circuit for another body",
+        "launch {f}/unfit-circuit.toml",
+        2,
+        "unfit-circuit.toml, [brain]: circuit 'conditioning' binds sensors ['c', 'u'] that the world does not publish",
+    ),
     ("launch file value given false", "launch {f}/false.toml", 2, "[world]: ticks = false: takes a value"),
     ("launch file asks for help", "launch {f}/help.toml", 2, "[world]: help: not an option of a process"),
     (
@@ -443,6 +450,17 @@ def test_connecting_where_nothing_answers_is_reported_within_10_s(closed_port, t
     finally:
         brain.terminate()
         brain.wait(10)
+
+
+def test_a_service_with_no_endpoint_says_that_nothing_can_reach_it(tmp_path):
+    log = tmp_path / "world.log"
+    world = start("world", "--group", tmp_path.name, log=log)
+    try:
+        wait_for(lambda: "waiting for a brain" in log.read_text(), 60, "the world to wait for a brain")
+        assert "WARNING no --connect and no --listen: no other process can reach this one" in log.read_text()
+    finally:
+        world.terminate()
+        world.wait(10)
 
 
 def test_a_brain_that_refuses_every_reading_is_named_by_the_world(files, tmp_path):

@@ -169,6 +169,21 @@ def test_ctrl_c_while_the_sweep_writes_leaves_its_table_whole_or_absent(tmp_path
     assert found in ([], ["learning.png", "table.json", "table.md", "table1.png"])
 
 
+def test_sigterm_to_a_sweep_leaves_no_folder(tmp_path):
+    """As Ctrl-C: one line, exit 130, and the sweep's folder, made at its start, is gone again."""
+    args = ("sweep", "--a-plus", "0.02", "--seeds", "1", "--ticks", "200000", "--runs", tmp_path, "--id", "s")
+    sweep = subprocess.Popen(
+        [sys.executable, "-m", "spikinglab", *map(str, args)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    wait_for(lambda: (tmp_path / "s").exists(), 60, "the sweep to make its folder")
+    sweep.terminate()
+    _, err = sweep.communicate(timeout=60)
+    assert (
+        sweep.returncode == 130 and err.decode().splitlines()[-1] == "spikinglab sweep: interrupted, no table written"
+    )
+    assert not (tmp_path / "s").exists()
+
+
 def test_benchmarks_run_and_end_with_json():
     done = spikinglab("bench", "engine", "--ticks", 2000, "--batch-ticks", 20, "--repeats", 1, "--rounds", 2)
     assert done.returncode == 0, done.stderr

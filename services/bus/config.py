@@ -200,6 +200,11 @@ def open_session(args: argparse.Namespace, mode: str | None = None) -> Session:
         except (OSError, AttributeError) as e:
             log.warning("cannot pin to CPU %d: %s", args.cpu, e)
     session = session_for(args.connect, args.listen, args.zenoh_config, mode)
+    if not (args.connect or args.listen or args.zenoh_config or mode == "router"):  # a router listens on 7447
+        log.warning(
+            "no --connect and no --listen: no other process can reach this one (multicast scouting is off); "
+            "give it --listen ENDPOINT and the others --connect ENDPOINT (docs/bus.md)"
+        )
     if args.connect:
         threading.Thread(
             target=report_if_alone, args=(session, args.connect), daemon=True, name="connection check"
