@@ -30,6 +30,15 @@ def viewer_command() -> list[str] | None:
     return [found] if found else None
 
 
+RRD_MAGIC = b"RRF2"  # the first bytes of a Rerun recording
+
+
+def is_recording(path: Path) -> bool:
+    """Whether the file starts as a Rerun recording does (it may still be cut short)."""
+    with open(path, "rb") as f:
+        return f.read(len(RRD_MAGIC)) == RRD_MAGIC
+
+
 def last_tick(path: Path) -> int:
     last = 0
     for chunk in RrdReader(str(path)).stream():

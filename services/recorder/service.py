@@ -36,6 +36,7 @@ from services.runtime import service_main
 
 from .listener import Listener
 from .recorder import Recorder, blueprint
+from .screenshot import is_recording
 
 log = logging.getLogger("spikinglab.recorder")
 
@@ -44,9 +45,9 @@ def parser() -> argparse.ArgumentParser:
     p = Parser(prog="spikinglab record", description="Record a run to a Rerun file.")
     p.add_argument(
         "--out",
-        type=output_file,
+        type=recording_out,
         help="the .rrd file (default runs/<date>-<time>/recording.rrd; an earlier one there is kept as "
-        "<name>.previous.rrd)",
+        "<name>.previous.rrd; a file there that is not a recording is refused)",
     )
     p.add_argument(
         "--viewer",
@@ -113,6 +114,15 @@ class RecorderConfig:
     backlog_mb: int
     nice: int
     bus: BusConfig
+
+
+def recording_out(text: str) -> Path:
+    """--out: a file to write, and one that holds something other than a recording is the user's:
+    refused rather than moved aside (keep_earlier) and replaced. An empty file holds nothing."""
+    path = output_file(text)
+    if path.is_file() and path.stat().st_size > 0 and not is_recording(path):
+        raise argparse.ArgumentTypeError(f"{text} is not a Rerun recording (.rrd): refusing to replace it")
+    return path
 
 
 def viewer_url(text: str) -> str:
@@ -220,7 +230,8 @@ def can_serve(config: RecorderConfig) -> bool:
 
 def keep_earlier(out: Path) -> None:
     """An earlier recording at `out` (a launch file's fixed --out) moved to <name>.previous.rrd: a
-    run that ends before its first tick must not leave an empty file in its place."""
+    run that ends before its first tick must not leave an empty file in its place. (A file there
+    that is not a recording never comes here: --out refuses it.)"""
     if out.is_file() and out.stat().st_size > 0:
         kept = out.with_name(f"{out.stem}.previous{out.suffix}")
         out.replace(kept)

@@ -369,8 +369,8 @@ def test_the_trail_is_cut_where_the_insect_was_put_back_and_nowhere_else(tmp_pat
 def test_a_recorder_keeps_an_earlier_recording_at_its_out_until_it_has_its_own(tmp_path):
     """A launch file's fixed --out: the run that follows may end before its first tick (refused by
     a shard, say); the earlier recording is kept as recording.previous.rrd, never emptied."""
-    out, earlier = tmp_path / "recording.rrd", b"an earlier run's recording"
-    out.write_bytes(earlier)
+    out = write_recording(tmp_path / "recording.rrd", ticks=10)
+    earlier = out.read_bytes()
     recorder = start("record", "--listen", endpoint(tmp_path, "rec"), "--out", out, log=tmp_path / "recorder.log")
     try:
         wait_for(lambda: "recording group" in (tmp_path / "recorder.log").read_text(), 60, "the recorder to start")
@@ -384,3 +384,38 @@ def test_a_recorder_keeps_an_earlier_recording_at_its_out_until_it_has_its_own(t
         f"{out} held an earlier recording: kept as {tmp_path / 'recording.previous.rrd'}"
         in (tmp_path / "recorder.log").read_text()
     )
+
+
+def write_recording(path, ticks):
+    """A small Rerun recording: a value at each tick 0 .. ticks - 1."""
+    import rerun as rr
+
+    rec = rr.RecordingStream("spikinglab-test", recording_id=path.stem)
+    rec.save(str(path))
+    for tick in range(ticks):
+        rec.set_time("tick", sequence=tick)
+        rec.log("/value", rr.Scalars([float(tick)]))
+    rec.flush()
+    rec.disconnect()
+    return path
+
+
+def spikinglab(*args) -> subprocess.CompletedProcess:
+    """A spikinglab command run to its end."""
+    command = [sys.executable, "-m", "spikinglab", *map(str, args)]
+    return subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize("name", ["weights.npz", "summary.json"])
+def test_record_refuses_an_out_that_is_not_a_recording_and_leaves_it_alone(tmp_path, name):
+    """A user's file given as --out was moved aside, and by a second run deleted."""
+    out = tmp_path / name
+    out.write_bytes(b"the user's own file")
+    for _ in range(2):
+        done = spikinglab("record", "--out", out)
+        assert done.returncode == 2
+        assert done.stderr == (
+            f"spikinglab record: argument --out: {out} is not a Rerun recording (.rrd): refusing to replace it "
+            "(see spikinglab record --help)\n"
+        )
+    assert out.read_bytes() == b"the user's own file" and sorted(tmp_path.iterdir()) == [out]
