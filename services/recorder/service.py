@@ -31,7 +31,7 @@ from services.bus import keys
 from services.bus.config import BusConfig, add_bus_args
 from services.bus.schemas import BrainLayout, BrainState, WorldMap, WorldState
 from services.bus.transport import Bus
-from services.options import Parser, agent_list, at_least, ip_address, output_file, port
+from services.options import Parser, agent_list, at_least, ip_address, output_file, port, whole_number
 from services.runtime import service_main
 
 from .listener import Listener
@@ -43,6 +43,7 @@ log = logging.getLogger("spikinglab.recorder")
 
 def parser() -> argparse.ArgumentParser:
     p = Parser(prog="spikinglab record", description="Record a run to a Rerun file.")
+    p.together = [lambda args: p.mode_defaults(args, "--web" if args.web else "--serve" if args.serve else "", LIVE)]
     p.add_argument(
         "--out",
         type=recording_out,
@@ -66,14 +67,14 @@ def parser() -> argparse.ArgumentParser:
         action="store_true",
         help="also host the web viewer over HTTP, showing the served run (implies --serve)",
     )
+    # no defaults here: LIVE's, so that one given without the live view is refused, not ignored
     live.add_argument(
         "--grpc-host",
         type=ip_address,
-        default="0.0.0.0",
         help="the address --serve listens on (default 0.0.0.0: every interface; 127.0.0.1: this machine only)",
     )
-    live.add_argument("--grpc-port", type=port, default=9876, help="--serve's port (default 9876)")
-    live.add_argument("--web-port", type=port, default=9090, help="--web's port (default 9090)")
+    live.add_argument("--grpc-port", type=port, help="--serve's port (default 9876)")
+    live.add_argument("--web-port", type=port, help="--web's port (default 9090)")
     p.add_argument(
         "--detail",
         default=(0,),
@@ -91,10 +92,21 @@ def parser() -> argparse.ArgumentParser:
         "run back nor grows without limit",
     )
     p.add_argument(
-        "--nice", type=int, default=10, help="scheduling priority increment (default 10: after world and brain)"
+        "--nice",
+        type=niceness,
+        default=10,
+        help="scheduling priority increment, -20 .. 19 (default 10: after world and brain)",
     )
     add_bus_args(p)
     return p
+
+
+# the live view's options: (default, the modes that use them) for Parser.mode_defaults
+LIVE = {
+    "--grpc-host": ("0.0.0.0", ("--serve", "--web")),
+    "--grpc-port": (9876, ("--serve", "--web")),
+    "--web-port": (9090, ("--web",)),
+}
 
 
 @dataclass(frozen=True)
@@ -123,6 +135,14 @@ def recording_out(text: str) -> Path:
     if path.is_file() and path.stat().st_size > 0 and not is_recording(path):
         raise argparse.ArgumentTypeError(f"{text} is not a Rerun recording (.rrd): refusing to replace it")
     return path
+
+
+def niceness(text: str) -> int:
+    """--nice: within a process's range of niceness, -20 .. 19 (beyond, the kernel would clamp it)."""
+    value = whole_number(text)
+    if not -20 <= value <= 19:
+        raise argparse.ArgumentTypeError(f"a scheduling priority increment is -20 .. 19, got {value}")
+    return value
 
 
 def viewer_url(text: str) -> str:

@@ -419,3 +419,28 @@ def test_record_refuses_an_out_that_is_not_a_recording_and_leaves_it_alone(tmp_p
             "(see spikinglab record --help)\n"
         )
     assert out.read_bytes() == b"the user's own file" and sorted(tmp_path.iterdir()) == [out]
+
+
+@pytest.mark.parametrize(
+    "options, said",
+    [
+        (["--grpc-host", "127.0.0.1"], "argument --grpc-host: only with --serve or --web"),
+        (["--grpc-port", "9000"], "argument --grpc-port: only with --serve or --web"),
+        (["--serve", "--web-port", "9000"], "argument --web-port: only with --web"),
+        (["--nice", "100"], "argument --nice: a scheduling priority increment is -20 .. 19, got 100"),
+        (["--nice", "-21"], "argument --nice: a scheduling priority increment is -20 .. 19, got -21"),
+    ],
+)
+def test_record_refuses_options_it_would_ignore_or_change(tmp_path, options, said):
+    done = spikinglab("record", *options, "--out", tmp_path / "rec.rrd")
+    assert done.returncode == 2 and done.stderr == f"spikinglab record: {said} (see spikinglab record --help)\n"
+    assert not (tmp_path / "rec.rrd").exists()
+
+
+def test_the_live_views_options_take_their_defaults_where_they_serve():
+    from services.recorder.service import parser
+
+    web = parser().parse_args(["--web"])
+    assert (web.grpc_host, web.grpc_port, web.web_port) == ("0.0.0.0", 9876, 9090)
+    served = parser().parse_args(["--serve", "--grpc-host", "127.0.0.1", "--grpc-port", "9000"])
+    assert (served.grpc_host, served.grpc_port, served.web_port) == ("127.0.0.1", 9000, 9090)
