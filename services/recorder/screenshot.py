@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import shutil
 import signal
 import socket
@@ -31,6 +32,11 @@ def viewer_command() -> list[str] | None:
 
 
 RRD_MAGIC = b"RRF2"  # the first bytes of a Rerun recording
+# what the viewer says when it found nothing to render with (no Vulkan driver; wgpu's GL fallback fails too)
+NO_RENDERER = re.compile(r"render context|render state|graphics adapter|wgpu adapter")
+ANSI_COLOUR = re.compile(r"\x1b\[[0-9;]*m")
+# Rust's backtrace and rerun's footer of links: nothing of why it stopped
+NOT_WHY = re.compile(r"stack backtrace:|\s*\d+: |\s+at |Troubleshooting Rerun:|Report bugs:")
 
 
 def is_recording(path: Path) -> bool:
@@ -82,20 +88,7 @@ def screenshot(
         start_new_session=True,
     )  # its own group: the venv's `rerun` starts the real viewer
     try:
-        client, deadline = None, time.monotonic() + 30
-        while client is None:
-            if viewer.poll() is not None:
-                raise RuntimeError(
-                    f"the headless viewer stopped: {viewer.stderr.read()[-1500:] if viewer.stderr else ''}"
-                )
-            try:
-                client = rrx.ViewerClient(f"rerun+http://127.0.0.1:{port}/proxy")
-                client.get_state()
-            except Exception:  # not listening yet
-                client = None
-                if time.monotonic() > deadline:
-                    raise RuntimeError("the headless viewer did not start within 30 s") from None
-                time.sleep(0.2)
+        client = connected(viewer, port)
         try:
             client.open(str(recording.resolve()))
             time.sleep(settle)  # panels are still empty if captured at once
@@ -103,10 +96,9 @@ def screenshot(
             time.sleep(settle)
             out.parent.mkdir(parents=True, exist_ok=True)
             client.save_screenshot(str(out.resolve()))
-        except ConnectionError as e:  # the viewer's answer to a request it cannot carry out
-            raise RuntimeError(
-                f"the viewer could not show {recording} at tick {tick}: {str(e).splitlines()[0]}"
-            ) from None
+        except ConnectionError as e:  # the viewer's answer to a request it cannot carry out, or its end
+            refused = f"the viewer could not show {recording} at tick {tick}: {str(e).splitlines()[0]}"
+            raise RuntimeError(why_it_ended(viewer) or refused) from None
     finally:  # the whole group: killing the wrapper alone left a ~400 MB viewer behind per call
         try:
             os.killpg(viewer.pid, signal.SIGKILL)
@@ -114,6 +106,44 @@ def screenshot(
             pass
         viewer.wait()
     return out
+
+
+def connected(viewer: subprocess.Popen, port: int) -> rrx.ViewerClient:
+    """A client of the headless viewer once it answers at `port`; RuntimeError if it ends first."""
+    deadline = time.monotonic() + 30
+    while True:
+        if viewer.poll() is not None:
+            raise RuntimeError(why_it_stopped(viewer.stderr.read() if viewer.stderr else ""))
+        try:
+            client = rrx.ViewerClient(f"rerun+http://127.0.0.1:{port}/proxy")
+            client.get_state()
+            return client
+        except Exception:  # not listening yet
+            if time.monotonic() > deadline:
+                raise RuntimeError("the headless viewer did not start within 30 s") from None
+            time.sleep(0.2)
+
+
+def why_it_ended(viewer: subprocess.Popen) -> str | None:
+    """why_it_stopped, if the viewer ends within a few seconds (a request can fail before the viewer's
+    panic ends it: it failed to render its first frame); None if it goes on."""
+    try:
+        return why_it_stopped(viewer.communicate(timeout=5)[1] or "")
+    except subprocess.TimeoutExpired:
+        return None
+
+
+def why_it_stopped(stderr: str, lines: int = 6) -> str:
+    """What the headless viewer's stderr says of its end: without a graphics driver, that and the
+    fix (in one line); else its last lines, whole, without Rust's backtrace."""
+    text = ANSI_COLOUR.sub("", stderr)
+    if NO_RENDERER.search(text):
+        return (
+            "the headless viewer found no graphics driver to render with: it needs Vulkan, and without a GPU "
+            "Mesa's software driver (Debian: apt-get install mesa-vulkan-drivers libvulkan1)"
+        )
+    said = [line for line in text.splitlines() if line.strip() and not NOT_WHY.match(line)]
+    return "the headless viewer stopped:\n" + "\n".join(said[-lines:])
 
 
 def window_size(text: str) -> str:

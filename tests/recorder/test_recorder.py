@@ -1,6 +1,7 @@
 """The recorder: a run's .rrd read back holds what the world and the brain did."""
 
 import json
+import os
 import re
 import signal
 import subprocess
@@ -406,6 +407,14 @@ def spikinglab(*args) -> subprocess.CompletedProcess:
     return subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=120)
 
 
+def screenshot_of(*args, env=None) -> subprocess.CompletedProcess:
+    """`spikinglab screenshot ARGS` where no Vulkan driver is needed: it refuses before its viewer
+    starts, or the viewer is denied one. (Spelt so that conftest does not mark the tests that use
+    it as needing a driver and skip them where there is none.)"""
+    command = [sys.executable, "-m", "spikinglab", "screenshot"] + [str(a) for a in args]
+    return subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=120, env=env)
+
+
 @pytest.mark.parametrize("name", ["weights.npz", "summary.json"])
 def test_record_refuses_an_out_that_is_not_a_recording_and_leaves_it_alone(tmp_path, name):
     """A user's file given as --out was moved aside, and by a second run deleted."""
@@ -444,3 +453,44 @@ def test_the_live_views_options_take_their_defaults_where_they_serve():
     assert (web.grpc_host, web.grpc_port, web.web_port) == ("0.0.0.0", 9876, 9090)
     served = parser().parse_args(["--serve", "--grpc-host", "127.0.0.1", "--grpc-port", "9000"])
     assert (served.grpc_host, served.grpc_port, served.web_port) == ("127.0.0.1", 9000, 9090)
+
+
+def test_screenshot_without_a_graphics_driver_says_what_to_install_in_one_line(tmp_path):
+    """The Vulkan loader is given no driver (and wgpu no other backend), so that this holds on a
+    machine with one too: the viewer finds nothing to render with, as on one without."""
+    recording = write_recording(tmp_path / "r.rrd", ticks=10)
+    nowhere = str(tmp_path / "no-driver.json")
+    env = {**os.environ, "WGPU_BACKEND": "vulkan", "VK_ICD_FILENAMES": nowhere, "VK_DRIVER_FILES": nowhere}
+    before = headless_viewers()
+    done = screenshot_of(recording, "--out", tmp_path / "r.png", env=env)
+    assert done.returncode == 1
+    assert done.stderr == (
+        "spikinglab screenshot: the headless viewer found no graphics driver to render with: it needs Vulkan, "
+        "and without a GPU Mesa's software driver (Debian: apt-get install mesa-vulkan-drivers libvulkan1)\n"
+    )
+    assert headless_viewers() == before and not (tmp_path / "r.png").exists()
+
+
+def test_a_viewer_that_stopped_otherwise_is_told_by_its_last_whole_lines_without_the_backtrace():
+    from services.recorder.screenshot import why_it_stopped
+
+    stderr = (
+        "\x1b[2m2026-11-27T09:18:42Z\x1b[0m \x1b[32m INFO\x1b[0m re_grpc_server: Listening for gRPC connections\n"
+        "\n"
+        "thread 'main' panicked at 'index out of bounds: the len is 3 but the index is 7'\n"
+        "re_viewer/src/app/mod.rs:1425\n"
+        "stack backtrace:\n"
+        "   6: core::panicking::panic_fmt\n"
+        "  22: __libc_start_call_main\n"
+        "             at libc_start_call_main.h:58:16\n"
+        "\n"
+        "Troubleshooting Rerun: https://www.rerun.io/docs/overview/installing-rerun/troubleshooting\n"
+        "Report bugs: https://github.com/rerun-io/rerun/issues\n"
+    )
+    assert why_it_stopped("x" * 5000 + "\n" + stderr).splitlines() == [
+        "the headless viewer stopped:",
+        "xxxxxxxxxx" * 500,  # a line is kept whole or left out, never cut
+        "2026-11-27T09:18:42Z  INFO re_grpc_server: Listening for gRPC connections",
+        "thread 'main' panicked at 'index out of bounds: the len is 3 but the index is 7'",
+        "re_viewer/src/app/mod.rs:1425",
+    ]
