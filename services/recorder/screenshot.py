@@ -16,10 +16,12 @@ import socket
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import rerun.experimental as rrx
 from rerun.chunk import RrdReader
+from rerun.error_utils import RerunWarning
 
 from services.options import Parser, at_least, output_file
 
@@ -52,6 +54,23 @@ def last_tick(path: Path) -> int:
         if "tick" in batch.schema.names and batch.num_rows:
             last = max(last, max(batch.column("tick").to_pylist()))
     return last
+
+
+def recorded_until(path: Path) -> int:
+    """last_tick of a recording that a screenshot is asked of; ValueError, in a line, for a file
+    that is not one or one cut short. A killed writer's file without its footer is read as it is."""
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", "RRD file has no footer", RerunWarning)
+            return last_tick(path)
+    except RuntimeError as e:  # rerun's reader
+        why = str(e).splitlines()[0].removeprefix(f"Failed to read RRD file at {path}: ")
+    if not is_recording(path):
+        raise ValueError(f"not a Rerun recording (.rrd): {why}")
+    raise ValueError(
+        f"a damaged Rerun recording, cut short as a writer killed mid-write leaves it ({why}); "
+        f"`rerun rrd optimize {path} -o repaired.rrd` keeps what it holds"
+    )
 
 
 def repair(recording: Path) -> bool:
@@ -165,10 +184,12 @@ def main(argv=None) -> int:
         print(f"spikinglab screenshot: {args.recording}: no such recording", file=sys.stderr)
         return 2
     try:
-        last = last_tick(args.recording)  # read whatever --tick says: it also tells a recording from other files
-    except RuntimeError as e:  # rerun's reader: not an .rrd, or a damaged one
-        print(f"spikinglab screenshot: {args.recording}: not a Rerun recording (.rrd): {e}", file=sys.stderr)
+        last = recorded_until(args.recording)  # read whatever --tick says: it also tells a recording from other files
+    except ValueError as e:
+        print(f"spikinglab screenshot: {args.recording}: {e}", file=sys.stderr)
         return 2
+    if args.tick is not None and args.tick > last:
+        p.error(f"argument --tick: {args.tick:,} is beyond the recording's last tick, {last:,}")
     try:
         out = screenshot(
             args.recording,

@@ -455,6 +455,27 @@ def test_the_live_views_options_take_their_defaults_where_they_serve():
     assert (served.grpc_host, served.grpc_port, served.web_port) == ("127.0.0.1", 9000, 9090)
 
 
+def test_screenshot_names_a_recording_cut_short_as_damaged_in_one_line(tmp_path):
+    whole = write_recording(tmp_path / "whole.rrd", ticks=500).read_bytes()
+    half = tmp_path / "half.rrd"
+    half.write_bytes(whole[: len(whole) // 2])  # as a writer killed mid-write leaves it
+    done = screenshot_of(half)
+    assert done.returncode == 2 and len(done.stderr.splitlines()) == 1, done.stderr  # no RerunWarning
+    assert done.stderr.startswith(f"spikinglab screenshot: {half}: a damaged Rerun recording, cut short")
+    assert f"rerun rrd optimize {half} -o repaired.rrd" in done.stderr
+    assert not (tmp_path / "replay.png").exists()
+
+
+def test_screenshot_refuses_a_tick_beyond_the_recordings_last(tmp_path):
+    recording = write_recording(tmp_path / "r.rrd", ticks=500)
+    done = screenshot_of(recording, "--tick", 500)
+    assert done.returncode == 2
+    assert done.stderr == (
+        "spikinglab screenshot: argument --tick: 500 is beyond the recording's last tick, 499 "
+        "(see spikinglab screenshot --help)\n"
+    )
+
+
 def test_screenshot_without_a_graphics_driver_says_what_to_install_in_one_line(tmp_path):
     """The Vulkan loader is given no driver (and wgpu no other backend), so that this holds on a
     machine with one too: the viewer finds nothing to render with, as on one without."""
