@@ -89,7 +89,6 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--detail",
-        default="0",
         type=agent_list,
         help="agents recorded in detail, e.g. 0,3: raster, potentials, ... (default 0)",
     )
@@ -120,6 +119,9 @@ def arguments(p: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace
         p.error(f"argument --ticks: must be at least one bin of collisions ({BIN:,} ticks), got {args.ticks:,}")
     if args.view and args.no_record:
         p.error("argument --view: the live view comes from the recorder, which --no-record leaves out")
+    if args.detail is not None and args.no_record:
+        p.error("argument --detail: says what the recording holds, which --no-record leaves out")
+    args.detail = args.detail or (0,)
     if max(args.detail) >= args.agents:
         p.error(f"argument --detail: agent {max(args.detail)} of {args.agents} (agents are 0 .. {args.agents - 1})")
     if args.view_host != LOCAL and not args.view:

@@ -367,6 +367,14 @@ CASES = [
         2,
         "unfit-circuit.toml, [brain]: circuit 'conditioning' binds sensors ['c', 'u'] that the world does not publish",
     ),
+    ("run detail of no recording", "run --no-record --detail 0", 2, "argument --detail: says what the recording"),
+    ("brain stale readings in lock-step", "brain --stale-after 2", 2, "argument --stale-after: only with --clock"),
+    (
+        "brain checkpoint of a robot",
+        "brain --clock 1000 --checkpoint {f}",
+        2,
+        "argument --checkpoint: not with --clock",
+    ),
     ("launch file value given false", "launch {f}/false.toml", 2, "[world]: ticks = false: takes a value"),
     ("launch file asks for help", "launch {f}/help.toml", 2, "[world]: help: not an option of a process"),
     (

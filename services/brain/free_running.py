@@ -18,7 +18,7 @@ import numpy as np
 from services.bus import keys
 from services.bus.schemas import Array, BusError, Control, Motor, Sensors
 from services.bus.transport import Bus, wait_for_subscriber
-from services.options import not_negative, positive
+from services.options import Parser, not_negative, positive
 
 from .brain import check_sensors
 from .checkpoint import save_weights
@@ -45,17 +45,28 @@ def add_free_running_args(p: argparse.ArgumentParser) -> None:
         help="tick on this clock with the latest sensor reading, motor spikes as events "
         "(robot mode, e.g. 1000); default 0: lock-step with a world",
     )
+    # these two without defaults here (free_running_options): with no --clock they are refused
     free.add_argument(
         "--stale-after",
         type=positive,
-        default=0.5,
         help="seconds after which a reading no longer counts as sensed (default 0.5)",
     )
     free.add_argument(
         "--no-realtime",
         action="store_true",
+        default=None,
         help="do not ask for real-time scheduling of the clock thread (asked by default; needs "
         "root or CAP_SYS_NICE on Linux, else the normal scheduler is used)",
+    )
+
+
+def free_running_options(p: Parser, args: argparse.Namespace) -> None:
+    """The free-running brain's options refused in lock-step, and --checkpoint (the world's
+    checkpoints, which a robot's run has none of) refused with --clock: each would be ignored."""
+    p.mode_defaults(
+        args,
+        "--clock" if args.clock else "",
+        {"--stale-after": (0.5, ("--clock",)), "--no-realtime": (False, ("--clock",)), "--checkpoint": (None, ("",))},
     )
 
 

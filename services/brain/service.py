@@ -25,7 +25,7 @@ from services.runtime import service_main
 from .checkpoint import load_weights
 from .circuit import CircuitError, load_circuit
 from .engine_options import EngineOptions, add_engine_args, brain_params, engine_options_fit
-from .free_running import FreeRunning, add_free_running_args
+from .free_running import FreeRunning, add_free_running_args, free_running_options
 from .lockstep import LockStep
 from .node import FREE_STATE_BATCH, BrainNode
 
@@ -39,7 +39,9 @@ ALONE_AFTER_S = 1.0  # a brain of the same name not heard of within this long af
 
 def parser() -> argparse.ArgumentParser:
     p = Parser(
-        prog="spikinglab brain", description="The spiking-network brain, on the bus.", together=[engine_options_fit]
+        prog="spikinglab brain",
+        description="The spiking-network brain, on the bus.",
+        together=[engine_options_fit, lambda args: free_running_options(p, args)],
     )
     p.add_argument(
         "--circuit", default="insect", help="circuit name in services/brain/circuits/ or a .toml path (default insect)"
@@ -58,7 +60,6 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--seed",
         type=at_least(0),
-        default=None,
         help="the netlogo order's seed, agent a using seed + a (default: the world's seed, which its "
         "sensor messages carry, so that a run is the same in one process or across the bus)",
     )
