@@ -107,14 +107,14 @@ def test_a_service_that_dies_ends_the_launch_and_is_named(tmp_path):
     file = tmp_path / "broken.toml"
     file.write_text(
         f'[launch]\nuntil = "world"\n[world]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n'
-        f'ticks = 1000000\n[brain]\ncircuit = "{tmp_path}/missing.toml"\n'
+        f'ticks = 1000000\n[brain]\nload = "{tmp_path}/missing.npz"\n'  # found missing as the brain starts
     )
     started = time.monotonic()
     run = launch(tmp_path, file)
     out, err = run.communicate(timeout=60)
     assert run.returncode == 1
     assert "the brain stopped (exit 2) before the world ended" in err, err
-    assert "missing.toml" in err  # its last lines say why
+    assert "missing.npz" in err  # its last lines say why
     assert time.monotonic() - started < 30
     assert not running_with(str(tmp_path))
 
