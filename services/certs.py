@@ -291,14 +291,6 @@ def host_name(text: str) -> str:
 MOST_DAYS = 36_500  # 100 years; X.509 dates end with the year 9999
 
 
-def days(text: str) -> int:
-    """--days: 1 to MOST_DAYS."""
-    value = at_least(1)(text)
-    if value > MOST_DAYS:
-        raise argparse.ArgumentTypeError(f"must be at most {MOST_DAYS:,} (100 years), got {value:,}")
-    return value
-
-
 def parser() -> Parser:
     p = Parser(prog="spikinglab certs", description=(__doc__ or "").partition("\n")[0])
     p.add_argument("folder", type=Path, metavar="DIR", help="where to write them (made if missing)")
@@ -313,7 +305,7 @@ def parser() -> Parser:
     )
     p.add_argument(
         "--days",
-        type=days,
+        type=at_least(1, MOST_DAYS, " (100 years)"),
         default=365,
         help=f"how long the certificates are valid, 1 to {MOST_DAYS:,} (default 365)",
     )

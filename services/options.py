@@ -71,18 +71,21 @@ def whole_number(text: str, what: str = "a whole number") -> int:
 
 
 def add_netlogo_seed(p, help: str) -> None:
-    """--netlogo-seed N: a seed of NetLogo's `random-seed` (a Java int; its upper end is checked
-    where the seed is used)."""
-    p.add_argument("--netlogo-seed", type=at_least(-(2**31)), metavar="N", help=help)
+    """--netlogo-seed N: a seed of NetLogo's `random-seed`, a Java int (a brain's agent a takes
+    N + a, whose range the brain checks where it knows the agents)."""
+    p.add_argument("--netlogo-seed", type=at_least(-(2**31), 2**31 - 1, " (a Java int)"), metavar="N", help=help)
 
 
-def at_least(minimum: int):
-    """An int option of at least `minimum`."""
+def at_least(minimum: int, most: int | None = None, why: str = ""):
+    """An int option of at least `minimum` and, given `most`, at most that; `why` says what bounds
+    it from above (e.g. " (100 years)")."""
 
     def check(text: str) -> int:
         value = whole_number(text)
         if value < minimum:
             raise argparse.ArgumentTypeError(f"must be at least {minimum:,}, got {value:,}")
+        if most is not None and value > most:
+            raise argparse.ArgumentTypeError(f"must be at most {most:,}{why}, got {value:,}")
         return value
 
     return check
@@ -123,6 +126,18 @@ def positive(text: str) -> float:
     if not value > 0:
         raise argparse.ArgumentTypeError(f"must be a number above 0, got {text}")
     return value
+
+
+def number_within(lowest: float, highest: float, why: str = ""):
+    """A float option within lowest .. highest; `why` says what the range is."""
+
+    def check(text: str) -> float:
+        value = number(text)
+        if not lowest <= value <= highest:
+            raise argparse.ArgumentTypeError(f"must be {lowest:g} .. {highest:g}{why}, got {text}")
+        return value
+
+    return check
 
 
 def not_negative(text: str) -> float:

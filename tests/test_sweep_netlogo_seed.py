@@ -69,4 +69,4 @@ def test_a_netlogo_seed_outside_netlogos_range_is_refused_in_one_line(tmp_path, 
     with pytest.raises(SystemExit):
         sweep.main(["--netlogo-seed", str(2**31), "--runs", str(tmp_path)])
     (line,) = capsys.readouterr().err.strip().splitlines()
-    assert "random seed 2147483648 is outside -2147483648 .. 2147483647" in line
+    assert "argument --netlogo-seed: must be at most 2,147,483,647 (a Java int), got 2,147,483,648" in line

@@ -36,7 +36,7 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 
-from services.options import Parser, not_negative, positive
+from services.options import Parser, number_within, positive
 from services.runtime import process_main
 
 log = logging.getLogger("spikinglab.fake_brick")
@@ -326,7 +326,10 @@ def parser() -> Parser:
         help="the colour sensor's reading, an EV3 colour 0-7 (default 6: white; 1 black, 3 green, 5 red)",
     )
     p.add_argument(
-        "--distance-cm", type=not_negative, default=100.0, help="the ultrasonic sensor's reading (default 100)"
+        "--distance-cm",
+        type=number_within(0, 255, " (what the EV3 ultrasonic sensor reads; 255: nothing seen)"),
+        default=100.0,
+        help="the ultrasonic sensor's reading, 0 .. 255 (default 100)",
     )
     p.add_argument("--report-every", type=positive, default=10.0, help="seconds between status lines (default 10)")
     return p

@@ -31,7 +31,7 @@ from services.bus import keys
 from services.bus.config import BusConfig, add_bus_args
 from services.bus.schemas import BrainLayout, BrainState, WorldMap, WorldState
 from services.bus.transport import Bus
-from services.options import Parser, agent_list, at_least, ip_address, output_file, port, whole_number
+from services.options import Parser, agent_list, at_least, ip_address, output_file, port
 from services.runtime import service_main
 
 from .listener import Listener
@@ -93,7 +93,7 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--nice",
-        type=niceness,
+        type=at_least(-20, 19, " (the range of a process's niceness)"),
         default=10,
         help="scheduling priority increment, -20 .. 19 (default 10: after world and brain)",
     )
@@ -135,14 +135,6 @@ def recording_out(text: str) -> Path:
     if path.is_file() and path.stat().st_size > 0 and not is_recording(path):
         raise argparse.ArgumentTypeError(f"{text} is not a Rerun recording (.rrd): refusing to replace it")
     return path
-
-
-def niceness(text: str) -> int:
-    """--nice: within a process's range of niceness, -20 .. 19 (beyond, the kernel would clamp it)."""
-    value = whole_number(text)
-    if not -20 <= value <= 19:
-        raise argparse.ArgumentTypeError(f"a scheduling priority increment is -20 .. 19, got {value}")
-    return value
 
 
 def viewer_url(text: str) -> str:

@@ -436,8 +436,8 @@ def test_record_refuses_an_out_that_is_not_a_recording_and_leaves_it_alone(tmp_p
         (["--grpc-host", "127.0.0.1"], "argument --grpc-host: only with --serve or --web"),
         (["--grpc-port", "9000"], "argument --grpc-port: only with --serve or --web"),
         (["--serve", "--web-port", "9000"], "argument --web-port: only with --web"),
-        (["--nice", "100"], "argument --nice: a scheduling priority increment is -20 .. 19, got 100"),
-        (["--nice", "-21"], "argument --nice: a scheduling priority increment is -20 .. 19, got -21"),
+        (["--nice", "100"], "argument --nice: must be at most 19 (the range of a process's niceness), got 100"),
+        (["--nice", "-21"], "argument --nice: must be at least -20, got -21"),
     ],
 )
 def test_record_refuses_options_it_would_ignore_or_change(tmp_path, options, said):
