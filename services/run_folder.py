@@ -48,17 +48,18 @@ def take(folder: Path, args: argparse.Namespace, argv: list[str]) -> int | None:
     run (args.params then names the copy kept); returns the tick a resumed run goes on from."""
     try:
         resume_at = checkpoint_tick(folder)
+        interrupted = resume_at is not None
     except RunFolderError:
         if args.resume:
             raise
-        resume_at = -1  # damaged: an interrupted run all the same
+        resume_at, interrupted = None, True  # its checkpoint is damaged, but the run was interrupted
     if args.resume and resume_at is None:
         raise RunFolderError(
             f"nothing to resume in {folder}: no checkpoint (the run finished, or stopped before its first at "
             f"tick {args.checkpoint_every:,})"
         )
     if not args.resume and any((folder / name).exists() for name in RESULTS):
-        how = f" (interrupted; go on with it: spikinglab run --resume {folder})" if resume_at is not None else ""
+        how = f" (interrupted; go on with it: spikinglab run --resume {folder})" if interrupted else ""
         raise RunFolderError(f"{folder} holds a run already{how}: choose another --id")
     folder.mkdir(parents=True, exist_ok=True)
     if args.resume:
