@@ -30,7 +30,7 @@ from services.brain.build import check_options
 from services.brain.checkpoint import load_weights
 from services.brain.circuit import Circuit, CircuitError, load_circuit
 from services.brain.engine import PARALLEL_FROM
-from services.brain.engine_options import add_engine_args, brain_params
+from services.brain.engine_options import add_engine_args, brain_params, learning_options_fit
 from services.launch import STOP_S, Launcher, Process, local_endpoints, options_for
 from services.options import (
     Parser,
@@ -54,7 +54,7 @@ LOCAL = "127.0.0.1"  # the live view's servers listen here unless --view-host sa
 
 
 def parser() -> argparse.ArgumentParser:
-    p = Parser(prog="spikinglab run", description=(__doc__ or "").partition("\n")[0])
+    p = Parser(prog="spikinglab run", description=(__doc__ or "").partition("\n")[0], together=[learning_options_fit])
     add_world_args(p)
     p.set_defaults(ticks=100_000)
     p.add_argument(

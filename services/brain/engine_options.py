@@ -46,6 +46,12 @@ def engine_options_fit(args: argparse.Namespace) -> None:
     check_options(1, args.semantics, args.order, (), args.netlogo_seed)
 
 
+def learning_options_fit(args: argparse.Namespace) -> None:
+    """A Parser's `together` check: --a-plus would be ignored with --no-training."""
+    if args.a_plus is not None and args.no_training:
+        raise ValueError("argument --a-plus: a learning rate, but --no-training keeps the weights as they are")
+
+
 @dataclass(frozen=True)
 class EngineOptions:
     """add_engine_args' options, in the brain's config (services.options.config_from)."""

@@ -24,7 +24,7 @@ from services.runtime import service_main
 
 from .checkpoint import load_weights
 from .circuit import CircuitError, load_circuit
-from .engine_options import EngineOptions, add_engine_args, brain_params, engine_options_fit
+from .engine_options import EngineOptions, add_engine_args, brain_params, engine_options_fit, learning_options_fit
 from .free_running import FreeRunning, add_free_running_args, free_running_options
 from .lockstep import LockStep
 from .node import FREE_STATE_BATCH, BrainNode
