@@ -119,7 +119,7 @@ def read_params(path: Path) -> dict[str, np.ndarray]:
     of numbers per agent, or a single row for every agent; blank lines and lines starting with #
     are skipped. The columns, each as long as the rows; ValueError names the file, line and fault."""
     try:
-        with open(path, newline="") as f:
+        with open(path, newline="", encoding="utf-8-sig") as f:  # a spreadsheet's CSV may start with a BOM
             lines = [
                 (n, row)
                 for n, row in enumerate(csv.reader(f), 1)

@@ -11,7 +11,7 @@ import pytest
 
 from services.brain.circuit import load_circuit
 from services.loop import brain_for, closed_loop, evaluate
-from services.params import AGENT_PARAMS, PARALLEL_FROM, grid
+from services.params import AGENT_PARAMS, PARALLEL_FROM, grid, read_params
 from services.world.world import World, params_for
 
 from .processes import ROOT
@@ -152,6 +152,14 @@ def test_a_wrong_column_is_refused_naming_it(params, problem):
         ValueError, match=problem.replace("(", r"\(").replace(")", r"\)").replace("[", r"\[").replace("]", r"\]")
     ):
         brain_for(world, load_circuit("insect"), params=params)
+
+
+def test_a_params_file_a_spreadsheet_saved_with_a_byte_order_mark_is_read(tmp_path):
+    path = tmp_path / "params.csv"
+    path.write_bytes("a_plus,w_max\n0.02,15\n".encode("utf-8-sig"))
+    columns = read_params(path)
+    assert list(columns) == ["a_plus", "w_max"]  # not '\ufeffa_plus', an unknown parameter
+    np.testing.assert_array_equal(columns["a_plus"], [0.02])
 
 
 def test_every_column_is_documented():
