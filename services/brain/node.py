@@ -274,8 +274,13 @@ class BrainNode:
         tick. A sharded world's end names its lead shard's tick, and a piece of another shard,
         not in step with the lead, may be past it: there the run is checked, not the tick, but for
         the piece from agent 0, which the lead itself sends."""
+        if self.brain is None:  # e.g. brain --shard 3/3 beside a world of --shards 2, which sends it nothing
+            raise BusError(
+                f"does not fit the run: end of run {order.run!r} at tick {order.tick}, and this brain has served "
+                "no piece of a run yet (a world of --shards N sends pieces to brain shards 1/N .. N/N)"
+            )
         stale = order.tick < self.last_tick and (self.world_shards == 1 or self.first == 0)
-        if self.brain is None or order.run != self.run or stale:
+        if order.run != self.run or stale:
             raise BusError(
                 f"does not fit the run: end of run {order.run!r} at tick {order.tick}, the brain serves "
                 f"run {self.run!r} at tick {self.last_tick}"

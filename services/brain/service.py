@@ -41,7 +41,7 @@ def parser() -> argparse.ArgumentParser:
     p = Parser(
         prog="spikinglab brain",
         description="The spiking-network brain, on the bus.",
-        together=[engine_options_fit, lambda args: free_running_options(p, args)],
+        together=[engine_options_fit, learning_options_fit, lambda args: free_running_options(p, args)],
     )
     p.add_argument(
         "--circuit", default="insect", help="circuit name in services/brain/circuits/ or a .toml path (default insect)"
@@ -63,8 +63,6 @@ def parser() -> argparse.ArgumentParser:
         help="the netlogo order's seed, agent a using seed + a (default: the world's seed, which its "
         "sensor messages carry, so that a run is the same in one process or across the bus)",
     )
-    p.add_argument("--load", type=Path, help="start from the weights in this checkpoint (.npz)")
-    p.add_argument("--save", type=output_file, help="write the final weights here (.npz) when the run ends")
     p.add_argument("--once", action="store_true", help="exit after one run ends (default: serve the next run)")
     p.add_argument(
         "--shard",
@@ -75,6 +73,27 @@ def parser() -> argparse.ArgumentParser:
         "slice of the agents; default 1/1: all of them)",
     )
     p.add_argument("--world-shards", type=at_least(1), default=1, metavar="N", help=WORLD_SHARDS_HELP)
+    add_file_args(p)
+    p.add_argument(
+        "--publish-state",
+        action="store_true",
+        help="publish spikes and potentials of every tick, and the weights, in batches of 50 to 250 ticks "
+        f"(fewer for more agents; {FREE_STATE_BATCH} free-running) for the recorder; the first tick "
+        "waits until someone subscribes",
+    )
+    add_free_running_args(p)
+    add_bus_args(p)
+    return p
+
+
+def add_file_args(p: argparse.ArgumentParser) -> None:
+    """What the brain reads and writes besides the bus: weights, checkpoints, statistics."""
+    p.add_argument("--load", type=Path, help="start from the weights in this checkpoint (.npz)")
+    p.add_argument(
+        "--save",
+        type=output_file,
+        help="write the final weights here (.npz) when a run ends (serving several runs: the last one's)",
+    )
     p.add_argument(
         "--checkpoint",
         type=output_folder,
@@ -87,16 +106,6 @@ def parser() -> argparse.ArgumentParser:
         type=output_file,
         help="write the rejected messages (and, free-running, the tick rate and lateness) here (JSON) when a run ends",
     )
-    p.add_argument(
-        "--publish-state",
-        action="store_true",
-        help="publish spikes and potentials of every tick, and the weights, in batches of 50 to 250 ticks "
-        f"(fewer for more agents; {FREE_STATE_BATCH} free-running) for the recorder; the first tick "
-        "waits until someone subscribes",
-    )
-    add_free_running_args(p)
-    add_bus_args(p)
-    return p
 
 
 @dataclass(frozen=True)

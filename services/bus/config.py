@@ -198,7 +198,8 @@ def open_session(args: argparse.Namespace, mode: str | None = None) -> Session:
         try:
             os.sched_setaffinity(0, {args.cpu})
         except (OSError, AttributeError) as e:
-            log.warning("cannot pin to CPU %d: %s", args.cpu, e)
+            usable = ", ".join(map(str, sorted(os.sched_getaffinity(0)))) if hasattr(os, "sched_getaffinity") else "?"
+            log.warning("cannot pin to CPU %d (this process may use CPUs %s): %s", args.cpu, usable, e)
     session = session_for(args.connect, args.listen, args.zenoh_config, mode)
     if not (args.connect or args.listen or args.zenoh_config or mode == "router"):  # a router listens on 7447
         log.warning(

@@ -254,7 +254,7 @@ def finish(config: WorldConfig, result: dict, trajectory: Trajectory, done: int,
     if folder and done == config.world.ticks:
         checkpoint.forget(folder)
     elif folder and (folder / CHECKPOINT).exists():
-        log.info("the same command resumes this run from its last checkpoint (%s)", folder / CHECKPOINT)
+        log.info("the world command that started this run resumes it from its checkpoint (%s)", folder / CHECKPOINT)
     if out:
         out.mkdir(parents=True, exist_ok=True)
         shard = config.shard

@@ -109,6 +109,12 @@ def test_only_an_end_of_the_run_served_ends_it():
     assert node.ends(Control(tick=10, command="end", run="r1"))
 
 
+def test_an_end_before_any_piece_says_that_no_world_has_sent_this_brain_one():
+    """brain --shard 3/3 beside a world of --shards 2 hears the run's end, never a piece of it."""
+    with pytest.raises(BusError, match=r"this brain has served no piece of a run yet \(a world of --shards N"):
+        BrainNode(CIRCUIT).ends(Control(tick=10, command="end", run="r1"))
+
+
 def test_a_piece_of_a_sharded_world_takes_its_runs_end_at_the_lead_shards_tick():
     """The lead world shard's end names its own tick; the shard that sends a piece from another
     agent than 0, not in step with the lead, may be past it. Another run's end is still refused, and
