@@ -1,14 +1,18 @@
-"""Where numba keeps compiled kernels on disk: a folder of their own for each version of the sources.
+"""Where numba keeps compiled kernels on disk: a folder of their own for each version of the sources
+they are compiled from.
 
 numba checks a cached kernel against the source file of the function it compiled, not against the
 files of the functions inlined into it. services/loop.py's fused loop inlines the engine of
 services/brain/engine.py, so after a change to engine.py alone numba would load a loop compiled
 against the old engine, with the old engine's results. Kernels are therefore cached in a folder
-named after a hash of every source file of services/: `<root>/<hash>`, where the root is
-$NUMBA_CACHE_DIR/spikinglab when that is set, else $XDG_CACHE_HOME/spikinglab/numba (by default
-~/.cache/spikinglab/numba), else, where neither can be written, one in the temporary folder. Any
-change to the sources starts an empty folder. Setting numba's cache folder is process-wide: other
-numba code in the same process caches there too."""
+named after a hash of the source files they can depend on: those of services/ that import numba
+and every file of services/ these import, directly or through others (a kernel sees only what its
+module imports: the functions it calls and the constants frozen into it); a change to any other
+file (a service's options, the bus) keeps the kernels. The folder is `<root>/<hash>`, where the
+root is $NUMBA_CACHE_DIR/spikinglab when that is set, else $XDG_CACHE_HOME/spikinglab/numba (by
+default ~/.cache/spikinglab/numba), else, where neither can be written, one in the temporary
+folder. Setting numba's cache folder is process-wide: other numba code in the same process caches
+there too."""
 
 from __future__ import annotations
 
@@ -24,22 +28,78 @@ from pathlib import Path
 SOURCES = Path(__file__).parent
 KEEP_DAYS = 7  # other versions' folders unused this long are deleted when a new one is made
 DIGEST = re.compile(r"[0-9a-f]{16}")  # sources_digest()'s names
+NUMBA = re.compile(rb"^[ \t]*(?:import|from)[ \t]+numba\b", re.MULTILINE)
+# an import statement: from SOURCE import LISTED (a line, or a parenthesised list), or import PLAIN
+IMPORT = re.compile(rb"^[ \t]*(?:from[ \t]+([.\w]+)[ \t]+import[ \t]+(\([^)]*\)|[^\n]*)|import[ \t]+([^\n]*))", re.M)
 
 
 def sources_digest(root: Path = SOURCES) -> str:
-    """A hash of the names and contents of the .py files under `root` (hidden ones, such as an
-    editor's lock files, left out; an unreadable one counts by its name)."""
+    """A hash of the names and contents of the .py files under `root` that kernels can depend on
+    (kernel_sources; hidden ones, such as an editor's lock files, left out; an unreadable one
+    counts by its name)."""
     digest = blake2b(digest_size=8)
-    for path in sorted(root.rglob("*.py")):
+    for relative, content in sorted(kernel_sources(root).items()):
+        digest.update(relative.as_posix().encode() + b"\0" + (b"unreadable" if content is None else content))
+    return digest.hexdigest()
+
+
+def kernel_sources(root: Path) -> dict[Path, bytes | None]:
+    """The files under `root` (a package) that import numba, and those of `root` they import,
+    directly or through others, with the packages above each: {path under root: content, or None
+    where unreadable (kept, as it may be either)}."""
+    files: dict[Path, bytes | None] = {}
+    for path in root.rglob("*.py"):
         relative = path.relative_to(root)
         if any(part.startswith(".") for part in relative.parts):
             continue
         try:
-            content = path.read_bytes()
+            files[relative] = path.read_bytes()
         except OSError:
-            content = b"unreadable"
-        digest.update(relative.as_posix().encode() + b"\0" + content)
-    return digest.hexdigest()
+            files[relative] = None
+    modules = {module_name(root.name, relative): relative for relative in files}
+    wanted = [
+        relative
+        for relative, content in files.items()
+        if content is None or (b"numba" in content and NUMBA.search(content))
+    ]
+    kept: dict[Path, bytes | None] = {}
+    while wanted:
+        relative = wanted.pop()
+        if relative not in kept:
+            kept[relative] = files[relative]
+            module = module_name(root.name, relative)
+            wanted += [modules[name] for name in imported(files[relative], module, relative) if name in modules]
+    return kept
+
+
+def module_name(package: str, relative: Path) -> str:
+    parts = [package, *relative.with_suffix("").parts]
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imported(content: bytes | None, module: str, relative: Path) -> set[str]:
+    """The modules a source imports, anywhere in it, with the packages above each (their
+    __init__ runs first). Read from its import statements by pattern, not parsed: every process
+    that imports services computes this, and parsing would take it 80 ms longer; a statement's
+    like in a string adds a file at most."""
+    package = module if relative.name == "__init__.py" else module.rpartition(".")[0]
+    names: set[str] = {package}
+    for source, listed, plain in IMPORT.findall(content or b""):
+        if plain:
+            names.update(_words(plain))
+            continue
+        dots = len(source) - len(source.lstrip(b"."))
+        base = package.split(".")[: len(package.split(".")) - dots + 1] if dots else []
+        source = ".".join([*base, *filter(None, [source.lstrip(b".").decode()])])
+        names.add(source)
+        names.update(f"{source}.{name}" for name in _words(listed))  # a module, or a name in one
+    return {".".join(name.split(".")[:i]) for name in names for i in range(1, name.count(".") + 2)}
+
+
+def _words(listed: bytes) -> list[str]:
+    """The names of an import statement's list: "a.b as c, d" and "(a,\n b)" alike."""
+    text = re.sub(rb"#[^\n]*", b"", listed).strip(b"()").decode(errors="replace")
+    return [item.split()[0] for item in text.split(",") if item.split()]
 
 
 def cache_roots(numba_cache_dir: str | None) -> list[Path]:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from numba.core import config
 
-from services.kernel_cache import cache_roots, prune, sources_digest, use_cache_folder
+from services.kernel_cache import cache_roots, kernel_sources, prune, sources_digest, use_cache_folder
 
 REPO = Path(__file__).parents[1]
 INLINED = "from numba import njit\n\n@njit(inline='always')\ndef value():\n    return {}\n"
@@ -72,14 +72,25 @@ def test_a_folder_per_version_compiles_again_when_only_an_inlined_function_chang
     assert len(folders) == 2  # one per version of pkg (services, imported by pkg, has its own)
 
 
-def test_the_digest_follows_names_and_contents(tmp_path):
-    (tmp_path / "a.py").write_text("x = 1\n")
+def test_the_digest_follows_names_and_contents_of_what_kernels_can_depend_on(tmp_path):
+    (tmp_path / "a.py").write_text("import numba\nfrom .b import x\n")
+    (tmp_path / "b.py").write_text("x = 1\n")  # a constant a kernel would freeze
+    (tmp_path / "c.py").write_text("y = 1\n")  # as a service's options: no kernel's module imports it
     first = sources_digest(tmp_path)
     assert sources_digest(tmp_path) == first
-    (tmp_path / "a.py").write_text("x = 2\n")
+    (tmp_path / "c.py").write_text("y = 2\n")
+    assert sources_digest(tmp_path) == first
+    (tmp_path / "b.py").write_text("x = 2\n")
     changed = sources_digest(tmp_path)
-    (tmp_path / "a.py").rename(tmp_path / "b.py")
+    (tmp_path / "a.py").rename(tmp_path / "d.py")
     assert len({first, changed, sources_digest(tmp_path)}) == 3
+
+
+def test_the_kernels_depend_on_the_engine_and_the_world_not_on_the_services_around_them():
+    sources = set(kernel_sources(REPO / "services"))
+    assert {Path("brain/engine.py"), Path("brain/stdp.py"), Path("loop.py"), Path("world/world.py")} <= sources
+    assert {Path("params.py"), Path("vocabulary.py"), Path("brain/__init__.py")} <= sources  # imported by them
+    assert not {Path("options.py"), Path("run.py"), Path("bus/transport.py"), Path("brain/service.py")} & sources
 
 
 def test_the_roots_in_order(tmp_path, monkeypatch):
