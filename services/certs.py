@@ -29,7 +29,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from services.bus import keys
-from services.options import Parser, at_least
+from services.options import Parser, whole_within
 
 log = logging.getLogger("spikinglab.certs")
 
@@ -305,7 +305,7 @@ def parser() -> Parser:
     )
     p.add_argument(
         "--days",
-        type=at_least(1, MOST_DAYS, " (100 years)"),
+        type=whole_within(1, MOST_DAYS, " (100 years)"),
         default=365,
         help=f"how long the certificates are valid, 1 to {MOST_DAYS:,} (default 365)",
     )

@@ -73,19 +73,24 @@ def whole_number(text: str, what: str = "a whole number") -> int:
 def add_netlogo_seed(p, help: str) -> None:
     """--netlogo-seed N: a seed of NetLogo's `random-seed`, a Java int (a brain's agent a takes
     N + a, whose range the brain checks where it knows the agents)."""
-    p.add_argument("--netlogo-seed", type=at_least(-(2**31), 2**31 - 1, " (a Java int)"), metavar="N", help=help)
+    p.add_argument("--netlogo-seed", type=whole_within(-(2**31), 2**31 - 1, " (a Java int)"), metavar="N", help=help)
 
 
-def at_least(minimum: int, most: int | None = None, why: str = ""):
-    """An int option of at least `minimum` and, given `most`, at most that; `why` says what bounds
-    it from above (e.g. " (100 years)")."""
+def at_least(minimum: int):
+    """An int option of at least `minimum`."""
+    return whole_within(minimum, None)
+
+
+def whole_within(lowest: int, highest: int | None, why: str = ""):
+    """An int option of at least `lowest` and at most `highest` (None: no upper bound); `why` says
+    what bounds it from above (e.g. " (100 years)")."""
 
     def check(text: str) -> int:
         value = whole_number(text)
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be at least {minimum:,}, got {value:,}")
-        if most is not None and value > most:
-            raise argparse.ArgumentTypeError(f"must be at most {most:,}{why}, got {value:,}")
+        if value < lowest:
+            raise argparse.ArgumentTypeError(f"must be at least {lowest:,}, got {value:,}")
+        if highest is not None and value > highest:
+            raise argparse.ArgumentTypeError(f"must be at most {highest:,}{why}, got {value:,}")
         return value
 
     return check

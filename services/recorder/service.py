@@ -31,7 +31,7 @@ from services.bus import keys
 from services.bus.config import BusConfig, add_bus_args
 from services.bus.schemas import BrainLayout, BrainState, WorldMap, WorldState
 from services.bus.transport import Bus
-from services.options import Parser, agent_list, at_least, ip_address, output_file, port
+from services.options import Parser, agent_list, at_least, ip_address, output_file, port, whole_within
 from services.runtime import service_main
 
 from .listener import Listener
@@ -93,7 +93,7 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--nice",
-        type=at_least(-20, 19, " (the range of a process's niceness)"),
+        type=whole_within(-20, 19, " (the range of a process's niceness)"),
         default=10,
         help="scheduling priority increment, -20 .. 19 (default 10: after world and brain)",
     )
