@@ -11,6 +11,7 @@ import os
 import signal
 import sys
 import threading
+import tracemalloc
 
 from services.bus.config import BusConfigError, open_session
 from services.bus.transport import close_session
@@ -89,7 +90,24 @@ def process_main(name: str, parser: argparse.ArgumentParser, run, argv=None, int
         code = run(args)
     except KeyboardInterrupt:
         code = interrupted
+    finally:
+        if tracemalloc.is_tracing():  # PYTHONTRACEMALLOC=1: what of its memory Python objects hold
+            log_python_heap()
     return 1 if thread_died() else code
+
+
+def log_python_heap(sites: int = 5) -> None:
+    """The Python heap at the process's end: the total traced, its peak and the files that
+    allocated most of what is held (a growth of RSS that these do not show is native: Rerun's
+    writer, Zenoh, the allocator)."""
+    held, peak = tracemalloc.get_traced_memory()
+    largest = tracemalloc.take_snapshot().statistics("filename")[:sites]
+    log.info(
+        "Python heap at the end: %.1f MB held (peak %.1f MB); most of it allocated in %s",
+        held / 1e6,
+        peak / 1e6,
+        "; ".join(f"{stat.traceback[0].filename} {stat.size / 1e6:.1f} MB" for stat in largest),
+    )
 
 
 def service_main(
