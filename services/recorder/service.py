@@ -221,6 +221,11 @@ def run(config: RecorderConfig, session) -> int:
             listener.recorder.missing or "none",
             bus.rejections() or "none",
         )
+        if listener.received == 0:
+            log.warning(
+                "no state came: a recording holds what the world and the brain publish with --publish-state "
+                "(a gateway publishes none)"
+            )
     return 0
 
 
