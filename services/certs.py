@@ -317,6 +317,17 @@ def parser() -> Parser:
     return p
 
 
+def hosts_named(certificate: Path) -> list[str]:
+    """The names and addresses a certificate was made for ([] where there is none to read)."""
+    try:
+        names = x509.load_pem_x509_certificate(certificate.read_bytes()).extensions.get_extension_for_class(
+            x509.SubjectAlternativeName
+        )
+    except (OSError, ValueError, x509.ExtensionNotFound):
+        return []
+    return [str(name.value) for name in names.value]
+
+
 def existing_ca(folder: Path):
     """The CA in `folder` to sign with, (key, certificate), or None where it has neither ca.pem nor
     ca.key; UnreadableCA where it has one without the other (a new CA there would cut off every
@@ -355,6 +366,11 @@ def main(argv=None) -> int:
             ca_key, ca_cert = ca
             log.info("using the CA in %s (--new-ca makes a new one)", folder)
         hosts = ["localhost", "127.0.0.1", *args.host]
+        if dropped := [host for host in hosts_named(folder / "router.pem") if host not in hosts]:
+            log.warning(
+                "the router's certificate here named %s too, which the new ones do not (give --host again to keep it)",
+                ", ".join(dropped),
+            )
         for role in PUTS:
             make_certificate(folder, role, hosts, ca_key, ca_cert, args.days)
         write_configs(folder)

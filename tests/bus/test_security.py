@@ -59,7 +59,7 @@ def secured(role: str, folder, endpoint: str) -> tuple:
     return ("--connect", endpoint, "--zenoh-config", folder / f"{role}.json5")
 
 
-def test_certs_makes_a_ca_and_a_certificate_and_config_per_role(tmp_path):
+def test_certs_makes_a_ca_and_a_certificate_and_config_per_role(tmp_path, caplog):
     folder = tmp_path / "certs"
     assert certs.main([str(folder), "--host", "192.168.1.10", "--host", "lab-pc.local"]) == 0
     ca = x509.load_pem_x509_certificate((folder / "ca.pem").read_bytes())
@@ -77,6 +77,7 @@ def test_certs_makes_a_ca_and_a_certificate_and_config_per_role(tmp_path):
     # made again: the same CA (certificates already handed out stay valid), new certificates
     assert certs.main([str(folder)]) == 0
     assert x509.load_pem_x509_certificate((folder / "ca.pem").read_bytes()) == ca
+    assert "named 192.168.1.10, lab-pc.local too, which the new ones do not (give --host again" in caplog.text
 
 
 def files_in(folder) -> dict[str, bytes]:
