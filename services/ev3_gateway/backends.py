@@ -1,6 +1,7 @@
 """Robot backends: one small interface, a real EV3 (ev3-dc) and a simulated one (pymunk world).
 
     connect()            open the link (RobotLinkError if it cannot)
+    searching() -> str   what a connect() does while the robot is not there, where it takes a while
     read() -> Reading    colour code, ultrasonic distance in cm, touch; one round trip
     forward(ms)          both motors forward for ms milliseconds
     spin(ms, direction)  motors in opposite directions (+1 right, -1 left) for ms milliseconds
@@ -101,6 +102,10 @@ class Wiring:
 
 
 class Backend:
+    def searching(self) -> str:
+        """What connect() does while the robot is not there, in words, where it takes a while ("" if not)."""
+        return ""
+
     def connect(self) -> None: ...
     def read(self) -> Reading: ...
     def forward(self, ms: int) -> None: ...
@@ -141,6 +146,14 @@ class EV3Backend(Backend):
             for k, (port, kind, mode) in enumerate(
                 ((w.colour, EV3_COLOR, 2), (w.ultrasonic, EV3_ULTRASONIC, 0), (w.touch, EV3_TOUCH, 0))
             )
+        )
+
+    def searching(self) -> str:
+        if self.protocol != "WiFi":
+            return ""
+        return (
+            f"listening for the beacon {'of brick ' + self.host if self.host else 'of an EV3'} on UDP port 3015 "
+            "(a brick sends one about every 10 s; ev3-dc gives up a try after 10 s without one)"
         )
 
     def connect(self) -> None:

@@ -380,11 +380,12 @@ class Gateway:
     def connect(self) -> None:
         """(Re)connect, trying every second, until linked or done."""
         waited = 0
+        if not self.stats["link_losses"] and self.backend.searching():
+            log.info("looking for the robot: %s", self.backend.searching())
         while not self.done.is_set():
             try:
-                with self.lock:
-                    self.backend.close()
-                    self.backend.connect()
+                if not self.try_link():
+                    return
                 self.linked.set()
                 log.info("robot linked%s", f" again after {waited} s" if self.stats["link_losses"] else "")
                 return
@@ -393,6 +394,31 @@ class Gateway:
                     log.warning("%s (retrying every second)", e)
                 waited += 1
                 self.done.wait(1.0)
+
+    def try_link(self) -> bool:
+        """One try at the link; False when the gateway was told to end before it was over.
+
+        The try runs in a thread of its own, as it can wait seconds deaf to signals (ev3-dc's WiFi
+        listens 10 s for the brick's beacon): Ctrl-C and SIGTERM end the gateway meanwhile, and the
+        try, a daemon thread left holding the lock, goes with the process."""
+        outcome: list[BaseException | None] = []
+
+        def attempt() -> None:
+            try:
+                with self.lock:
+                    self.backend.close()
+                    self.backend.connect()
+                outcome.append(None)
+            except BaseException as e:  # raised in the gateway's thread, as if it had tried itself
+                outcome.append(e)
+
+        threading.Thread(target=attempt, name="robot link", daemon=True).start()
+        while not outcome:
+            if self.done.wait(0.05):
+                return False
+        if outcome[0] is not None:
+            raise outcome[0]
+        return True
 
     def count_collision(self, reading: Reading, touching: bool) -> bool:
         """The paper's collision on the robot: the ultrasonic distance below --pain-below-cm. Each

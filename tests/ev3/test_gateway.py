@@ -267,6 +267,25 @@ def test_duration_counts_from_the_first_reading_not_from_the_start(tmp_path):
     assert ran_s > 0.8, ran_s
 
 
+def test_sigterm_ends_a_gateway_that_listens_for_its_brick(tmp_path):
+    """No brick: each try listens for its WiFi beacon, 10 s in ev3-dc, deaf to signals meanwhile.
+    SIGTERM (Ctrl-C alike) ends the gateway within that try, and the gateway said what it waits for."""
+    log = tmp_path / "gateway.log"
+    serial = f"{random.getrandbits(48):012X}"  # no brick of another test on this machine is this one
+    host = ":".join(serial[i : i + 2] for i in range(0, 12, 2))
+    gateway = start("gateway", "--host", host, "--listen", endpoint(tmp_path, "gateway"), log=log)
+    try:
+        beacon = f":{BEACON_PORT}"
+        wait_for(lambda: any(s.address.endswith(beacon) for s in listeners(gateway.pid)), 60, "the gateway to listen")
+        gateway.send_signal(signal.SIGTERM)
+        assert finish(gateway, 8, log) == 0  # before the 10 s try would have ended
+    finally:
+        gateway.kill()
+    said = log.read_text()
+    assert f"looking for the robot: listening for the beacon of brick {host} on UDP port 3015" in said
+    assert "gateway done" in said
+
+
 def test_wrong_wiring_is_refused_before_anything_starts(tmp_path):
     bad = start("gateway", "--motors", "BX", log=tmp_path / "bad.log")
     assert finish(bad, 30, tmp_path / "bad.log") == 2
