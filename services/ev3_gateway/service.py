@@ -279,9 +279,8 @@ class MotorRules:
         self.stopped = True  # no motor command is running (or it was stopped)
 
     def decide(self, now: float, brain_alive: bool, actions: dict | None) -> MotorCall | None:
-        if brain_alive != self.brain_alive:
+        if brain_alive != self.brain_alive:  # the log has it from the bus (watch_others), with the polls so far
             self.brain_alive = brain_alive
-            log.info("brain %s", "is on the bus" if brain_alive else "lost")
             if not brain_alive:
                 return MotorCall("stop", why="the brain's liveliness token is gone")
         if actions is not None:

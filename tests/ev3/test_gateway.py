@@ -229,6 +229,8 @@ def test_the_brain_drives_a_simulated_ev3(tmp_path):
         gateway.kill()
     stats = json.loads((tmp_path / "gateway.json").read_text())
     assert stats["polls"] > 100 and stats["commands"] > 3 and stats["link_losses"] == 0
+    said = log.read_text()
+    assert said.count("brain is on the bus") == 1 and "the brain is on the bus (" in said  # one line, with the polls
 
 
 def test_duration_counts_from_the_first_reading_not_from_the_start(tmp_path):
