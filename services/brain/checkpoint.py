@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import zipfile
 from pathlib import Path
 
@@ -12,16 +13,22 @@ from services.snapshots import write_npz
 from .circuit import Circuit
 from .engine import Engine
 
+log = logging.getLogger("spikinglab.brain")
 
-def save_weights(path: Path, engine: Engine | np.ndarray, circuit: Circuit, tick: int = 0) -> None:
-    """An engine's weights, or weights [A, synapses] gathered from several (a brain serving a sharded world)."""
+
+def save_weights(path: Path, engine: Engine | np.ndarray, circuit: Circuit, tick: int = 0, say: bool = False) -> None:
+    """An engine's weights, or weights [A, synapses] gathered from several (a brain serving a sharded world).
+    `say`: log it (--save, in the lock-step and the free-running brain alike)."""
     labels = [circuit.synapse_label(k) for k in range(len(circuit.synapses))]
     weights = engine if isinstance(engine, np.ndarray) else engine.get_weights()
     write_npz(path, weights=weights, synapses=np.array(labels), circuit=circuit.name, tick=tick)
+    if say:
+        log.info("weights saved to %s", path)
 
 
-def load_weights(path: Path, circuit: Circuit) -> np.ndarray:
-    """Weights [A, synapses] from a checkpoint; its synapses must be the circuit's, in order."""
+def load_weights(path: Path, circuit: Circuit, say: bool = False) -> np.ndarray:
+    """Weights [A, synapses] from a checkpoint; its synapses must be the circuit's, in order.
+    `say`: log it (--load, in either brain)."""
     try:
         with np.load(path) as data:
             weights, labels = data["weights"], [str(x) for x in data["synapses"]]
@@ -42,4 +49,6 @@ def load_weights(path: Path, circuit: Circuit) -> np.ndarray:
         raise ValueError(f"{path}: its synapses do not match circuit {circuit.name!r} (differ in: {missing[:5]})")
     if weights.ndim != 2 or weights.shape[1] != len(expected):
         raise ValueError(f"{path}: weights have shape {weights.shape}, expected (agents, {len(expected)})")
+    if say:
+        log.info("weights loaded from %s (%d agent%s)", path, len(weights), "" if len(weights) == 1 else "s")
     return weights

@@ -276,4 +276,4 @@ class FreeRunning:
             config.stats.parent.mkdir(parents=True, exist_ok=True)
             config.stats.write_text(json.dumps(stats))
         if config.save and node.brain is not None:
-            save_weights(config.save, node.brain.engine, node.circuit, tick=self.tick)
+            save_weights(config.save, node.brain.engine, node.circuit, tick=self.tick, say=True)

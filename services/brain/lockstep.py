@@ -261,8 +261,7 @@ class LockStep:
         if lost:
             self.keep_learning("; ".join(lost), order.tick)
         elif config.save and node.brain is not None:
-            save_weights(config.save, self.weights(), node.circuit, tick=order.tick)
-            log.info("weights saved to %s", config.save)
+            save_weights(config.save, self.weights(), node.circuit, tick=order.tick, say=True)
         return lost
 
     def weights(self) -> np.ndarray:

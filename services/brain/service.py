@@ -137,7 +137,7 @@ def run(config: BrainConfig, session) -> int:
         circuit = load_circuit(config.circuit)
         if config.a_plus is not None:
             circuit = circuit.with_learning_rate(config.a_plus)
-        weights = load_weights(config.load, circuit) if config.load else None
+        weights = load_weights(config.load, circuit, say=True) if config.load else None
         params = brain_params(config.params, circuit) if config.params else None
     except (CircuitError, ValueError, OSError) as e:
         log.error("%s", e)

@@ -7,6 +7,9 @@ import time
 
 import numpy as np
 
+from services.brain.checkpoint import save_weights
+from services.brain.circuit import load_circuit
+from services.brain.engine import Engine
 from services.bus import keys
 from services.bus.schemas import Array, Motor, encode
 from services.ev3_gateway.fake_brick import BEACON_PORT, FakeBrick
@@ -217,13 +220,19 @@ def test_a_reading_is_stale_by_its_publication_time_or_by_count_once_its_time_is
 
 
 def test_the_brain_drives_a_simulated_ev3(tmp_path):
-    log = tmp_path / "gateway.log"
-    gateway, brain = gateway_and_brain(tmp_path, ["--backend", "sim", "--stats", tmp_path / "gateway.json"])
+    """The free-running brain says its --load and --save as the lock-step one does."""
+    log, loaded, saved = tmp_path / "gateway.log", tmp_path / "start.npz", tmp_path / "end.npz"
+    circuit = load_circuit("insect")
+    save_weights(loaded, Engine(circuit), circuit)
+    gateway, brain = gateway_and_brain(
+        tmp_path, ["--backend", "sim", "--stats", tmp_path / "gateway.json"], ["--load", loaded, "--save", saved]
+    )
     try:
         wait_for_driving(tmp_path)
         time.sleep(2.0)
         gateway.send_signal(signal.SIGTERM)
         assert finish(gateway, 30, log) == 0
+        assert finish(brain, 30, tmp_path / "brain.log") == 0  # the gateway's end ends the brain's run
     finally:
         brain.kill()
         gateway.kill()
@@ -231,6 +240,8 @@ def test_the_brain_drives_a_simulated_ev3(tmp_path):
     assert stats["polls"] > 100 and stats["commands"] > 3 and stats["link_losses"] == 0
     said = log.read_text()
     assert said.count("brain is on the bus") == 1 and "the brain is on the bus (" in said  # one line, with the polls
+    said = (tmp_path / "brain.log").read_text()
+    assert f"weights loaded from {loaded} (1 agent)" in said and f"weights saved to {saved}" in said
 
 
 def test_duration_counts_from_the_first_reading_not_from_the_start(tmp_path):
