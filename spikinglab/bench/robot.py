@@ -116,14 +116,19 @@ def parser() -> Parser:
     return p
 
 
+def in_words(seconds: float) -> str:
+    """A wait in seconds under a minute, in minutes beyond (10 s as minutes read "0 minutes")."""
+    if round(seconds) < 60:
+        return f"{seconds:.0f} second{'' if round(seconds) == 1 else 's'}"
+    minutes = round(seconds / 60)
+    return f"{minutes} minute{'' if minutes == 1 else 's'}"
+
+
 def run_all(args) -> dict[str, list]:
     """Every condition's runs, two at a time, each said as it ends."""
     jobs = [(name, seed) for seed in range(args.seeds) for name in CONDITIONS]
-    print(
-        f"{len(jobs)} runs of {args.seconds:.0f} s, two at a time: about "
-        f"{(len(jobs) + 1) // 2 * args.seconds / 60:.0f} minutes",
-        flush=True,
-    )
+    took = in_words((len(jobs) + 1) // 2 * args.seconds)
+    print(f"{len(jobs)} runs of {args.seconds:.0f} s, two at a time: about {took}", flush=True)
     results: dict[str, list] = {name: [] for name in CONDITIONS}
     started = time.monotonic()
     with ThreadPoolExecutor(2) as pool:
