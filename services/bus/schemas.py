@@ -334,6 +334,15 @@ class RunTerms(Message, tag="run_terms", frozen=True, kw_only=True):
     params: Digest = ""  # the --params file's
 
 
+def _undecoded(e: Exception) -> BusError:
+    """The reason a payload did not decode as any message."""
+    if isinstance(e, msgspec.ValidationError):
+        return BusError(f"invalid message: {e}")
+    if isinstance(e, msgspec.DecodeError):
+        return BusError(f"not a message: {e}")
+    return BusError(f"not a message: {type(e).__name__}: {e}")  # msgspec lets others through, e.g. UnicodeDecodeError
+
+
 KINDS = (Sensors, Motor, Control, BrainState, BrainLayout, WorldState, WorldMap, RunTerms)
 _encoder = msgspec.msgpack.Encoder()
 _decoder = msgspec.msgpack.Decoder(
@@ -345,16 +354,31 @@ def encode(message: Message) -> bytes:
     return _encoder.encode(message)
 
 
+class _Versioned(msgspec.Struct):
+    """A message's version field alone (every other field ignored)."""
+
+    version: int = VERSION
+
+
+_version_decoder = msgspec.msgpack.Decoder(_Versioned)
+
+
+def _other_version(payload: bytes) -> BusError | None:
+    """The version mismatch of a payload that did not decode, if it names another version: a
+    message of another version rarely has this one's fields, and its version is the news."""
+    try:
+        version = _version_decoder.decode(payload).version
+    except Exception:  # no map with an int version: the decoder's own reason stands
+        return None
+    return BusError(f"schema version {version}, this program speaks {VERSION}") if version != VERSION else None
+
+
 def decode(payload: bytes, expected: type[Message] | tuple[type[Message], ...] = KINDS) -> Message:
     """The message in `payload`, or BusError naming what is wrong."""
     try:
         message = _decoder.decode(payload)
-    except msgspec.ValidationError as e:
-        raise BusError(f"invalid message: {e}") from None
-    except msgspec.DecodeError as e:
-        raise BusError(f"not a message: {e}") from None
-    except Exception as e:  # msgspec lets others through, e.g. UnicodeDecodeError for a bad string
-        raise BusError(f"not a message: {type(e).__name__}: {e}") from None
+    except Exception as e:
+        raise _other_version(payload) or _undecoded(e) from None
     if message.version != VERSION:
         raise BusError(f"schema version {message.version}, this program speaks {VERSION}")
     if not isinstance(message, expected):

@@ -73,6 +73,16 @@ def test_malformed_messages_are_rejected_with_the_reason(payload, reason):
     assert reason in str(err.value)
 
 
+def test_a_message_of_another_version_is_named_so_even_when_its_fields_do_not_decode():
+    """A version-7 sensors message lacks fields this version requires: the version is the reason,
+    not the first missing field; a message of this version missing the same field keeps that reason."""
+    old = {k: v for k, v in sensors_dict.items() if k != "names"}
+    with pytest.raises(BusError, match=f"^schema version 7, this program speaks {VERSION}$"):
+        decode(raw({**old, "version": 7}), (Sensors, Control))
+    with pytest.raises(BusError, match="^invalid message: Object missing required field `names`$"):
+        decode(raw(old), (Sensors, Control))
+
+
 def test_keys():
     assert keys.sensors("insect") == "spikinglab/insect/sensors"
     assert keys.alive("pop7", "brain") == "spikinglab/pop7/alive/brain"
