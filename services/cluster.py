@@ -73,9 +73,7 @@ def connected(address: str):
     try:
         client = Client(address, timeout=CONNECT_S, set_as_default=False)
     except (OSError, TimeoutError) as e:
-        raise ClusterError(
-            f"no Dask scheduler answers at {address} within {CONNECT_S} s ({type(e).__name__})"
-        ) from None
+        raise unanswered(address, e) from None
     except Exception as e:  # it speaks Dask's protocol, or seemed to, but is no scheduler
         raise ClusterError(f"{address} answered, but not as a Dask scheduler ({type(e).__name__})") from None
     client_log, quiet = logging.getLogger("distributed.client"), Quiet()  # a filter each: studies may overlap
@@ -94,6 +92,15 @@ class Quiet(logging.Filter):
         return record.levelno >= logging.CRITICAL
 
 
+def unanswered(address: str, e: OSError | TimeoutError) -> ClusterError:
+    """Why nothing answered at `address`: a refusal comes at once, so it claims no wait."""
+    if isinstance(e, ConnectionRefusedError):
+        return ClusterError(f"no Dask scheduler at {address}: the connection was refused ({type(e).__name__})")
+    if isinstance(e, TimeoutError):
+        return ClusterError(f"no Dask scheduler answers at {address} within {CONNECT_S} s ({type(e).__name__})")
+    return ClusterError(f"no Dask scheduler answers at {address}: {e.strerror or e} ({type(e).__name__})")
+
+
 def require_scheduler(address: str, host: str, port: int) -> None:
     """ClusterError unless a Dask scheduler at host:port says who it is within CONNECT_S: the
     client's connect waits for Dask's greeting without end (a silent port, such as the scheduler's
@@ -104,9 +111,7 @@ def require_scheduler(address: str, host: str, port: int) -> None:
     except socket.gaierror:
         raise ClusterError(f"no host {host!r} (in {address}): the name does not resolve") from None
     except OSError as e:  # refused, unreachable, or no connection within CONNECT_S
-        raise ClusterError(
-            f"no Dask scheduler answers at {address} within {CONNECT_S} s ({type(e).__name__})"
-        ) from None
+        raise unanswered(address, e) from None
     answer: Future = Future()
 
     def ask() -> None:  # in a loop of its own: the caller may be in one (Jupyter)
