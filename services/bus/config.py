@@ -188,9 +188,22 @@ def session_for(connect=(), listen=(), config_file: dict | None = None, mode: st
         return zenoh.open(make_config(connect, listen, config_file, mode))
     except zenoh.ZError as e:
         reason = str(e).split(" at /")[0]  # without the Rust source location
+        endpoints = connect_endpoints(connect, config_file)
+        if "Unable to connect" in reason and not all(point.startswith("tls/") for point in endpoints):
+            # Zenoh says only "Timeout!" when a TLS router is given a tcp/ endpoint
+            reason += "; a router secured with TLS is reached at its tls/ endpoint (docs/security.md)"
         raise BusConfigError(
             f"cannot open the bus session (connect {list(connect)}, listen {list(listen)}): {reason}"
         ) from None
+
+
+def connect_endpoints(connect, config_file: dict | None) -> list[str]:
+    """The endpoints a session connects to: --connect's, else its config file's."""
+    if connect:
+        return list(connect)
+    endpoints = (config_file or {}).get("settings", {}).get("connect", {})
+    endpoints = endpoints.get("endpoints", []) if isinstance(endpoints, dict) else []
+    return [e for e in endpoints if isinstance(e, str)] if isinstance(endpoints, list) else []
 
 
 def open_session(args: argparse.Namespace, mode: str | None = None) -> Session:
@@ -208,14 +221,18 @@ def open_session(args: argparse.Namespace, mode: str | None = None) -> Session:
         )
     if args.connect:
         threading.Thread(
-            target=report_if_alone, args=(session, args.connect), daemon=True, name="connection check"
+            target=report_if_alone,
+            args=(session, args.connect, args.zenoh_config is None),
+            daemon=True,
+            name="connection check",
         ).start()
     return session
 
 
-def report_if_alone(session: Session, connect: list[str]) -> None:
+def report_if_alone(session: Session, connect: list[str], no_config: bool = False) -> None:
     """Say so when none of the --connect endpoints answered within NOTHING_ANSWERS_AFTER seconds;
-    Zenoh keeps trying meanwhile (the other side may start later)."""
+    Zenoh keeps trying meanwhile (the other side may start later). `no_config`: no --zenoh-config
+    was given, so a tls/ endpoint has no certificates to connect with."""
     deadline = time.monotonic() + NOTHING_ANSWERS_AFTER
     while time.monotonic() < deadline:
         try:
@@ -224,8 +241,13 @@ def report_if_alone(session: Session, connect: list[str]) -> None:
         except Exception:  # the session closed meanwhile
             return
         time.sleep(0.25)
+    # a TLS router answers a session without certificates as nothing does: say what is missing
+    certificates = any(e.startswith("tls/") for e in connect) and no_config
     log.warning(
-        "nothing answers at %s after %.0f s (is the other side running, and is the endpoint right?); still trying",
+        "nothing answers at %s after %.0f s (is the other side running, and is the endpoint right?); still trying%s",
         ", ".join(connect),
         NOTHING_ANSWERS_AFTER,
+        "; a tls/ endpoint needs --zenoh-config with this machine's certificates (docs/security.md)"
+        if certificates
+        else "",
     )

@@ -157,6 +157,41 @@ def test_a_peer_without_a_valid_certificate_cannot_connect(secure_bus, tmp_path)
         zenoh.open(make_config(connect=[endpoint.replace("tls/", "tcp/")], mode="client"))
 
 
+def test_a_service_at_a_tls_endpoint_without_certificates_is_told_it_needs_them(secure_bus, tmp_path):
+    """The TLS router is there, but a service given its tls/ endpoint and no --zenoh-config cannot
+    reach it: its "nothing answers" names the certificates missing, not only the other side."""
+    endpoint, _ = secure_bus
+    log = tmp_path / "brain.log"
+    brain = start("brain", "--connect", endpoint, "--group", tmp_path.name, log=log)
+    try:
+        wait_for(lambda: "nothing answers" in log.read_text(), 60, "the brain to say that nothing answers")
+        logged(
+            log.read_text(),
+            re.escape(
+                f"nothing answers at {endpoint} after 10 s (is the other side running, and is the endpoint right?)"
+            )
+            + re.escape("; still trying; a tls/ endpoint needs --zenoh-config with this machine's certificates"),
+        )
+    finally:
+        brain.terminate()
+        brain.wait(10)
+
+
+def test_a_client_given_the_tls_routers_port_as_tcp_is_told_to_use_tls(secure_bus, tmp_path):
+    """A client with its certificates but a tcp/ endpoint at the TLS router: Zenoh says only
+    "Timeout!"; the service adds where a secured router is reached."""
+    endpoint, folder = secure_bus
+    log = tmp_path / "brain.log"
+    brain = start("brain", *secured("brain", folder, endpoint.replace("tls/", "tcp/")), log=log)
+    assert finish(brain, 120, log) == 1
+    logged(
+        log.read_text(),
+        re.escape(f"cannot open the bus session (connect ['{endpoint.replace('tls/', 'tcp/')}']")
+        + r".*Unable to connect.*"
+        + re.escape("; a router secured with TLS is reached at its tls/ endpoint (docs/security.md)"),
+    )
+
+
 def key_or_error(reply: zenoh.Reply) -> str:
     """A reply's key, or the text of an error reply."""
     if reply.ok is not None:
