@@ -30,6 +30,7 @@ from .processes import (
     finish,
     kill_mid_run,
     start,
+    wait_for,
     watched_world,
     world_and_brain,
 )
@@ -237,3 +238,34 @@ def test_a_world_whose_terminal_is_gone_still_writes_its_result(tmp_path):
         brain.kill()
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["partial"] and 1000 < metrics["ticks"] < 1_000_000
+
+
+def test_a_brain_stopped_mid_run_writes_its_stats(tmp_path):
+    """SIGTERM before any run's end: the brain's --stats file still lists what it rejected (a forged
+    message of an older schema version on its sensors key), not the log alone."""
+    brain_ep, stats, log = endpoint(tmp_path, "brain"), tmp_path / "brain.json", tmp_path / "brain.log"
+    brain = start("brain", "--listen", brain_ep, "--group", tmp_path.name, "--stats", stats, log=log)
+    forger = Watcher([brain_ep], [])
+    try:
+        wait_for(lambda: "brain ready" in log.read_text(), 180, "the brain to be ready")
+        sensors = forger.session.declare_publisher(keys.sensors(tmp_path.name))
+        wait_for(lambda: matched(sensors), 30, "the brain to subscribe to its sensors")
+        old = {"kind": "sensors", "tick": 1, "version": 7, "values": {"dtype": "<f8", "shape": [1, 1], "data": b""}}
+        sensors.put(msgspec.msgpack.encode(old), attachment=b"forger")
+        wait_for(lambda: "rejected message on" in log.read_text(), 30, "the brain to reject it")
+        brain.terminate()
+        assert finish(brain, 60, log) == 130
+    finally:
+        forger.close()
+        brain.kill()
+    written = json.loads(stats.read_text())
+    assert written["rejected_messages"] == {
+        keys.sensors(tmp_path.name): {f"schema version 7, this program speaks {VERSION}": 1}
+    }
+    assert written["ticks"] == 0
+
+
+def matched(publisher) -> bool:
+    """Whether a subscriber for the publisher's key is known (Outbox.matched's reading)."""
+    status = publisher.matching_status
+    return bool(getattr(status, "matching", status))

@@ -44,6 +44,7 @@ class LockStep:
         self.heard_at = time.monotonic()  # when the last sensors came
         self.router_since: float | None = None  # on a router, its world gone, since (world_gone_for_good)
         self.exit_code = 0  # --once: 1 where a world shard of the run served was lost
+        self.stats_written: dict | None = None  # what the --stats file holds, once written
         group = bus.group
         self.sensors = bus.inbox(keys.sensors(group, config.shard), Sensors)
         self.control = bus.inbox(keys.control(group), Control)
@@ -157,6 +158,8 @@ class LockStep:
             elif self.unsaved():
                 self.keep_learning("the brain was interrupted")
             raise
+        finally:  # stopped before a run's end, its rejections would be in the log alone
+            self.stats_on_the_way_out()
 
     def serve(self, message: Sensors, new_run: bool) -> None:
         """Answer one Sensors message: the Motor first, then the recorder's share."""
@@ -252,17 +255,28 @@ class LockStep:
             ticks = ", ".join(map(str, self.progress()[1]))
             pieces = f" (world shard 1's; the last tick of each piece served: {ticks})"
         log.info("run ended at tick %d%s; rejected messages: %s", order.tick, pieces, self.bus.rejections() or "none")
-        if config.stats:
-            config.stats.parent.mkdir(parents=True, exist_ok=True)
-            config.stats.write_text(
-                json.dumps({"ticks": node.last_tick + 1, "rejected_messages": self.bus.rejections()})
-            )
+        self.write_stats(node.last_tick + 1)
         lost = self.lost_shards()
         if lost:
             self.keep_learning("; ".join(lost), order.tick)
         elif config.save and node.brain is not None:
             save_weights(config.save, self.weights(), node.circuit, tick=order.tick, say=True)
         return lost
+
+    def write_stats(self, ticks: int) -> None:
+        """The --stats file: the run's ticks and every message rejected so far (unless it holds them)."""
+        stats = {"ticks": ticks, "rejected_messages": self.bus.rejections()}
+        if self.config.stats and stats != self.stats_written:
+            self.config.stats.parent.mkdir(parents=True, exist_ok=True)
+            self.config.stats.write_text(json.dumps(stats))
+            self.stats_written = stats
+
+    def stats_on_the_way_out(self) -> None:
+        """The stats as the brain leaves, if it has any: the ticks of a run under way (else of the
+        last run written, whose file is not overwritten with an idle brain's 0) and the rejections."""
+        ticks = self.node.last_tick + 1 if self.nodes else (self.stats_written or {"ticks": 0})["ticks"]
+        if ticks or self.bus.rejections():
+            self.write_stats(ticks)
 
     def weights(self) -> np.ndarray:
         """The weights of every agent served, pieces in the population's order."""

@@ -104,7 +104,8 @@ def add_file_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--stats",
         type=output_file,
-        help="write the rejected messages (and, free-running, the tick rate and lateness) here (JSON) when a run ends",
+        help="write the rejected messages (and, free-running, the tick rate and lateness) here (JSON) when a run "
+        "ends, and as the brain stops",
     )
 
 
