@@ -142,9 +142,7 @@ def zenoh_config_file(text: str) -> dict:
 def missing_tls_file(settings: dict) -> str | None:
     """The first certificate or key file the config names that cannot be read, with why; Zenoh
     itself says only that a TLS link timed out, or that a key is missing."""
-    tls = settings
-    for name in ("transport", "link", "tls"):
-        tls = tls.get(name) if isinstance(tls, dict) else None
+    tls = setting(settings, "transport", "link", "tls")
     if not isinstance(tls, dict):
         return None
     for field in TLS_FILES:
@@ -201,9 +199,17 @@ def connect_endpoints(connect, config_file: dict | None) -> list[str]:
     """The endpoints a session connects to: --connect's, else its config file's."""
     if connect:
         return list(connect)
-    endpoints = (config_file or {}).get("settings", {}).get("connect", {})
-    endpoints = endpoints.get("endpoints", []) if isinstance(endpoints, dict) else []
+    endpoints = setting(config_file["settings"], "connect", "endpoints") if config_file else None
     return [e for e in endpoints if isinstance(e, str)] if isinstance(endpoints, list) else []
+
+
+def setting(settings: dict, *path: str):
+    """settings[path[0]][path[1]]... of a config file, or None where a table on the way is missing
+    (or is not a table)."""
+    found = settings
+    for name in path:
+        found = found.get(name) if isinstance(found, dict) else None
+    return found
 
 
 def open_session(args: argparse.Namespace, mode: str | None = None) -> Session:
