@@ -379,8 +379,8 @@ class Gateway:
     def connect(self) -> None:
         """(Re)connect, trying every second, until linked or done."""
         waited = 0
-        if not self.stats["link_losses"] and self.backend.searching():
-            log.info("looking for the robot: %s", self.backend.searching())
+        if not self.stats["link_losses"] and (searching := self.backend.searching()):
+            log.info("looking for the robot: %s", searching)
         while not self.done.is_set():
             try:
                 if not self.try_link():
