@@ -181,10 +181,10 @@ def check_options(agents: int, semantics: str, order: str, without, netlogo_seed
             "--semantics netlogo and --netlogo-seed N"
         )
     unknown = sorted(set(without) - set(NETLOGO_RULES))
-    if unknown or (without and semantics != "netlogo"):
-        raise ValueError(
-            f"without: NetLogo rules are {', '.join(NETLOGO_RULES)} (netlogo semantics only), got {', '.join(without)}"
-        )
+    if unknown:
+        raise ValueError(f"without: NetLogo rules are {', '.join(NETLOGO_RULES)}, got {', '.join(unknown)}")
+    if without and semantics != "netlogo":
+        raise ValueError(f"without: NetLogo's rules are the netlogo semantics' only, got semantics {semantics!r}")
 
 
 def agent_seeds(seed, agents: int) -> np.ndarray:

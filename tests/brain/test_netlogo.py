@@ -188,7 +188,9 @@ def test_each_rule_switched_off_alone():
     e = Engine(c, semantics="netlogo", order="file", without=("dt0",))
     run_with_events(e, 11, {0: {"u_in": 0, "c_in": 0}, 10: {"c_in": 0}})
     assert e.w[0, c.synapse_index("C", "M")] == pytest.approx(5 + 0.05 - 0.05 * math.exp(-10 / 18), abs=1e-12)
-    with pytest.raises(ValueError, match="NetLogo rules are delay_count, reopen, dt0"):
+    with pytest.raises(ValueError, match="NetLogo rules are delay_count, reopen, dt0, got dt1$"):
+        Engine(c, semantics="netlogo", without=("dt0", "dt1"))
+    with pytest.raises(ValueError, match="the netlogo semantics' only, got semantics 'phased'"):
         Engine(c, semantics="phased", without=("dt0",))  # phased has no NetLogo rules to switch off
 
 
