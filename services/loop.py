@@ -274,6 +274,9 @@ def evaluate(
 
     `device`: "cpu", or "cuda" for an NVIDIA GPU (services/gpu.py, docs/gpu.md): the same results;
     refused in one line (RuntimeError) where numba-cuda or the GPU is missing."""
+    if not isinstance(params, Mapping):
+        example = {"a_plus": [0.02]}
+        raise TypeError(f"params: a mapping of per-agent parameter -> values, e.g. {example}, got {params!r}")
     seeds = checked_seeds(seeds)
     check_ticks(ticks, 1)
     if device != "cpu":

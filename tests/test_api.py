@@ -64,6 +64,11 @@ BAD_CALLS = [
     ),
     ("evaluate for 0 ticks", lambda: spikinglab.evaluate({"a_plus": 0.02}, 0), "ticks: a whole number >= 1, got 0"),
     (
+        "evaluate of a number, not its name",
+        lambda: spikinglab.evaluate(WRONG(0.02), 1000),
+        "params: a mapping of per-agent parameter -> values, e.g. {'a_plus': [0.02]}, got 0.02",
+    ),
+    (
         "seed not whole",
         lambda: spikinglab.evaluate({"a_plus": 0.02}, 1000, seeds=WRONG([1.5])),
         "seeds: insect numbers, whole numbers >= 0",
