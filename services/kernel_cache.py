@@ -142,6 +142,32 @@ def use_cache_folder() -> Path | None:
     return None
 
 
+def say_when_compiling() -> None:
+    """Say on stderr, once, as this process begins to compile a kernel: numba's "numba:compile"
+    event comes only for one its cache lacks, and a first command after a fresh checkout or a
+    change to the kernels' sources compiles for minutes before its first tick."""
+    from numba.core import event
+
+    class FirstCompile(event.Listener):
+        said = False
+
+        def on_start(self, data) -> None:
+            if not self.said:
+                self.said = True
+                print(
+                    ("\n" if sys.stderr.isatty() else "")  # past a progress bar's line
+                    + "compiling numba kernels: minutes on a new checkout or after a change to their sources, "
+                    + f"then kept in {os.environ.get('NUMBA_CACHE_DIR', 'numba cache')}",
+                    file=sys.stderr,
+                    flush=True,
+                )
+
+        def on_end(self, data) -> None:
+            pass
+
+    event.register("numba:compile", FirstCompile())
+
+
 def prune(root: Path, days: float) -> None:
     """Delete the folders of other source versions under `root` unused for `days`."""
     if not root.is_dir():

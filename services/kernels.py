@@ -4,6 +4,10 @@ from __future__ import annotations
 
 from numba import typeof
 
+from services.kernel_cache import say_when_compiling
+
+say_when_compiling()  # the modules whose kernels compile for minutes import this one
+
 
 class Kernel:
     """`kernel(*args)`, as numba's dispatcher runs it the first time; after that, straight into the

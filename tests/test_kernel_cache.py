@@ -181,3 +181,36 @@ def test_every_kernel_a_large_world_and_brain_use_is_cached():
                 used[f"{info.name}.{name}"] = cache._cache_file._index_path  # pyright: ignore[reportOptionalMemberAccess]
     assert "services.world.world._sense_parallel" in used and "services.brain.engine._netlogo_parallel" in used
     assert [name for name, index in used.items() if not os.path.exists(index)] == []
+
+
+TWO_KERNELS = textwrap.dedent(
+    """
+    import services.kernels  # what the engine and the world import
+    from numba import njit
+
+    @njit(cache=True)
+    def double(n):
+        return 2 * n
+
+    @njit(cache=True)
+    def half(n):
+        return n / 2
+
+    print(double(3), half(3))
+    """
+)
+
+
+def test_a_process_says_once_that_it_compiles_and_nothing_when_the_cache_holds_its_kernels(tmp_path):
+    (tmp_path / "two.py").write_text(TWO_KERNELS)
+    env = os.environ | {"NUMBA_CACHE_DIR": str(tmp_path / "cache"), "PYTHONPATH": str(REPO)}
+
+    def stderr_of_a_run() -> str:
+        done = subprocess.run([sys.executable, "two.py"], cwd=tmp_path, env=env, capture_output=True, text=True)
+        assert done.returncode == 0 and done.stdout == "6 1.5\n", done.stderr
+        return done.stderr
+
+    first = stderr_of_a_run()
+    assert first.count("compiling numba kernels: minutes on a new checkout") == 1, first
+    assert str(tmp_path / "cache" / "spikinglab") in first  # where they are kept
+    assert stderr_of_a_run() == ""  # both loaded from the cache
