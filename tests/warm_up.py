@@ -3,7 +3,8 @@ cache (services/kernel_cache.py) before the tests start. On a cold cache (a fres
 change under services/) every process of every test would compile them at its first tick, several
 at once on two cores, and a test's wait for a run to be under way would count minutes of
 compiling (`bash scripts/test.sh -k launch` failed two launch files so). tests/conftest.py runs
-it as two processes at once, one for each size: `python -m tests.warm_up AGENTS`."""
+it as two processes at once, one for each size: `python -m tests.warm_up AGENTS` (with none, both
+sizes in turn)."""
 
 from __future__ import annotations
 
@@ -28,4 +29,5 @@ def main(agents: int) -> None:
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]))
+    for size in map(int, sys.argv[1:]) if sys.argv[1:] else SIZES:
+        main(size)
