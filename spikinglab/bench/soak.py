@@ -189,6 +189,8 @@ def sample_until(processes: dict, last, sample_s: float) -> tuple[list, float]:
         time.sleep(sample_s)
         at = time.monotonic() - started
         sample = {name: rss_mb(proc.pid) for name, proc in processes.items() if proc.poll() is None}
+        if not sample:  # all ended during the sleep
+            break
         samples.append((at, sample))
         print(f"{at:6.0f} s  " + "  ".join(f"{n} {mb:6.1f} MB" for n, mb in sample.items()), flush=True)
     return samples, time.monotonic() - started
