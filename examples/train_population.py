@@ -4,18 +4,19 @@ Eight insects, each in its own arena, learn at A+ = A- = 0.04; every 5,000 ticks
 where the ticks asked for are not a multiple of 5,000) the script prints the collisions since the
 row before and the mean weight from the black-smell neuron to the pain neuron, then each insect's
 learning time (its last collision before 5,000 collision-free ticks).
-Run: `python examples/train_population.py [ticks]`.
+Run: `python examples/train_population.py [ticks]` (default 60,000).
 """
-
-import sys
 
 import numpy as np
 
+from services.options import Parser, at_least
 from spikinglab import World, brain_for, closed_loop, load_circuit, params_for
 
 ROW = 5_000  # ticks between printed rows
 
-ticks = int(sys.argv[1]) if len(sys.argv) > 1 else 60_000
+p = Parser(description=(__doc__ or "").splitlines()[0])
+p.add_argument("ticks", type=at_least(1), nargs="?", default=60_000, help="ticks to train (default %(default)s)")
+ticks = p.parse_args().ticks
 world = World(params_for("paper"), agents=8, seed=1)
 circuit = load_circuit("insect").with_learning_rate(0.04)
 brain = brain_for(world, circuit)

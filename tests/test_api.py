@@ -42,6 +42,27 @@ def test_the_example_trains_a_population_for_the_ticks_asked():
     assert "of 8 insects learned within 32,000 ticks" in lines[-1]
 
 
+@pytest.mark.parametrize(
+    "given, said",
+    [
+        ("abc", "argument ticks: expected a whole number, got 'abc'"),  # was int()'s traceback
+        ("0", "argument ticks: must be at least 1, got 0"),  # ran nothing and reported 0 ticks
+        ("5000 2", "unrecognized arguments: 2"),
+    ],
+)
+def test_the_example_refuses_ticks_it_cannot_run_in_one_line(given, said):
+    done = train_population(*given.split(), timeout=60)
+    assert done.returncode == 2 and done.stderr.splitlines() == [
+        f"train_population.py: {said} (see train_population.py --help)"
+    ]
+    assert done.stdout == ""
+
+
+def test_the_example_has_a_help():
+    done = train_population("--help", timeout=60)
+    assert done.returncode == 0 and "ticks to train (default 60000)" in done.stdout, done.stderr
+
+
 P = spikinglab.params_for("paper")
 WRONG: Any = lambda value: value  # a value of the wrong type, passed as a user might  # noqa: E731
 C = spikinglab.load_circuit("insect")
