@@ -20,6 +20,7 @@ learner searched for speed", has the command that found FOUND). Needs `pip insta
 import argparse
 import time
 import tomllib
+from pathlib import Path
 from typing import NamedTuple
 
 import cma
@@ -28,6 +29,7 @@ import numpy as np
 from services.brain.circuit import Circuit, build_circuit, builtin_circuit_path, load_circuit
 from services.learning import PAPER, stats, tick_text
 from services.loop import closed_loop, population, study_results
+from services.options import Parser, at_least, number_within, output_file, positive
 from services.world.world import BIN
 
 
@@ -267,36 +269,47 @@ def plot_curves(args, path: str) -> None:
     ax.set(xlabel="tick", ylabel="collisions per 1,000 ticks", title=f"mean over held-out seeds (n = {len(seeds)})")
     ax.legend(fontsize=8)
     fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)  # --plot may name a folder still to make
     fig.savefig(path)
     print(f"wrote {path}")
 
 
 def start_value(text: str) -> tuple[str, float]:
+    """NAME=VALUE, the value within NAME's range in SPACE: CMA-ES cannot start outside its bounds."""
     name, _, value = text.partition("=")
     if name not in SPACE:
         raise argparse.ArgumentTypeError(f"{text!r}: not NAME=VALUE with NAME one of {', '.join(SPACE)}")
-    try:
-        return name, float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: {value!r} is not a number") from None
+    return name, number_within(SPACE[name].low, SPACE[name].high, f" for {name}")(value)
+
+
+def plot_writable(args: argparse.Namespace) -> None:
+    """The report writes its plot after all its runs: a file it could not write is refused first."""
+    if args.report:
+        try:
+            output_file(args.plot)
+        except argparse.ArgumentTypeError as e:
+            raise ValueError(f"argument --plot: {e}") from None
 
 
 def main():
-    p = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    p.add_argument("--generations", type=int, default=40)
-    p.add_argument("--population", type=int, default=16, help="candidates per generation")
-    p.add_argument("--ticks", type=int, default=30_000)
-    p.add_argument("--seeds", type=int, default=48, help="search seeds, from --first-seed")
-    p.add_argument("--first-seed", type=int, default=1000)
-    p.add_argument("--validation-first-seed", type=int, default=2000, help="as many seeds as --seeds, from here")
-    p.add_argument("--sigma", type=float, default=0.08, help="CMA-ES's initial step, in the unit cube")
+    p = Parser(description=(__doc__ or "").splitlines()[0], together=[plot_writable])
+    p.add_argument("--generations", type=at_least(1), default=40)
+    p.add_argument("--population", type=at_least(2), default=16, help="candidates per generation (CMA-ES: 2 or more)")
+    # the costs read the collisions of the run's last quarter: at least one bin of them
+    p.add_argument("--ticks", type=at_least(BIN), default=30_000)
+    p.add_argument("--seeds", type=at_least(1), default=48, help="search seeds, from --first-seed")
+    p.add_argument("--first-seed", type=at_least(0), default=1000)
+    p.add_argument(
+        "--validation-first-seed", type=at_least(0), default=2000, help="as many seeds as --seeds, from here"
+    )
+    p.add_argument("--sigma", type=positive, default=0.08, help="CMA-ES's initial step, in the unit cube")
     p.add_argument(
         "--start", type=start_value, nargs="+", default=[], metavar="NAME=VALUE", help="start here, not at START"
     )
     p.add_argument("--report", action="store_true", help="held-out table, ablation and plot instead of a search")
-    p.add_argument("--report-ticks", type=int, default=60_000)
-    p.add_argument("--report-seeds", type=int, default=32)
-    p.add_argument("--report-first-seed", type=int, default=0)
+    p.add_argument("--report-ticks", type=at_least(BIN), default=60_000)
+    p.add_argument("--report-seeds", type=at_least(1), default=32)
+    p.add_argument("--report-first-seed", type=at_least(0), default=0)
     p.add_argument("--plot", default="docs/fast-learner.png")
     args = p.parse_args()
     args.start = dict(args.start)

@@ -1,23 +1,29 @@
 """The searched circuit (services/brain/circuits/fast_learner.toml, docs/results.md) holds the
 search's result and learns on a held-out seed that the search never saw, where the default insect
-circuit does not."""
+circuit does not; the search script (examples/search_fast_learner.py) refuses options it cannot run."""
 
 import dataclasses
 import importlib.util
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from services.brain.circuit import load_circuit
 from spikinglab import evaluate
 
 SEED = 2  # a held-out seed (0-31; the search used 1000-1047 and 2000-2047): fast_learner learns at 2,095
 TICKS = 10_000  # room for the learning time and the 5,000 collision-free ticks after it
+SCRIPT = Path(__file__).parents[1] / "examples" / "search_fast_learner.py"
+# a search and a report of seconds, so that a bad option the script once accepted ends the test soon
+TINY_SEARCH = ["--generations", "1", "--population", "2", "--seeds", "1", "--ticks", "1000"]
+TINY_REPORT = ["--report", "--report-ticks", "1000", "--report-seeds", "1"]
 
 
 def search_script():
-    path = Path(__file__).parents[1] / "examples" / "search_fast_learner.py"
-    spec = importlib.util.spec_from_file_location("search_fast_learner", path)
+    spec = importlib.util.spec_from_file_location("search_fast_learner", SCRIPT)
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -47,3 +53,39 @@ def test_the_search_counts_an_insect_that_stands_still_as_never_learned():
     search = search_script()
     result = {"learning_time": np.array([0, 100, -1]), "distance": np.array([0.0, 1_000.0, 1_000.0])}
     assert search.learning_times(result, 30_000).tolist() == [60_000, 100, 60_000]
+
+
+def run_script(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    """The script run as a user would; in `cwd`, a test's own folder: a report writes its plot there."""
+    return subprocess.run([sys.executable, SCRIPT, *args], cwd=cwd, capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize(
+    "given, said",
+    [
+        ("--population 1", "argument --population: must be at least 2, got 1"),  # was cma's traceback
+        ("--seeds 0", "argument --seeds: must be at least 1, got 0"),  # was services/loop.py's traceback
+        ("--ticks 10", "argument --ticks: must be at least 1,000, got 10"),  # ran, and no seed could learn
+        ("--sigma -1", "argument --sigma: must be a number above 0, got -1"),
+        ("--start a_plus=5", "argument --start: must be 0.005 .. 0.8 for a_plus, got 5"),  # cma's traceback
+        ("--report --report-seeds 0", "argument --report-seeds: must be at least 1, got 0"),
+        ("--report --report-ticks 10", "argument --report-ticks: must be at least 1,000, got 10"),
+    ],
+)
+def test_the_script_refuses_a_bad_option_in_one_line_before_it_runs(given, said, tmp_path):
+    done = run_script(*(TINY_REPORT if "--report" in given else TINY_SEARCH), *given.split(), cwd=tmp_path)
+    assert done.returncode == 2 and done.stderr.splitlines() == [
+        f"search_fast_learner.py: {said} (see search_fast_learner.py --help)"
+    ]
+    assert done.stdout == ""
+
+
+def test_the_report_refuses_a_plot_it_cannot_write_before_its_runs(tmp_path):
+    """The plot is written last: it raised FileNotFoundError after the whole report had run."""
+    (tmp_path / "file").touch()
+    done = run_script(*TINY_REPORT, "--plot", str(tmp_path / "file" / "curves.png"), cwd=tmp_path)
+    assert done.returncode == 2 and done.stderr.splitlines() == [
+        f"search_fast_learner.py: argument --plot: cannot write {tmp_path / 'file' / 'curves.png'}: "
+        f"{tmp_path / 'file'} is a file, not a folder (see search_fast_learner.py --help)"
+    ]
+    assert done.stdout == ""
