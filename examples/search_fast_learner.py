@@ -310,7 +310,13 @@ def main():
     p.add_argument("--report-ticks", type=at_least(BIN), default=60_000)
     p.add_argument("--report-seeds", type=at_least(1), default=32)
     p.add_argument("--report-first-seed", type=at_least(0), default=0)
-    p.add_argument("--plot", default="docs/fast-learner.png")
+    p.add_argument(
+        "--plot",
+        default="fast-learner.png",
+        metavar="FILE",
+        help="the report's plot (default %(default)s, in the current folder; docs/fast-learner.png remakes "
+        "docs/results.md's figure)",
+    )
     args = p.parse_args()
     args.start = dict(args.start)
     if args.report:

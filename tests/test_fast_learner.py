@@ -89,3 +89,14 @@ def test_the_report_refuses_a_plot_it_cannot_write_before_its_runs(tmp_path):
         f"{tmp_path / 'file'} is a file, not a folder (see search_fast_learner.py --help)"
     ]
     assert done.stdout == ""
+
+
+def test_the_report_writes_its_plot_in_the_current_folder_as_its_help_says(tmp_path):
+    """--report wrote docs/fast-learner.png, the docs' own figure, and --help did not say so."""
+    assert "(default fast-learner.png, in the current folder;" in " ".join(
+        run_script("--help", cwd=tmp_path).stdout.split()
+    )
+    done = run_script(*TINY_REPORT, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines()[-1] == "wrote fast-learner.png"
+    assert [path.name for path in tmp_path.iterdir()] == ["fast-learner.png"]
