@@ -282,42 +282,67 @@ def start_value(text: str) -> tuple[str, float]:
     return name, number_within(SPACE[name].low, SPACE[name].high, f" for {name}")(value)
 
 
-def plot_writable(args: argparse.Namespace) -> None:
-    """The report writes its plot after all its runs: a file it could not write is refused first."""
-    if args.report:
-        try:
-            output_file(args.plot)
-        except argparse.ArgumentTypeError as e:
-            raise ValueError(f"argument --plot: {e}") from None
+# option -> (default, the modes it serves: "" the search, "--report" the report); given in the other mode, refused
+MODES = {
+    "--generations": (40, ("",)),
+    "--population": (16, ("",)),
+    "--ticks": (30_000, ("",)),
+    "--seeds": (48, ("",)),
+    "--first-seed": (1000, ("",)),
+    "--validation-first-seed": (2000, ("",)),
+    "--sigma": (0.08, ("",)),
+    "--start": ([], ("",)),
+    "--report-ticks": (60_000, ("--report",)),
+    "--report-seeds": (32, ("--report",)),
+    "--report-first-seed": (0, ("--report",)),
+    "--plot": ("fast-learner.png", ("--report",)),
+}
+
+
+def parser() -> Parser:
+    p = Parser(description=(__doc__ or "").splitlines()[0])
+    d = {option[2:].replace("-", "_"): default for option, (default, _) in MODES.items()}
+    p.add_argument("--generations", type=at_least(1), help=f"generations of the search (default {d['generations']})")
+    p.add_argument(
+        "--population", type=at_least(2), help=f"candidates per generation, 2 or more (default {d['population']})"
+    )
+    # the costs read the collisions of the run's last quarter: at least one bin of them
+    p.add_argument("--ticks", type=at_least(BIN), help=f"ticks per candidate and seed (default {d['ticks']:,})")
+    p.add_argument("--seeds", type=at_least(1), help=f"search seeds, from --first-seed (default {d['seeds']})")
+    p.add_argument("--first-seed", type=at_least(0), help=f"the first search seed (default {d['first_seed']})")
+    p.add_argument(
+        "--validation-first-seed",
+        type=at_least(0),
+        help=f"as many seeds as --seeds, from here (default {d['validation_first_seed']})",
+    )
+    p.add_argument("--sigma", type=positive, help=f"CMA-ES's initial step, in the unit cube (default {d['sigma']})")
+    p.add_argument("--start", type=start_value, nargs="+", metavar="NAME=VALUE", help="start here, not at START")
+    p.add_argument("--report", action="store_true", help="held-out table, ablation and plot instead of a search")
+    p.add_argument(
+        "--report-ticks", type=at_least(BIN), help=f"ticks per held-out seed (default {d['report_ticks']:,})"
+    )
+    p.add_argument("--report-seeds", type=at_least(1), help=f"held-out seeds (default {d['report_seeds']})")
+    p.add_argument(
+        "--report-first-seed", type=at_least(0), help=f"the first held-out seed (default {d['report_first_seed']})"
+    )
+    p.add_argument(
+        "--plot",
+        metavar="FILE",
+        help=f"the report's plot (default {d['plot']}, in the current folder; docs/fast-learner.png remakes "
+        "docs/results.md's figure)",
+    )
+    return p
 
 
 def main():
-    p = Parser(description=(__doc__ or "").splitlines()[0], together=[plot_writable])
-    p.add_argument("--generations", type=at_least(1), default=40)
-    p.add_argument("--population", type=at_least(2), default=16, help="candidates per generation (CMA-ES: 2 or more)")
-    # the costs read the collisions of the run's last quarter: at least one bin of them
-    p.add_argument("--ticks", type=at_least(BIN), default=30_000)
-    p.add_argument("--seeds", type=at_least(1), default=48, help="search seeds, from --first-seed")
-    p.add_argument("--first-seed", type=at_least(0), default=1000)
-    p.add_argument(
-        "--validation-first-seed", type=at_least(0), default=2000, help="as many seeds as --seeds, from here"
-    )
-    p.add_argument("--sigma", type=positive, default=0.08, help="CMA-ES's initial step, in the unit cube")
-    p.add_argument(
-        "--start", type=start_value, nargs="+", default=[], metavar="NAME=VALUE", help="start here, not at START"
-    )
-    p.add_argument("--report", action="store_true", help="held-out table, ablation and plot instead of a search")
-    p.add_argument("--report-ticks", type=at_least(BIN), default=60_000)
-    p.add_argument("--report-seeds", type=at_least(1), default=32)
-    p.add_argument("--report-first-seed", type=at_least(0), default=0)
-    p.add_argument(
-        "--plot",
-        default="fast-learner.png",
-        metavar="FILE",
-        help="the report's plot (default %(default)s, in the current folder; docs/fast-learner.png remakes "
-        "docs/results.md's figure)",
-    )
+    p = parser()
     args = p.parse_args()
+    p.mode_defaults(args, "--report" if args.report else "", MODES)
+    if args.report:  # the plot is written after all the report's runs: one it could not write is refused first
+        try:
+            output_file(args.plot)
+        except argparse.ArgumentTypeError as e:
+            p.error(f"argument --plot: {e}")
     args.start = dict(args.start)
     if args.report:
         report_table(args)

@@ -70,6 +70,8 @@ def run_script(*args: str, cwd: Path) -> subprocess.CompletedProcess:
         ("--start a_plus=5", "argument --start: must be 0.005 .. 0.8 for a_plus, got 5"),  # cma's traceback
         ("--report --report-seeds 0", "argument --report-seeds: must be at least 1, got 0"),
         ("--report --report-ticks 10", "argument --report-ticks: must be at least 1,000, got 10"),
+        ("--plot curves.png", "argument --plot: only with --report"),  # was ignored: a search writes no plot
+        ("--report --generations 3", "argument --generations: not with --report"),  # was ignored by the report
     ],
 )
 def test_the_script_refuses_a_bad_option_in_one_line_before_it_runs(given, said, tmp_path):
