@@ -12,7 +12,7 @@ file (a service's options, the bus) keeps the kernels. The folder is `<root>/<ha
 root is $NUMBA_CACHE_DIR/spikinglab when that is set, else $XDG_CACHE_HOME/spikinglab/numba (by
 default ~/.cache/spikinglab/numba), else, where neither can be written, one in the temporary
 folder. Setting numba's cache folder is process-wide: other numba code in the same process caches
-there too."""
+there too. A process that starts to compile a kernel for this cache says so (say_when_compiling)."""
 
 from __future__ import annotations
 
@@ -143,21 +143,25 @@ def use_cache_folder() -> Path | None:
 
 
 def say_when_compiling() -> None:
-    """Say on stderr, once, as this process begins to compile a kernel: numba's "numba:compile"
-    event comes only for one its cache lacks, and a first command after a fresh checkout or a
-    change to the kernels' sources compiles for minutes before its first tick."""
+    """Say on stderr, once, as this process begins to compile a kernel that is to be cached: numba's
+    "numba:compile" event comes for such a kernel only where its cache lacks it, and a first command
+    after a fresh checkout or a change to the kernels' sources compiles for minutes before its first
+    tick. Kernels that are never cached (a benchmark's no-op) compile every time and say nothing."""
     from numba.core import event
 
     class FirstCompile(event.Listener):
         said = False
 
-        def on_start(self, data) -> None:
-            if not self.said:
+        def on_start(self, compile_event) -> None:
+            details = compile_event.data or {}
+            cache = getattr(details.get("dispatcher"), "_cache", None)  # numba's NullCache where it never caches
+            cached = cache is not None and type(cache).__name__ != "NullCache"
+            if cached and not self.said:
                 self.said = True
                 print(
                     ("\n" if sys.stderr.isatty() else "")  # past a progress bar's line
                     + "compiling numba kernels: minutes on a new checkout or after a change to their sources, "
-                    + f"then kept in {os.environ.get('NUMBA_CACHE_DIR', 'numba cache')}",
+                    + f"then kept in {os.environ.get('NUMBA_CACHE_DIR', 'the __pycache__ folders beside them')}",
                     file=sys.stderr,
                     flush=True,
                 )

@@ -1,4 +1,5 @@
-"""A numba kernel called once a tick, without numba's dispatcher after the first call."""
+"""A numba kernel called once a tick, without numba's dispatcher after the first call. Importing this
+module (as the engine and the world do) makes the process say when it compiles kernels."""
 
 from __future__ import annotations
 
