@@ -184,7 +184,7 @@ def check_options(agents: int, semantics: str, order: str, without, netlogo_seed
     if unknown:
         raise ValueError(f"without: NetLogo rules are {', '.join(NETLOGO_RULES)}, got {', '.join(unknown)}")
     if without and semantics != "netlogo":
-        raise ValueError(f"without: NetLogo's rules are the netlogo semantics' only, got semantics {semantics!r}")
+        raise ValueError(f"without: only the netlogo semantics has NetLogo rules to switch off, got {semantics!r}")
 
 
 def agent_seeds(seed, agents: int) -> np.ndarray:

@@ -190,7 +190,7 @@ def test_each_rule_switched_off_alone():
     assert e.w[0, c.synapse_index("C", "M")] == pytest.approx(5 + 0.05 - 0.05 * math.exp(-10 / 18), abs=1e-12)
     with pytest.raises(ValueError, match="NetLogo rules are delay_count, reopen, dt0, got dt1$"):
         Engine(c, semantics="netlogo", without=("dt0", "dt1"))
-    with pytest.raises(ValueError, match="the netlogo semantics' only, got semantics 'phased'"):
+    with pytest.raises(ValueError, match="only the netlogo semantics has NetLogo rules to switch off, got 'phased'"):
         Engine(c, semantics="phased", without=("dt0",))  # phased has no NetLogo rules to switch off
 
 
