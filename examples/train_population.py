@@ -15,7 +15,7 @@ from spikinglab import World, brain_for, closed_loop, load_circuit, params_for
 ROW = 5_000  # ticks between printed rows
 
 p = Parser(description=(__doc__ or "").splitlines()[0])
-p.add_argument("ticks", type=at_least(1), nargs="?", default=60_000, help="ticks to train (default %(default)s)")
+p.add_argument("ticks", type=at_least(1), nargs="?", default=60_000, help="ticks to train (default 60,000)")
 ticks = p.parse_args().ticks
 world = World(params_for("paper"), agents=8, seed=1)
 circuit = load_circuit("insect").with_learning_rate(0.04)

@@ -60,7 +60,7 @@ def test_the_example_refuses_ticks_it_cannot_run_in_one_line(given, said):
 
 def test_the_example_has_a_help():
     done = train_population("--help", timeout=60)
-    assert done.returncode == 0 and "ticks to train (default 60000)" in done.stdout, done.stderr
+    assert done.returncode == 0 and "ticks to train (default 60,000)" in done.stdout, done.stderr
 
 
 P = spikinglab.params_for("paper")
