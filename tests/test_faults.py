@@ -19,7 +19,7 @@ from services.launch import spawn
 from services.loop import brain_for, closed_loop
 from services.recorder.screenshot import last_tick
 from services.world.world import World
-from spikinglab.bench.fuzz import EXAMPLES
+from spikinglab.bench.fuzz import examples
 
 from .processes import (
     ROOT,
@@ -89,7 +89,7 @@ def garbage(tick: int) -> list[bytes]:
         b"\x81\xa4kind\xa2\xff\xfe",
     ]
     rng = np.random.default_rng(tick)
-    for message in EXAMPLES:
+    for message in examples():
         payload = bytearray(encode(message))
         for where in rng.integers(0, len(payload), 3):
             payload[where] = rng.integers(0, 256)

@@ -19,6 +19,7 @@ Run: `spikinglab bench fuzz [--examples N]`.
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import traceback
@@ -65,8 +66,9 @@ KEY_OF = {
     WorldMap: keys.world_map("insect"),
     RunTerms: keys.world_run("insect"),
 }
-# one real message of each kind, as the services send them for a run of 3 agents
-EXAMPLES = [
+# one real message of each kind, as the services send them for a run of 3 agents: all but the brain's
+# state, which runs the engine (examples() has them all)
+SENT = [
     Sensors(
         tick=7,
         names=INSECT_SENSORS,
@@ -108,15 +110,19 @@ EXAMPLES = [
 def serving_brain() -> BrainNode:
     """A brain that has answered the Sensors example: it serves run r1, for 3 agents."""
     node = BrainNode(CIRCUIT)
-    node.answer(msgspec.structs.replace(EXAMPLES[0], tick=0))  # from the run's start: no word of joining late
+    node.answer(msgspec.structs.replace(SENT[0], tick=0))  # from the run's start: no word of joining late
     return node
 
 
-EXAMPLES.append(serving_brain().state_message())
+@functools.cache
+def examples() -> list:
+    """SENT and a serving brain's state message: made on first use, not at import, which runs and
+    may compile the engine (`bench fuzz` without hypothesis is refused before that)."""
+    return [*SENT, serving_brain().state_message()]
 
 
 def example(kind):
-    return next(m for m in EXAMPLES if isinstance(m, kind))
+    return next(m for m in examples() if isinstance(m, kind))
 
 
 class Services:

@@ -25,7 +25,7 @@ from services.bus.schemas import encode
 from services.launch import local_endpoints, spawn
 from services.options import Parser, at_least, output_folder, positive
 
-from .fuzz import EXAMPLES, KEY_OF
+from .fuzz import KEY_OF, examples
 from .gateway import gateway_and_brain
 
 
@@ -40,7 +40,7 @@ def rss_mb(pid: int) -> float:
 def fuzz(endpoints: list[str], per_s: float, stop: threading.Event, counts: dict) -> None:
     """Byte mutants of a real message of every kind, at its key, `per_s` in all."""
     rng = np.random.default_rng(0)
-    originals = [(KEY_OF[type(m)].replace("insect", "soak"), encode(m)) for m in EXAMPLES]
+    originals = [(KEY_OF[type(m)].replace("insect", "soak"), encode(m)) for m in examples()]
     with session_for(connect=endpoints) as session:
         publishers = {key: session.declare_publisher(key) for key, _ in originals}
         while not stop.wait(1 / per_s):

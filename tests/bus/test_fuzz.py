@@ -56,11 +56,11 @@ def test_the_sources_reach_the_services():
     """The generators are worth running: real messages of each kind are taken, and the bench's
     sources are the ones tested here."""
     from services.bus.schemas import encode
-    from spikinglab.bench.fuzz import EXAMPLES
+    from spikinglab.bench.fuzz import examples
 
     assert SOURCES == ("bytes", "byte", "structure", "any-shape")
     services = Services()  # not the fuzzed ones: a forged tick 0 of another run may have restarted their brain
-    for message in EXAMPLES:
+    for message in examples():
         assert "taken" in services.outcomes(encode(message)), type(message).__name__
 
 

@@ -16,7 +16,9 @@ from services.bus.schemas import (
     decode,
     encode,
 )
-from spikinglab.bench.fuzz import EXAMPLES as GOOD
+from spikinglab.bench.fuzz import examples
+
+GOOD = examples()
 
 
 @pytest.mark.parametrize("message", GOOD, ids=lambda m: type(m).__name__)
