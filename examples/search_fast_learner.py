@@ -302,30 +302,36 @@ MODES = {
 def parser() -> Parser:
     p = Parser(description=(__doc__ or "").splitlines()[0])
     d = {option[2:].replace("-", "_"): default for option, (default, _) in MODES.items()}
-    p.add_argument("--generations", type=at_least(1), help=f"generations of the search (default {d['generations']})")
-    p.add_argument(
+    search = p.add_argument_group("a search (without --report)")
+    report = p.add_argument_group("the report (with --report)")
+    search.add_argument(
+        "--generations", type=at_least(1), help=f"generations of the search (default {d['generations']})"
+    )
+    search.add_argument(
         "--population", type=at_least(2), help=f"candidates per generation, 2 or more (default {d['population']})"
     )
     # the costs read the collisions of the run's last quarter: at least one bin of them
-    p.add_argument("--ticks", type=at_least(BIN), help=f"ticks per candidate and seed (default {d['ticks']:,})")
-    p.add_argument("--seeds", type=at_least(1), help=f"search seeds, from --first-seed (default {d['seeds']})")
-    p.add_argument("--first-seed", type=at_least(0), help=f"the first search seed (default {d['first_seed']})")
-    p.add_argument(
+    search.add_argument("--ticks", type=at_least(BIN), help=f"ticks per candidate and seed (default {d['ticks']:,})")
+    search.add_argument("--seeds", type=at_least(1), help=f"search seeds, from --first-seed (default {d['seeds']})")
+    search.add_argument("--first-seed", type=at_least(0), help=f"the first search seed (default {d['first_seed']})")
+    search.add_argument(
         "--validation-first-seed",
         type=at_least(0),
         help=f"as many seeds as --seeds, from here (default {d['validation_first_seed']})",
     )
-    p.add_argument("--sigma", type=positive, help=f"CMA-ES's initial step, in the unit cube (default {d['sigma']})")
-    p.add_argument("--start", type=start_value, nargs="+", metavar="NAME=VALUE", help="start here, not at START")
-    p.add_argument("--report", action="store_true", help="held-out table, ablation and plot instead of a search")
-    p.add_argument(
+    search.add_argument(
+        "--sigma", type=positive, help=f"CMA-ES's initial step, in the unit cube (default {d['sigma']})"
+    )
+    search.add_argument("--start", type=start_value, nargs="+", metavar="NAME=VALUE", help="start here, not at START")
+    report.add_argument("--report", action="store_true", help="held-out table, ablation and plot instead of a search")
+    report.add_argument(
         "--report-ticks", type=at_least(BIN), help=f"ticks per held-out seed (default {d['report_ticks']:,})"
     )
-    p.add_argument("--report-seeds", type=at_least(1), help=f"held-out seeds (default {d['report_seeds']})")
-    p.add_argument(
+    report.add_argument("--report-seeds", type=at_least(1), help=f"held-out seeds (default {d['report_seeds']})")
+    report.add_argument(
         "--report-first-seed", type=at_least(0), help=f"the first held-out seed (default {d['report_first_seed']})"
     )
-    p.add_argument(
+    report.add_argument(
         "--plot",
         metavar="FILE",
         help=f"the report's plot (default {d['plot']}, in the current folder; docs/fast-learner.png remakes "

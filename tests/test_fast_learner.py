@@ -82,6 +82,16 @@ def test_the_script_refuses_a_bad_option_in_one_line_before_it_runs(given, said,
     assert done.stdout == ""
 
 
+def test_the_help_lists_each_option_under_the_mode_that_takes_it():
+    """A search option given to --report is refused: the help said nothing of which was which."""
+    script = search_script()
+    help_text = script.parser().format_help()
+    search_part, report_part = help_text.split("the report (with --report):")
+    assert "a search (without --report):" in search_part
+    for option, (_, modes) in script.MODES.items():
+        assert f"  {option} " in (report_part if modes == ("--report",) else search_part), option
+
+
 def test_the_report_refuses_a_plot_it_cannot_write_before_its_runs(tmp_path):
     """The plot is written last: it raised FileNotFoundError after the whole report had run."""
     (tmp_path / "file").touch()
