@@ -1,6 +1,7 @@
 """numba's cache of compiled kernels: one folder per version of the sources (services/kernel_cache.py)."""
 
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -220,3 +221,27 @@ def test_a_process_says_once_that_it_compiles_and_nothing_when_the_cache_holds_i
     assert first.count("compiling numba kernels: minutes on a new checkout") == 1, first
     assert str(tmp_path / "cache" / "spikinglab") in first  # where they are kept
     assert stderr_of_a_run() == ""  # both loaded from the cache; the third compiled again, unsaid
+
+
+def test_a_copy_of_the_sources_elsewhere_loads_the_kernels_this_checkout_compiled(tmp_path):
+    """numba keyed a kernel's cache files by the absolute path of its source folder: a second clone,
+    a CI checkout or an installed wheel compiled every kernel again (minutes) into the same folder."""
+    copy = tmp_path / "elsewhere"
+    shutil.copytree(REPO / "services", copy / "services", ignore=shutil.ignore_patterns("__pycache__", ".*"))
+    env = os.environ | {"NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    env.pop("NUMBA_CACHE_LOCATOR_CLASSES", None)  # as in a shell: the services set it
+    draw = "import services, numpy as np; from services.brain.engine import order_draw; "
+    draw += "print(services.__file__, order_draw(np.uint64(12345), 8))"
+
+    def run_from(root: Path) -> subprocess.CompletedProcess:
+        done = subprocess.run(
+            [sys.executable, "-c", draw], cwd=root, env=env | {"PYTHONPATH": str(root)}, capture_output=True, text=True
+        )
+        assert done.returncode == 0, done.stderr
+        return done
+
+    here, there = run_from(REPO), run_from(copy)
+    assert "compiling numba kernels" in here.stderr  # an empty cache
+    assert there.stdout.split()[0] == str(copy / "services" / "__init__.py")
+    assert there.stdout.split()[1:] == here.stdout.split()[1:]
+    assert there.stderr == ""  # loaded what the checkout compiled

@@ -1,0 +1,42 @@
+"""numba's cache locator for the kernels of services/: their cache files named by their place in
+the package, not by the folder the package lies in, so every copy of one version of the sources (a
+second clone, a CI checkout, an installed wheel) loads the kernels another copy compiled, where
+numba's own locator keys them by the source folder's absolute path and compiles again for minutes.
+services.kernel_cache.use_cache_folder names it in NUMBA_CACHE_LOCATOR_CLASSES (numba 0.62 and
+later; earlier ones ignore the variable and cache by path). A cached kernel is still checked
+against its source file's contents (numba's stamp, a hash), and the folder is this version's."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from numba.core import caching, config
+
+from services.kernel_cache import SOURCES
+
+PACKAGE = SOURCES.resolve()
+
+
+class SourcesLocator(caching.UserProvidedCacheLocator):
+    """A function of services/ caches in <numba's cache folder>/services/<its subpackage>; any other
+    function goes to numba's own locators, in their order (the variable replaces their list)."""
+
+    def __init__(self, py_func, py_file):
+        super().__init__(py_func, py_file)
+        place = Path(py_file).resolve().parent.relative_to(PACKAGE)
+        self._cache_path = os.path.join(cache_dir(), PACKAGE.name, *place.parts)
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        if cache_dir() and Path(py_file).resolve().is_relative_to(PACKAGE):
+            return super().from_function(py_func, py_file)
+        for numbas in caching.CacheImpl._locator_classes:
+            locator = numbas.from_function(py_func, py_file)
+            if locator is not None:
+                return locator
+        return None
+
+
+def cache_dir() -> str:
+    return config.CACHE_DIR  # pyright: ignore[reportAttributeAccessIssue] (set from the environment)
