@@ -3,11 +3,14 @@ the package, not by the folder the package lies in, so every copy of one version
 second clone, a CI checkout, an installed wheel) loads the kernels another copy compiled, where
 numba's own locator keys them by the source folder's absolute path and compiles again for minutes.
 services.kernel_cache.use_cache_folder names it in NUMBA_CACHE_LOCATOR_CLASSES (numba 0.62 and
-later; earlier ones ignore the variable and cache by path). A cached kernel is still checked
-against its source file's contents (numba's stamp, a hash), and the folder is this version's."""
+later; earlier ones ignore the variable and cache by path). A cached kernel is checked against a
+hash of its source file's contents, as numba 0.68 checks it (0.62 to 0.65 check the file's time,
+which a copy does not share), and the folder is this version's."""
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import os
 from pathlib import Path
 
@@ -27,6 +30,10 @@ class SourcesLocator(caching.UserProvidedCacheLocator):
         place = Path(py_file).resolve().parent.relative_to(PACKAGE)
         self._cache_path = os.path.join(cache_dir(), PACKAGE.name, *place.parts)
 
+    def get_source_stamp(self):
+        st = os.stat(self._py_file)
+        return _contents_hash(self._py_file, st.st_mtime, st.st_size)
+
     @classmethod
     def from_function(cls, py_func, py_file):
         if cache_dir() and Path(py_file).resolve().is_relative_to(PACKAGE):
@@ -40,3 +47,9 @@ class SourcesLocator(caching.UserProvidedCacheLocator):
 
 def cache_dir() -> str:
     return config.CACHE_DIR  # pyright: ignore[reportAttributeAccessIssue] (set from the environment)
+
+
+@functools.cache
+def _contents_hash(path: str, mtime: float, size: int) -> bytes:
+    """Read again where the file changed (its time and size are in the key)."""
+    return hashlib.sha256(Path(path).read_bytes()).digest()

@@ -227,7 +227,12 @@ def test_a_copy_of_the_sources_elsewhere_loads_the_kernels_this_checkout_compile
     """numba keyed a kernel's cache files by the absolute path of its source folder: a second clone,
     a CI checkout or an installed wheel compiled every kernel again (minutes) into the same folder."""
     copy = tmp_path / "elsewhere"
-    shutil.copytree(REPO / "services", copy / "services", ignore=shutil.ignore_patterns("__pycache__", ".*"))
+    shutil.copytree(  # files of new times, as in a clone
+        REPO / "services",
+        copy / "services",
+        ignore=shutil.ignore_patterns("__pycache__", ".*"),
+        copy_function=shutil.copy,
+    )
     env = os.environ | {"NUMBA_CACHE_DIR": str(tmp_path / "cache")}
     env.pop("NUMBA_CACHE_LOCATOR_CLASSES", None)  # as in a shell: the services set it
     draw = "import services, numpy as np; from services.brain.engine import order_draw; "
