@@ -34,6 +34,8 @@ class Parser(argparse.ArgumentParser):
         self.together = together
 
     def parse_known_args(self, args=None, namespace=None):  # parse_args' too
+        args = sys.argv[1:] if args is None else list(args)
+        self.refuse_dashed_values(args)
         parsed, extras = super().parse_known_args(args, namespace)
         for check in self.together:
             try:
@@ -41,6 +43,22 @@ class Parser(argparse.ArgumentParser):
             except ValueError as e:
                 self.error(str(e))
         return parsed, extras
+
+    def refuse_dashed_values(self, args: list[str]) -> None:
+        """argparse takes a value that begins with '-' and is not a plain negative number
+        (`--shard -1/2`, `--sigma -1e-3` before Python 3.14) for an option, and says only "expected
+        one argument": say how to give it."""
+        for option, value in zip(args, args[1:]):
+            action = self._option_string_actions.get(option)
+            if (
+                action is not None
+                and action.nargs in (None, "?", "+")
+                and value.startswith("-")
+                and value != "-"  # a value for argparse: standard input, say
+                and value not in self._option_string_actions
+                and not self._negative_number_matcher.match(value)
+            ):
+                self.error(f"argument {option}: its value {value!r} begins with '-', so write {option}={value}")
 
     def mode_defaults(self, args: argparse.Namespace, mode: str, options: dict) -> None:
         """Options that serve some modes of a command only: declared with no default, so that one

@@ -138,6 +138,12 @@ ARGUMENTS = [
         2,
         "argument --shard: must be I/N with 1 <= I <= N (e.g. 2/3), got '4/3'",
     ),
+    (  # argparse took -1/2 for an option: "expected one argument"
+        "world shard written with a minus",
+        "world --shard -1/2",
+        2,
+        "argument --shard: its value '-1/2' begins with '-', so write --shard=-1/2",
+    ),
     ("world shard of no shards", "world --shard 1/0", 2, "argument --shard: must be I/N with 1 <= I <= N"),
     ("world shard not I/N", "world --shard 2of3", 2, "argument --shard: must be I/N with 1 <= I <= N"),
     (
