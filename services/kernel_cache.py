@@ -11,7 +11,7 @@ module imports: the functions it calls and the constants frozen into it); a chan
 file (a service's options, the bus) keeps the kernels. The folder is `<root>/<hash>`, where the
 root is $NUMBA_CACHE_DIR/spikinglab when that is set, else $XDG_CACHE_HOME/spikinglab/numba (by
 default ~/.cache/spikinglab/numba), else, where neither can be written, one in the temporary
-folder. Inside it, a kernel's files are named by its module's place in services/
+folder. Inside it, a CPU kernel's files are named by its module's place in services/
 (services/kernel_locator.py), so every copy of the same sources shares them. Setting numba's cache
 folder is process-wide: other numba code in the same process caches there too. A process that
 starts to compile a kernel for this cache says so (say_when_compiling)."""
@@ -28,7 +28,6 @@ from hashlib import blake2b
 from pathlib import Path
 
 SOURCES = Path(__file__).parent
-LOCATOR = "services.kernel_locator.SourcesLocator"  # kernels cached by their place in services/, not its path
 KEEP_DAYS = 7  # other versions' folders unused this long are deleted when a new one is made
 DIGEST = re.compile(r"[0-9a-f]{16}")  # sources_digest()'s names
 NUMBA = re.compile(rb"^[ \t]*(?:import|from)[ \t]+numba\b", re.MULTILINE)
@@ -137,12 +136,10 @@ def use_cache_folder() -> Path | None:
         except OSError:
             continue
         os.environ["NUMBA_CACHE_DIR"] = str(folder)
-        os.environ.setdefault("NUMBA_CACHE_LOCATOR_CLASSES", LOCATOR)
         if "numba" in sys.modules:  # numba read its environment when it was imported
             from numba.core import config
 
             config.CACHE_DIR = str(folder)  # pyright: ignore[reportAttributeAccessIssue] (from the environment)
-            config.CACHE_LOCATOR_CLASSES = os.environ["NUMBA_CACHE_LOCATOR_CLASSES"]  # pyright: ignore[reportAttributeAccessIssue]
         return folder
     return None
 

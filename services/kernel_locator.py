@@ -1,11 +1,11 @@
-"""numba's cache locator for the kernels of services/: their cache files named by their place in
+"""numba's cache locator for the CPU kernels of services/: their cache files named by their place in
 the package, not by the folder the package lies in, so every copy of one version of the sources (a
 second clone, a CI checkout, an installed wheel) loads the kernels another copy compiled, where
 numba's own locator keys them by the source folder's absolute path and compiles again for minutes.
-services.kernel_cache.use_cache_folder names it in NUMBA_CACHE_LOCATOR_CLASSES (numba 0.62 and
-later; earlier ones ignore the variable and cache by path). A cached kernel is checked against a
-hash of its source file's contents, as numba 0.68 checks it (0.62 to 0.65 check the file's time,
-which a copy does not share), and the folder is this version's."""
+A cached kernel is checked against a hash of its source file's contents, as numba 0.68 checks it
+(0.62 to 0.65 check the file's time, which a copy does not share); the folder is this version's
+(services/kernel_cache.py) and the numpy it was compiled against. numba-cuda's kernels keep its own
+locators (by path)."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ import hashlib
 import os
 from pathlib import Path
 
+import numpy as np
 from numba.core import caching, config
 
 from services.kernel_cache import SOURCES
@@ -21,14 +22,23 @@ from services.kernel_cache import SOURCES
 PACKAGE = SOURCES.resolve()
 
 
+def register() -> None:
+    """First in numba's list of locators for this process: before the modules of services/ define
+    their kernels (services/kernels.py, which they import, calls this). A list the user gives in
+    NUMBA_CACHE_LOCATOR_CLASSES replaces numba's and this one."""
+    if SourcesLocator not in caching.CacheImpl._locator_classes:
+        caching.CacheImpl._locator_classes.insert(0, SourcesLocator)
+
+
 class SourcesLocator(caching.UserProvidedCacheLocator):
-    """A function of services/ caches in <numba's cache folder>/services/<its subpackage>; any other
-    function goes to numba's own locators, in their order (the variable replaces their list)."""
+    """A function of services/ caches in <numba's cache folder>/services-numpy<version>/<its
+    subpackage>; for any other function, or where that folder cannot be written, numba tries its
+    own locators after this one."""
 
     def __init__(self, py_func, py_file):
         super().__init__(py_func, py_file)
         place = Path(py_file).resolve().parent.relative_to(PACKAGE)
-        self._cache_path = os.path.join(cache_dir(), PACKAGE.name, *place.parts)
+        self._cache_path = os.path.join(cache_dir(), f"{PACKAGE.name}-numpy{np.__version__}", *place.parts)
 
     def get_source_stamp(self):
         st = os.stat(self._py_file)
@@ -38,10 +48,6 @@ class SourcesLocator(caching.UserProvidedCacheLocator):
     def from_function(cls, py_func, py_file):
         if cache_dir() and Path(py_file).resolve().is_relative_to(PACKAGE):
             return super().from_function(py_func, py_file)
-        for numbas in caching.CacheImpl._locator_classes:
-            locator = numbas.from_function(py_func, py_file)
-            if locator is not None:
-                return locator
         return None
 
 

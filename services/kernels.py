@@ -1,13 +1,16 @@
 """A numba kernel called once a tick, without numba's dispatcher after the first call. Importing this
-module (as the engine and the world do) makes the process say when it compiles kernels."""
+module (as the engine and the world do) makes the process say when it compiles kernels, and cache
+them by their place in services/ (services/kernel_locator.py)."""
 
 from __future__ import annotations
 
 from numba import typeof
 
+from services import kernel_locator
 from services.kernel_cache import say_when_compiling
 
 say_when_compiling()  # the modules whose kernels compile for minutes import this one
+kernel_locator.register()  # before they define them
 
 
 class Kernel:

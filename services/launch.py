@@ -77,10 +77,9 @@ class Process:
             if value is True:
                 out.append(flag)
             elif isinstance(value, (list, tuple)):
-                for item in value:
-                    out += [flag, str(item)]
+                out += [f"{flag}={item}" for item in value]  # one argument each: a value may begin with '-'
             elif value is not False and value is not None:
-                out += [flag, str(value)]
+                out.append(f"{flag}={value}")
         return out
 
     def check(self, where: str = "") -> argparse.Namespace:

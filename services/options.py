@@ -47,15 +47,17 @@ class Parser(argparse.ArgumentParser):
     def refuse_dashed_values(self, args: list[str]) -> None:
         """argparse takes a value that begins with '-' and is not a plain negative number
         (`--shard -1/2`, `--sigma -1e-3` before Python 3.14) for an option, and says only "expected
-        one argument": say how to give it."""
+        one argument": say how to give it. Up to a `--`; a value with a space argparse takes as one."""
+        args = args[: args.index("--")] if "--" in args else args
         for option, value in zip(args, args[1:]):
             action = self._option_string_actions.get(option)
             if (
                 action is not None
-                and action.nargs in (None, "?", "+")
+                and action.nargs in (None, "+")
                 and value.startswith("-")
+                and not value.startswith("--")  # an option, misspelt or not: argparse says which
                 and value != "-"  # a value for argparse: standard input, say
-                and value not in self._option_string_actions
+                and " " not in value
                 and not self._negative_number_matcher.match(value)
             ):
                 self.error(f"argument {option}: its value {value!r} begins with '-', so write {option}={value}")
