@@ -146,9 +146,9 @@ def use_cache_folder() -> Path | None:
 
 def say_when_compiling() -> None:
     """Say on stderr, once, as this process begins to compile a kernel that is to be cached: numba's
-    "numba:compile" event comes for such a kernel only where its cache lacks it, and a first command
-    after a fresh checkout or a change to the kernels' sources compiles for minutes before its first
-    tick. Kernels that are never cached (a benchmark's no-op) compile every time and say nothing."""
+    "numba:compile" event comes for such a kernel only where its cache lacks it, and the first command
+    of a version of the kernels' sources on a machine compiles for minutes before its first tick.
+    Kernels that are never cached (a benchmark's no-op) compile every time and say nothing."""
     from numba.core import event
 
     class FirstCompile(event.Listener):
@@ -162,7 +162,7 @@ def say_when_compiling() -> None:
                 self.said = True
                 print(
                     ("\n" if sys.stderr.isatty() else "")  # past a progress bar's line
-                    + "compiling numba kernels: minutes on a new checkout or after a change to their sources, "
+                    + "compiling numba kernels: minutes the first time this version of their sources runs here, "
                     + f"then kept in {os.environ.get('NUMBA_CACHE_DIR', 'the __pycache__ folders beside them')}",
                     file=sys.stderr,
                     flush=True,
