@@ -15,7 +15,7 @@ import os
 from pathlib import Path
 
 import numpy as np
-from numba.core import caching, config
+from numba.core import caching
 
 from services.kernel_cache import SOURCES
 
@@ -35,24 +35,20 @@ class SourcesLocator(caching.UserProvidedCacheLocator):
     subpackage>; for any other function, or where that folder cannot be written, numba tries its
     own locators after this one."""
 
-    def __init__(self, py_func, py_file):
-        super().__init__(py_func, py_file)
+    @classmethod
+    def get_suitable_cache_subpath(cls, py_file):  # numba's __init__ puts it under its cache folder
         place = Path(py_file).resolve().parent.relative_to(PACKAGE)
-        self._cache_path = os.path.join(cache_dir(), f"{PACKAGE.name}-numpy{np.__version__}", *place.parts)
+        return os.path.join(f"{PACKAGE.name}-numpy{np.__version__}", *place.parts)
 
     def get_source_stamp(self):
         st = os.stat(self._py_file)
         return _contents_hash(self._py_file, st.st_mtime, st.st_size)
 
     @classmethod
-    def from_function(cls, py_func, py_file):
-        if cache_dir() and Path(py_file).resolve().is_relative_to(PACKAGE):
+    def from_function(cls, py_func, py_file):  # numba's: None without a cache folder, or one not writable
+        if Path(py_file).resolve().is_relative_to(PACKAGE):
             return super().from_function(py_func, py_file)
         return None
-
-
-def cache_dir() -> str:
-    return config.CACHE_DIR  # pyright: ignore[reportAttributeAccessIssue] (set from the environment)
 
 
 @functools.cache
