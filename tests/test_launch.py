@@ -28,7 +28,7 @@ def test_simulation_runs_world_brain_and_recorder_with_prefixed_logs(tmp_path):
     assert run.returncode == 0, out + err
     for name in ("world", "brain", "recorder"):
         assert any(line.strip().startswith(f"{name} |") for line in out.splitlines()), out
-    assert "weights saved" in out and "recording written" in out
+    assert "weights saved" in out and "recording written" in out and "(ticks 0..2999)" in out  # the last tick's number
     result = tmp_path / "runs" / "launch-simulation"
     assert json.loads((result / "metrics.json").read_text())["ticks"] == 3000
     assert (result / "weights.npz").stat().st_size > 0 and (result / "recording.rrd").stat().st_size > 0

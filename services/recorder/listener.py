@@ -22,6 +22,7 @@ from .recorder import Recorder
 
 log = logging.getLogger("spikinglab.recorder")
 END_GRACE = 5.0  # seconds to wait after the run's end for the brain's last messages
+LEFT_GRACE = 1.0  # seconds: what a service sent before it left may come after the news that it left
 FLUSH_S = 0.5  # written to the file at least this often: a killed recorder loses about this much of the run
 NEXT_RUN_HELD = 256  # messages of another run held while the run recorded may still go on (its map comes first)
 STREAMS = {WorldState: "world", BrainState: "brain"}  # state streams by their names in Recorder.next_tick
@@ -51,6 +52,7 @@ class Listener:
         self.rejected, self.last_flush, self.ending = 0, time.monotonic(), None
         self.received, self.first_at = 0, time.monotonic()
         self.heard_at = time.monotonic()  # when the run recorded last sent a message that was recorded
+        self.left_at: float | None = None  # when world and brain were first seen gone, the run not ended
 
     def step(self, message) -> bool:
         """One read of the inbox (`message`, or None when none came): recorded, and everything
@@ -165,11 +167,17 @@ class Listener:
         )
 
     def see_if_left(self) -> None:
-        """World and brain both gone without the run's end: what came is written, END_GRACE on."""
+        """World and brain both gone without the run's end, LEFT_GRACE on (their final batches may
+        still be on the way): what came is written, END_GRACE on."""
         seen = [presence for presence in self.watched.values() if presence.seen]
         if not seen or any(p.alive for p in seen) or self.forever or self.ending is not None:
+            self.left_at = None
             return
-        self.ending = time.monotonic() + END_GRACE
+        now = time.monotonic()
+        self.left_at = self.left_at or now
+        if now - self.left_at < LEFT_GRACE:
+            return
+        self.ending = now + END_GRACE
         self.recorder.event(
             f"the {' and the '.join(n for n, p in self.watched.items() if p.seen)} left without the "
             f"run's end: the recording ends at tick {max(self.recorder.last_tick, 0)}",

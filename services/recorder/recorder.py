@@ -212,8 +212,7 @@ class Recorder:
             # the earliest tick held; said once, at the first flush (a batch may start earlier than
             # the message that happened to come first)
             self.first_tick = message.tick if self.first_tick is None else min(self.first_tick, message.tick)
-            self.last_tick = max(self.last_tick, message.tick)  # batches move it on further
-        handler(message)
+        handler(message)  # it moves last_tick on to its batch's last tick (a final batch may hold none)
         if self.last_tick - self._flushed_to >= self.flush_every:
             self.flush()
 
