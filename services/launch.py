@@ -38,6 +38,7 @@ from importlib import resources
 from pathlib import Path
 
 from services.brain.brain import check_sensors
+from services.brain.checkpoint import load_weights
 from services.brain.circuit import load_circuit
 from services.commands import ENDLESS, PARENT, SERVICES
 from services.interrupts import ctrl_c_held
@@ -222,9 +223,10 @@ class Child:
 class Launcher:
     """Service processes started together, watched, and ended together."""
 
-    def __init__(self, logs: Path | None = None, colour: bool | None = None):
+    def __init__(self, logs: Path | None = None, colour: bool | None = None, say_clean_ends: bool = True):
+        """`say_clean_ends`: a line when a process ends with exit 0 (`spikinglab run` reports the run instead)."""
         self.children: dict[str, Child] = {}
-        self.logs = logs
+        self.logs, self.say_clean_ends = logs, say_clean_ends
         if colour is None:
             colour = sys.stdout.isatty() and "NO_COLOR" not in os.environ
         self._colours = itertools.cycle(COLOURS) if colour else itertools.repeat(None)
@@ -251,7 +253,8 @@ class Launcher:
                     continue
                 if name not in ended_at:
                     ended_at[name] = time.monotonic()
-                    log.info("the %s ended (exit %s)", name, code)
+                    if code != 0 or self.say_clean_ends:
+                        log.info("the %s ended (exit %s)", name, code)
                 if name in optional:
                     if code != 0:
                         log.error(
@@ -348,6 +351,7 @@ def read_launch_file(path: Path) -> tuple[list[Process], str | None]:
         raise LaunchError(f"{path} names no process: add a table such as [world]")
     check_world_shards_agree(path, processes, parsed)
     check_brains_fit_worlds(path, processes, parsed)
+    check_brains_weights(path, processes, parsed)
     until = settings.get("until")
     if until is not None and (not isinstance(until, str) or until not in data):
         raise LaunchError(f"{path}, [launch]: until = {until!r} is not one of its processes ({', '.join(data)})")
@@ -400,9 +404,8 @@ def check_brains_fit_worlds(path: Path, processes: list[Process], parsed: dict[s
             )
         world, (i, n) = worlds[world_name], args.shard
         if n != world.shards:
-            raise LaunchError(
-                f'{where}: shard = "{i}/{n}", but [{world_name}] runs the brain as shards = {world.shards}'
-            )
+            given = f'shard = "{i}/{n}"' if "shard" in brain.options else f'no shard (so "{i}/{n}")'
+            raise LaunchError(f"{where}: {given}, but [{world_name}] runs the brain as shards = {world.shards}")
         if args.world_shards != world.shard[1]:  # the brain would refuse the pieces of the others
             raise LaunchError(
                 f"{where}: world_shards = {args.world_shards}, but [{world_name}] is one of {world.shard[1]} "
@@ -420,6 +423,17 @@ def check_brains_fit_worlds(path: Path, processes: list[Process], parsed: dict[s
                 file_for_agents(args.params, world.agents, f"agents of [{world_name}]")
             except ValueError as e:
                 raise LaunchError(f"{where}: {e}") from None
+
+
+def check_brains_weights(path: Path, processes: list[Process], parsed: dict[str, argparse.Namespace]) -> None:
+    """A brain's `load`: a weights checkpoint of its circuit, or the brain would stop at its start
+    with the others running."""
+    for brain in (p for p in processes if p.service == "brain" and parsed[p.name].load is not None):
+        args = parsed[brain.name]
+        try:
+            load_weights(args.load, load_circuit(args.circuit))
+        except ValueError as e:
+            raise LaunchError(f"{path}, [{brain.name}]: {e}") from None
 
 
 def shipped() -> dict[str, Path]:

@@ -12,7 +12,6 @@ with `spikinglab run --resume runs/<id>`.
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
 import logging
 import os
@@ -43,7 +42,7 @@ from services.options import (
     output_folder,
     positive,
 )
-from services.run_folder import KEPT_PARAMS, STARTED_WITH, RunFolderError, failed, started_with, take
+from services.run_folder import STARTED_WITH, RunFolderError, failed, kept_files, new_folder, started_with, take
 from services.run_report import learning_rate, plot, plot_trajectory, rates_text, recording_status, report, summarise
 from services.world.options import WorldOptions, add_world_args, world_from
 from services.world.world import BIN, SENSORS, MapError
@@ -55,8 +54,7 @@ LOCAL = "127.0.0.1"  # the live view's servers listen here unless --view-host sa
 
 def parser() -> argparse.ArgumentParser:
     p = Parser(prog="spikinglab run", description=(__doc__ or "").partition("\n")[0], together=[learning_options_fit])
-    add_world_args(p)
-    p.set_defaults(ticks=100_000)
+    add_world_args(p, ticks=100_000, least_ticks=BIN, why=f", at least {BIN:,}: one bin of collisions")
     p.add_argument(
         "--circuit", default="insect", help="circuit name in services/brain/circuits/ or a .toml path (default insect)"
     )
@@ -115,8 +113,6 @@ def arguments(p: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace
     args = p.parse_args(argv)
     if args.resume is not None:
         args = resumed(p, args)
-    if args.ticks < BIN:
-        p.error(f"argument --ticks: must be at least one bin of collisions ({BIN:,} ticks), got {args.ticks:,}")
     if args.view and args.no_record:
         p.error("argument --view: the live view comes from the recorder, which --no-record leaves out")
     if args.detail is not None and args.no_record:
@@ -158,8 +154,7 @@ def resumed(p: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.Na
         if getattr(args, k) != defaults[k]:
             setattr(options, k, getattr(args, k))
     options.runs, options.id, options.resume = folder.parent, folder.name, folder
-    if options.params:  # the copy the run began with: the file given may have changed since
-        options.params = folder / KEPT_PARAMS
+    kept_files(folder, options)  # the copies the run began with: the files given may have changed since
     return options
 
 
@@ -167,10 +162,10 @@ def main(argv=None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
     argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
     args = arguments(parser(), argv)
-    folder = args.runs / (args.id or f"{datetime.datetime.now():%Y%m%d-%H%M%S}-seed{args.seed}")
     try:  # everything a user can get wrong, before any process starts
         circuit, columns = checked_inputs(args)
-        resume_at = take(folder, args, argv)
+        folder = args.runs / args.id if args.id else new_folder(args.runs, args.seed)
+        resume_at = take(folder, args, argv, circuit)
     except (CircuitError, MapError, RunFolderError, ValueError, OSError) as e:
         log.error("spikinglab run: %s", e)
         return 2
@@ -190,6 +185,8 @@ def main(argv=None) -> int:
         failed(folder, "interrupted before the first tick" if interrupted else "the world or the brain wrote no result")
         return 130 if interrupted else 1
     recording = None if run.recording is None else recording_status(recorder_code, run.recording)
+    if run.recording is None and resume_at is not None and (folder / "recording.rrd").exists():
+        recording = {"complete": False, "why": f"this part, from tick {resume_at:,}, was not recorded (--no-record)"}
     summary = summarise(folder, args, argv, circuit, time.time() - started, recording)
     if not summary["headline"]["partial"]:  # the run is whole: its learning is in weights.npz
         shutil.rmtree(folder / "checkpoint", ignore_errors=True)
@@ -207,7 +204,7 @@ def checked_inputs(args: argparse.Namespace) -> tuple[Circuit, dict]:
     if args.a_plus is not None:
         circuit = circuit.with_learning_rate(args.a_plus)
     world_from(config_from(args, WorldOptions, whole=False))  # and the --params file, for the world's agents
-    columns = brain_params(args.params, circuit) if args.params else {}
+    columns = brain_params(args.params, circuit, args.a_plus) if args.params else {}
     loaded = len(load_weights(args.load, circuit)) if args.load else 1
     if loaded not in (1, args.agents):
         raise ValueError(f"{args.load}: weights of {loaded} agents, the run has {args.agents} (or give one agent's)")
@@ -282,7 +279,7 @@ def launch(run: RunProcesses, folder: Path, view) -> tuple[int | None, bool, int
     """Start the services (and the live view), watch them until the world has ended, and end them
     together. Returns the exit code of a run that has no result (None: world and brain wrote
     theirs), whether it was interrupted (Ctrl-C or SIGTERM), and the recorder's exit code."""
-    launcher, begun = Launcher(), time.time()
+    launcher, begun = Launcher(say_clean_ends=False), time.time()
     sigterm = signal.signal(signal.SIGTERM, signal.default_int_handler)  # SIGTERM ends the run as Ctrl-C does
     interrupted = False
     try:

@@ -1,22 +1,45 @@
 """A run folder of `spikinglab run` (runs/<id>/): taken for one run only, with the options the run
-was started with (for --resume), its --params file, the checkpoints kept while it lasts, and
+was started with (for --resume), the files it was given, the checkpoints kept while it lasts, and
 FAILED.txt when it has no result."""
 
 from __future__ import annotations
 
 import argparse
+import datetime
+import fcntl
+import itertools
 import json
 import logging
+import os
 import shutil
 from pathlib import Path
 
 from services import snapshots
+from services.brain.circuit import CIRCUITS_DIR, Circuit
 from services.world.checkpoint import CHECKPOINT
 
 log = logging.getLogger("spikinglab.run")
 STARTED_WITH = "command.json"  # the options the run was started with, for --resume
-KEPT_PARAMS = "params.csv"  # the --params file the run was started with, which world and brain read
+# The files given to a run, kept in its folder under these names and read from there by world and
+# brain: what they were is what they stay, and --resume finds them from any folder. (A circuit
+# shipped with spikinglab is given by its name, not kept.)
+KEPT = {"params": "params.csv", "map": "map.txt", "load": "loaded-weights.npz", "circuit": "circuit.toml"}
 RESULTS = (STARTED_WITH, "summary.json", "weights.npz")  # a folder with one of these holds a run
+
+
+def new_folder(runs: Path, seed: int) -> Path:
+    """A new run folder named by the date, time and seed (a run started in the same second with the
+    same seed gets -2, -3, ...), made now so that no other run takes it."""
+    name = f"{datetime.datetime.now():%Y%m%d-%H%M%S}-seed{seed}"
+    runs.mkdir(parents=True, exist_ok=True)
+    for n in itertools.count(1):
+        folder = runs / (name if n == 1 else f"{name}-{n}")
+        try:
+            folder.mkdir()
+            return folder
+        except FileExistsError:
+            continue
+    raise AssertionError("unreachable")
 
 
 class RunFolderError(ValueError):
@@ -42,10 +65,13 @@ def checkpoint_tick(folder: Path) -> int | None:
     return tick
 
 
-def take(folder: Path, args: argparse.Namespace, argv: list[str]) -> int | None:
-    """Make `folder` the run's: a new run's (never over the learning of another run), or the
-    interrupted run's that --resume goes on with. Keeps the options and the --params file of a new
-    run (args.params then names the copy kept); returns the tick a resumed run goes on from."""
+def take(folder: Path, args: argparse.Namespace, argv: list[str], circuit: Circuit) -> int | None:
+    """Make `folder` the run's, for as long as this process lives: a new run's (never over the
+    learning of another run), or the interrupted run's that --resume goes on with. Keeps the options
+    and the files given to a new run (KEPT; args then name the copies); returns the tick a resumed
+    run goes on from."""
+    folder.mkdir(parents=True, exist_ok=True)
+    hold(folder)
     try:
         resume_at = checkpoint_tick(folder)
         interrupted = resume_at is not None
@@ -61,15 +87,36 @@ def take(folder: Path, args: argparse.Namespace, argv: list[str]) -> int | None:
     if not args.resume and any((folder / name).exists() for name in RESULTS):
         how = f" (interrupted; go on with it: spikinglab run --resume {folder})" if interrupted else ""
         raise RunFolderError(f"{folder} holds a run already{how}: choose another --id")
-    folder.mkdir(parents=True, exist_ok=True)
     if args.resume:
         (folder / "FAILED.txt").unlink(missing_ok=True)  # it said how to go on: this is it
         return resume_at
     (folder / STARTED_WITH).write_text(json.dumps({"argv": argv}))
-    if args.params:  # kept with the run, and read from there: what it was is what it stays
-        shutil.copyfile(args.params, folder / KEPT_PARAMS)
-        args.params = folder / KEPT_PARAMS
+    given = {"params": args.params, "map": args.map, "load": args.load, "circuit": circuit.source}
+    if Path(circuit.source).resolve().parent == CIRCUITS_DIR.resolve():
+        given["circuit"] = None
+    for option, path in given.items():
+        if path:
+            shutil.copyfile(path, folder / KEPT[option])
+            setattr(args, option, folder / KEPT[option])
     return None
+
+
+def kept_files(folder: Path, options: argparse.Namespace) -> None:
+    """The options of a resumed run name the files kept in its folder (those its start kept)."""
+    for option, name in KEPT.items():
+        if getattr(options, option) and (folder / name).exists():
+            setattr(options, option, folder / name)
+
+
+def hold(folder: Path) -> None:
+    """A lock on `folder` until this process ends (its descriptor is left open): a second run in
+    the same folder at the same time is refused."""
+    descriptor = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(descriptor)
+        raise RunFolderError(f"{folder} is in use by another spikinglab run now: choose another --id") from None
 
 
 def started_with(folder: Path) -> list[str]:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import shlex
 from pathlib import Path
 
@@ -19,6 +20,7 @@ from services.run_folder import resume_hint
 from spikinglab.cli import version
 
 PAPER_TABLE_1 = {f"{a:.2f}": n for a, n in PAPER.items()}  # keyed as summary.json shows A
+RECORDING_PART = re.compile(r"recording(-from-tick\d+)?\.rrd")  # services/run.py's names of a run's parts
 
 
 def summarise(
@@ -34,9 +36,14 @@ def summarise(
     stats = folder / "brain-stats.json"
     brain_stats = json.loads(stats.read_text()) if stats.exists() else {}
     weights = load_weights(folder / "weights.npz", circuit)
+    if args.load:  # one agent's, or one row per agent
+        loaded = np.broadcast_to(load_weights(args.load, circuit), weights.shape)
+        initial = {circuit.synapse_label(k): loaded[:, k].round(4).tolist() for k in circuit.plastic_synapses}
+    else:
+        initial = {circuit.synapse_label(k): circuit.synapses[k].weight for k in circuit.plastic_synapses}
     summary = {
         "headline": headline(metrics, args.agents),
-        "initial_weights": {circuit.synapse_label(k): circuit.synapses[k].weight for k in circuit.plastic_synapses},
+        "initial_weights": initial,
         "final_weights": {circuit.synapse_label(k): weights[:, k].round(4).tolist() for k in circuit.plastic_synapses},
         "spikinglab": version(),
         "command": shlex.join(["spikinglab", "run", *argv]),
@@ -95,6 +102,7 @@ def parameters(args: argparse.Namespace, circuit: Circuit) -> dict:
         "circuit": circuit.source,
         "preset": args.preset,
         "map": str(args.map) if args.map else None,
+        "load": str(args.load) if args.load else None,
         "shared_arena": args.shared,
         "training": not args.no_training,
         "learned_after": args.learned_after,
@@ -265,17 +273,21 @@ def report(folder: Path, summary: dict) -> None:
         + (f" (paper, {rates_text(p)}: {paper:,}; docs/results.md compares)" if paper else "")
     )
     print("weights:", ", ".join(f"{k} {v:.2f}" for k, v in mean.items()))
-    # the first part first: recording.rrd, then recording-from-tickN.rrd by N
-    recordings = sorted(folder.glob("recording*.rrd"), key=lambda path: (len(path.name), path.name))
+    # the run's parts, the first first: recording.rrd, then recording-from-tickN.rrd by N (not an
+    # earlier try of a part, kept as .previous.rrd)
+    parts = (path for path in folder.glob("recording*.rrd") if RECORDING_PART.fullmatch(path.name))
+    recordings = sorted(parts, key=lambda path: (len(path.name), path.name))
     files = ", ".join(
         ["summary.json, collisions.png, trajectory.png, metrics.json, weights.npz", *(path.name for path in recordings)]
     )
     print(f"\nwritten to {folder}/: {files}")
     recording = summary.get("recording", {})
     if not recording.get("complete", True):
-        print(
-            f"recording: PARTIAL, {recording['why']}; it holds ticks {head['resumed_at'] or 0:,} to "
-            f"{recording.get('last_tick', 0):,}"
+        held = (
+            f"; it holds ticks {head['resumed_at'] or 0:,} to {recording['last_tick']:,}"
+            if "last_tick" in recording
+            else ""
         )
+        print(f"recording: PARTIAL, {recording['why']}{held}")
     if recordings:  # the parts of a resumed run are one recording in the viewer
         print(f"replay it: {viewer_shown()} {' '.join(map(str, recordings))}")

@@ -88,7 +88,8 @@ def process_main(name: str, parser: argparse.ArgumentParser, run, argv=None, int
     try:
         end_with_parent()
         code = run(args)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # where the process had no result to write yet (it says so where it had)
+        log.warning("interrupted (Ctrl-C or SIGTERM): stopped")
         code = interrupted
     finally:
         if tracemalloc.is_tracing():  # PYTHONTRACEMALLOC=1: what of its memory Python objects hold

@@ -55,6 +55,10 @@ def files(tmp_path_factory):
     unfit = {"rows": f'params = "{folder / "rows.csv"}"', "shards": 'shard = "2/2"', "group": 'group = "other"'}
     for name, brain in unfit.items():  # a brain each that could never serve its world: refused before anything starts
         (folder / f"unfit-{name}.toml").write_text(f"[world]\nagents = 2\n[brain]\nonce = true\n{brain}\n")
+    (folder / "load-missing.toml").write_text(
+        f'[brain]\nconnect = ["tcp/127.0.0.1:7447"]\nload = "{folder / "missing.npz"}"\n'
+    )
+    (folder / "unfit-noshard.toml").write_text("[world]\nagents = 2\nshards = 2\n[brain]\nonce = true\n")
     (folder / "unfit-pieces.toml").write_text(  # two world shards, a brain that serves one world's agents
         '[world-1]\nservice = "world"\nagents = 2\nshard = "1/2"\n'
         '[world-2]\nservice = "world"\nagents = 2\nshard = "2/2"\n[brain]\nonce = true\n'
@@ -89,7 +93,7 @@ def closed_port():
 # usage errors found by the parser (argparse) or the command line's front, before anything starts:
 # id, arguments ({f}: the input files), exit code, what the one line says; run in-process
 ARGUMENTS = [
-    ("run ticks below one bin", "run --ticks 500", 2, "argument --ticks: must be at least one bin of collisions"),
+    ("run ticks below one bin", "run --ticks 500", 2, "argument --ticks: must be at least 1,000, got 500"),
     ("run agents 0", "run --agents 0", 2, "argument --agents: must be at least 1, got 0"),
     ("run negative A", "run --a-plus -0.1", 2, "argument --a-plus: must be a number above 0, got -0.1"),
     ("run learning rate not learning", "run --no-training --a-plus 0.05", 2, "argument --a-plus: a learning rate, but"),
@@ -309,6 +313,19 @@ CASES = [
         "word.csv, line 3: move_step is 'fast', not a number",
     ),
     ("brain params the circuit refuses", "brain --params {f}/low.csv", 2, "low.csv: /"),  # names the circuit too
+    (
+        "run params and --a-plus both set A+",  # the file's would win, and the run's first line say --a-plus's
+        "run --agents 3 --params {f}/rows.csv --a-plus 0.03",
+        2,
+        "argument --a-plus: sets A+ and A- of every agent, and parameter file {f}/rows.csv sets a_plus per agent: "
+        "give one of them",
+    ),
+    (
+        "brain params and --a-plus both set A+",
+        "brain --params {f}/rows.csv --a-plus 0.03",
+        2,
+        "parameter file {f}/rows.csv sets a_plus per agent: give one of them",
+    ),
     ("world params missing", "world --params {f}/none.csv", 2, "none.csv: cannot read it (No such file or directory)"),
     ("screenshot of a text file", "screenshot {f}/not.rrd", 2, "not.rrd: not a Rerun recording (.rrd)"),
     ("screenshot of nothing", "screenshot {f}/none.rrd", 2, "none.rrd: no such recording"),
@@ -353,6 +370,18 @@ CASES = [
         "launch {f}/unfit-shards.toml",
         2,
         'unfit-shards.toml, [brain]: shard = "2/2", but [world] runs the brain as shards = 1',
+    ),
+    (
+        "launch brain weights missing",
+        "launch {f}/load-missing.toml",
+        2,
+        "load-missing.toml, [brain]: {f}/missing.npz: cannot read it (No such file or directory)",
+    ),
+    (
+        "launch brain without shard, the world's shards",
+        "launch {f}/unfit-noshard.toml",
+        2,
+        'unfit-noshard.toml, [brain]: no shard (so "1/1"), but [world] runs the brain as shards = 2',
     ),
     (
         "launch brain for one world of world shards",

@@ -19,9 +19,9 @@ from spikinglab.bench.fuzz import KEY_OF
 from .processes import ROOT, running_with, wait_for, wait_for_ticks
 
 
-def spikinglab(*args, timeout=180):
+def spikinglab(*args, timeout=180, cwd=ROOT):
     return subprocess.run(
-        [sys.executable, "-m", "spikinglab", *map(str, args)], cwd=ROOT, capture_output=True, text=True, timeout=timeout
+        [sys.executable, "-m", "spikinglab", *map(str, args)], cwd=cwd, capture_output=True, text=True, timeout=timeout
     )
 
 
@@ -112,7 +112,13 @@ def test_a_trained_insect_runs_with_training_off(tmp_path):
         "--quiet",
     )
     assert done.returncode == 0, done.stderr
-    np.testing.assert_array_equal(load_weights(tmp_path / "test" / "weights.npz", load_circuit("insect")), trained)
+    circuit = load_circuit("insect")
+    np.testing.assert_array_equal(load_weights(tmp_path / "test" / "weights.npz", circuit), trained)
+    summary = json.loads((tmp_path / "test" / "summary.json").read_text())
+    assert summary["initial_weights"] == {  # the weights it started from: those loaded
+        circuit.synapse_label(k): trained[:, k].round(4).tolist() for k in circuit.plastic_synapses
+    }
+    assert summary["parameters"]["load"] == str(tmp_path / "test" / "loaded-weights.npz")  # kept with the run
 
 
 def load_weights_initial():
@@ -212,10 +218,10 @@ def test_benchmarks_run_and_end_with_json():
     assert len(figures["recording_cost_by_pair"]) == 2  # both pairs ran, in turns
 
 
-def start_run(tmp_path, *args):
+def start_run(tmp_path, *args, cwd=ROOT):
     return subprocess.Popen(
         [sys.executable, "-m", "spikinglab", "run", "--runs", tmp_path, "--id", "r", "--quiet", *map(str, args)],
-        cwd=ROOT,
+        cwd=cwd,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -237,6 +243,32 @@ def test_ctrl_c_writes_a_partial_result_and_leaves_nothing_running(tmp_path):
             tmp_path / "r" / plot
         )
     assert not running_with(str(tmp_path))
+
+
+def test_the_replay_line_names_the_runs_parts_and_not_an_earlier_try(tmp_path, capsys):
+    """recording.rrd, then recording-from-tickN.rrd by N; not a part's earlier try that its
+    recorder kept as .previous.rrd (a resume interrupted before its next checkpoint, resumed again)."""
+    from services.run_report import report
+
+    folder = tmp_path / "r"
+    folder.mkdir()
+    for name in ("recording-from-tick10000.rrd", "recording.rrd", "recording-from-tick5000.previous.rrd"):
+        (folder / name).write_bytes(b"")
+    (folder / "recording-from-tick5000.rrd").write_bytes(b"")
+    head = {"learned": "no", "partial": False, "resumed_at": 10000, "ticks_done": 12000}
+    head |= {"collisions_first_quarter": 9.0, "collisions_last_quarter": 1.0}
+    parameters = {"learned_after": 5000, "a_plus": 0.02, "a_minus": 0.02}
+    report(
+        folder,
+        {"headline": head, "final_weights": {}, "learning_time": [None], "parameters": parameters, "ticks_per_s": 1},
+    )
+    replay = capsys.readouterr().out.splitlines()[-1]
+    assert replay.endswith(
+        " ".join(
+            str(folder / name)
+            for name in ("recording.rrd", "recording-from-tick5000.rrd", "recording-from-tick10000.rrd")
+        )
+    ), replay
 
 
 def plot_title(path) -> str:
@@ -275,14 +307,19 @@ def test_a_run_stopped_in_its_first_thousand_ticks_still_plots(tmp_path):
 
 def test_an_interrupted_run_goes_on_with_resume_and_ends_as_an_uninterrupted_one(tmp_path):
     """Ctrl-C after a checkpoint, then `spikinglab run --resume`: the run ends with exactly the
-    result of the same run never interrupted; a new run never takes the interrupted one's folder."""
-    study = tmp_path / "study.csv"
+    result of the same run never interrupted, from any folder and with the files it was given as
+    they were; a new run never takes the interrupted one's folder."""
+    study, arena = tmp_path / "study.csv", tmp_path / "arena.txt"
     study.write_text("a_plus,a_minus,move_step\n0.03,0.03,0.8\n")
-    options = ("--ticks", 12000, "--seed", 5, "--checkpoint-every", 4000, "--no-record", "--params", study)
-    whole = spikinglab("run", *options, "--runs", tmp_path / "whole", "--id", "r", "--quiet")
+    arena.write_text("##########\n#S...R...#\n#........#\n#..G.....#\n##########\n")
+    options = ("--ticks", 12000, "--seed", 5, "--checkpoint-every", 4000, "--params", study)
+    options += ("--map", arena.name)  # as given in tmp_path: a path relative to where the run started
+    whole = spikinglab(
+        "run", *options, "--runs", tmp_path / "whole", "--id", "r", "--quiet", "--no-record", cwd=tmp_path
+    )
     assert whole.returncode == 0, whole.stderr
     assert not (tmp_path / "whole" / "r" / "checkpoint").exists()  # a whole run keeps no checkpoints
-    run = start_run(tmp_path, *options)
+    run = start_run(tmp_path, *options, cwd=tmp_path)
     kept = tmp_path / "r" / "checkpoint" / "world.npz"
     deadline = time.monotonic() + 120
     while not kept.exists():
@@ -292,7 +329,7 @@ def test_an_interrupted_run_goes_on_with_resume_and_ends_as_an_uninterrupted_one
     out, err = run.communicate(timeout=90)
     assert run.returncode == 130, err
     assert f"go on from its checkpoint at tick 4,000: spikinglab run --resume {tmp_path / 'r'}" in out
-    again = spikinglab("run", *options, "--runs", tmp_path, "--id", "r", "--quiet")
+    again = spikinglab("run", *options, "--runs", tmp_path, "--id", "r", "--quiet", cwd=tmp_path)
     assert again.returncode == 2 and f"go on with it: spikinglab run --resume {tmp_path / 'r'}" in again.stderr
     assert spikinglab("run", "--resume", tmp_path / "r", "--ticks", 50).returncode == 2  # only its own options
     for damaged in ("world.npz", "brain-*-tick4000.npz"):  # truncated: the run would go on without its learning
@@ -305,9 +342,11 @@ def test_an_interrupted_run_goes_on_with_resume_and_ends_as_an_uninterrupted_one
             refused.returncode == 2
             and f"cannot resume the run in {copy}: {path}: not a run checkpoint" in refused.stderr
         )
-    study.write_text("a_plus,a_minus,move_step\n0.01,0.01,1.2\n")  # the run goes on with the values it began with
-    resumed = spikinglab("run", "--resume", tmp_path / "r", "--quiet")
+    study.write_text("a_plus,a_minus,move_step\n0.01,0.01,1.2\n")  # the run goes on with the files it began with
+    arena.write_text("############\n#S.........#\n############\n")
+    resumed = spikinglab("run", "--resume", tmp_path / "r", "--quiet", "--no-record")  # from the checkout
     assert resumed.returncode == 0, resumed.stderr
+    assert "recording: PARTIAL, this part, from tick 4,000, was not recorded (--no-record)" in resumed.stdout
     got, want = (
         json.loads((folder / "summary.json").read_text()) for folder in (tmp_path / "r", tmp_path / "whole" / "r")
     )
@@ -374,3 +413,20 @@ def test_one_ctrl_c_after_the_world_ended_still_writes_the_summary(tmp_path):
     head = json.loads((folder / "summary.json").read_text())["headline"]
     assert head["partial"] is False and head["ticks_done"] == 10_000
     assert not (folder / "FAILED.txt").exists() and not running_with(str(tmp_path))
+
+
+def test_two_runs_never_share_a_folder(tmp_path):
+    """A run started in the same second with the same seed gets a folder of its own; a run given the
+    folder of a run going on now is refused before anything starts."""
+    from services.run_folder import hold, new_folder
+
+    first, second = new_folder(tmp_path, 3), new_folder(tmp_path, 3)
+    assert first != second and first.is_dir() and second.is_dir()
+    assert second.name in (f"{first.name}-2", second.name.split("-seed")[0] + "-seed3")  # or the next second's
+    busy = tmp_path / "busy"
+    busy.mkdir()
+    hold(busy)  # as the run that has it does, until its process ends
+    refused = spikinglab("run", "--runs", tmp_path, "--id", "busy", "--ticks", 1000)
+    assert refused.returncode == 2
+    assert f"{busy} is in use by another spikinglab run now: choose another --id" in refused.stderr
+    assert not list(busy.iterdir())  # nothing written over the other run's

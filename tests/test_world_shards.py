@@ -247,6 +247,22 @@ def test_a_second_copy_of_a_world_shard_waiting_for_its_lead_stays_off(tmp_path)
         assert "-waiting-" not in (tmp_path / log).read_text()
 
 
+def test_ctrl_c_at_a_lead_still_waiting_for_its_shards_says_it_stopped(tmp_path):
+    """Before any run: exit 130 and a line that says so, not a log that ends on "waiting"."""
+    router = start("router", "--listen", endpoint(tmp_path, "router"), log=tmp_path / "router.log")
+    bus = ("--group", "wc", "--connect", endpoint(tmp_path, "router"))
+    lead = start("world", *bus, "--agents", 2, "--shard", "1/2", "--out", tmp_path, log=tmp_path / "world1.log")
+    try:
+        wait_for(lambda: "to join" in (tmp_path / "world1.log").read_text(), 60, "the lead to wait for shard 2")
+        lead.send_signal(signal.SIGINT)
+        assert finish(lead, 30, tmp_path / "world1.log") == 130
+        assert "interrupted (Ctrl-C or SIGTERM): stopped" in (tmp_path / "world1.log").read_text().splitlines()[-1]
+        assert not (tmp_path / "metrics.json").exists()
+    finally:
+        for process in (router, lead):
+            process.kill()
+
+
 def test_a_world_shard_lost_mid_run_ends_the_lead_and_the_brain_with_an_error(tmp_path):
     """kill -9 of world shard 2 mid-run: the lead runs its own slice to the end, then names the lost
     shard and exits 1 (no metrics.json: half the population has no result), not 0. The `--once`

@@ -61,11 +61,17 @@ class EngineOptions:
     netlogo_seed: int | None = None
 
 
-def brain_params(path: Path, circuit) -> dict:
+def brain_params(path: Path, circuit, a_plus: float | None = None) -> dict:
     """The --params file's columns (all of them: a shard slices them by its sensors' agents), checked
     against the circuit before any run: ValueError for a value it cannot take (a w_max below its
-    initial weights)."""
+    initial weights), or for a learning rate that --a-plus (`a_plus`) sets too."""
     columns = read_params(path)
+    both = [name for name in ("a_plus", "a_minus") if name in columns]
+    if a_plus is not None and both:
+        raise ValueError(
+            f"argument --a-plus: sets A+ and A- of every agent, and parameter file {path} sets "
+            f"{' and '.join(both)} per agent: give one of them"
+        )
     try:
         learning_tables(circuit, side_of(columns, "brain"), file_rows(columns))
     except ValueError as e:

@@ -139,7 +139,7 @@ def run(config: BrainConfig, session) -> int:
         if config.a_plus is not None:
             circuit = circuit.with_learning_rate(config.a_plus)
         weights = load_weights(config.load, circuit, say=True) if config.load else None
-        params = brain_params(config.params, circuit) if config.params else None
+        params = brain_params(config.params, circuit, config.a_plus) if config.params else None
     except (CircuitError, ValueError, OSError) as e:
         log.error("%s", e)
         return 2
