@@ -98,6 +98,20 @@ ARGUMENTS = [
     ("run negative A", "run --a-plus -0.1", 2, "argument --a-plus: must be a number above 0, got -0.1"),
     ("run learning rate not learning", "run --no-training --a-plus 0.05", 2, "argument --a-plus: a learning rate, but"),
     ("brain learning rate not learning", "brain --no-training --a-plus 0.05", 2, "but --no-training keeps the weights"),
+    (
+        "sharded brain for the recorder",
+        "brain --shard 1/2 --publish-state",
+        2,
+        "argument --shard: got '1/2' with --publish-state: a sharded brain serves a world in lock-step and does not "
+        "publish its state",
+    ),
+    (
+        "sharded world's brain keeping checkpoints",
+        "brain --world-shards 2 --checkpoint {f}/ck",
+        2,
+        "argument --world-shards: got 2 with --checkpoint: a sharded world's brain keeps no checkpoints, runs no robot "
+        "and publishes no state: drop --checkpoint",
+    ),
     ("run detail not agents", "run --detail x", 2, "argument --detail: expected agent numbers separated by commas"),
     ("run abbreviated option", "run --tick 5", 2, "unrecognized arguments: --tick 5"),
     (
@@ -335,12 +349,6 @@ CASES = [
         "record --viewer rerun+http://127.0.0.1:{closed}/proxy --out {f}/r.rrd",
         1,
         "no viewer answers at rerun+http://127.0.0.1:{closed}/proxy",
-    ),
-    (
-        "sharded brain for the recorder",
-        "brain --shard 1/2 --publish-state",
-        2,
-        "a sharded brain serves a world in lock-step and does not publish its state",
     ),
     ("port in use", "brain --listen tcp/127.0.0.1:{busy}", 1, "Address already in use"),
     ("zenoh config Zenoh refuses", "brain --zenoh-config {f}/badmode.json5", 1, "badmode.json5: "),

@@ -41,7 +41,12 @@ def parser() -> argparse.ArgumentParser:
     p = Parser(
         prog="spikinglab brain",
         description="The spiking-network brain, on the bus.",
-        together=[engine_options_fit, learning_options_fit, lambda args: free_running_options(p, args)],
+        together=[
+            engine_options_fit,
+            learning_options_fit,
+            lambda args: free_running_options(p, args),
+            sharded_options_fit,
+        ],
     )
     p.add_argument(
         "--circuit", default="insect", help="circuit name in services/brain/circuits/ or a .toml path (default insect)"
@@ -143,18 +148,6 @@ def run(config: BrainConfig, session) -> int:
     except (CircuitError, ValueError, OSError) as e:
         log.error("%s", e)
         return 2
-    if config.shard[1] > 1 and (config.publish_state or config.clock):
-        log.error(
-            "--shard %d/%d: a sharded brain serves a world in lock-step and does not publish its state (the "
-            "recorder takes one brain's; record the world, or run one brain): drop %s",
-            *config.shard,
-            "--publish-state" if config.publish_state else "--clock",
-        )
-        return 2
-
-    if refusal := sharded_world_refusal(config):
-        log.error("%s", refusal)
-        return 2
 
     def new_node() -> BrainNode:  # one per run the brain serves
         return BrainNode(
@@ -192,16 +185,22 @@ def run(config: BrainConfig, session) -> int:
         bus.close()
 
 
-def sharded_world_refusal(config: BrainConfig) -> str | None:
-    """Why a brain for a sharded world (--world-shards N) cannot run with these options, or None."""
-    given = (("--checkpoint", config.checkpoint), ("--clock", config.clock), ("--publish-state", config.publish_state))
+def sharded_options_fit(args: argparse.Namespace) -> None:
+    """A Parser's `together` check: what a brain shard, or the brain of a sharded world, does not do."""
+    (i, n), shards = args.shard, args.world_shards
+    if n > 1 and (args.publish_state or args.clock):
+        option = "--publish-state" if args.publish_state else "--clock"
+        raise ValueError(
+            f"argument --shard: got '{i}/{n}' with {option}: a sharded brain serves a world in lock-step and does "
+            f"not publish its state (the recorder takes one brain's; record the world, or run one brain): drop {option}"
+        )
+    given = (("--checkpoint", args.checkpoint), ("--clock", args.clock), ("--publish-state", args.publish_state))
     dropped = [option for option, value in given if value]
-    if config.world_shards == 1 or not dropped:
-        return None
-    return (
-        f"--world-shards {config.world_shards}: a sharded world's brain keeps no checkpoints, runs no robot "
-        f"and publishes no state: drop {' and '.join(dropped)}"
-    )
+    if shards > 1 and dropped:
+        raise ValueError(
+            f"argument --world-shards: got {shards} with {' and '.join(dropped)}: a sharded world's brain keeps no "
+            f"checkpoints, runs no robot and publishes no state: drop {' and '.join(dropped)}"
+        )
 
 
 def another_serving(session, group: str, service: str, within: float = ALONE_AFTER_S) -> bool:
