@@ -2,27 +2,17 @@
 sensor values, and from them the same input spikes. (Brian2 itself is no dependency: the
 comparison runs in a venv of its own, docs/results.md.)"""
 
-import importlib.util
-
 import numpy as np
 
 from services.brain.circuit import load_circuit
 from services.brain.engine import Engine
 from spikinglab.bench.engine import random_feeds
 
-from .processes import ROOT
-
-
-def comparison():
-    spec = importlib.util.spec_from_file_location("compare_brian2", ROOT / "examples" / "compare_brian2.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from .examples import example
 
 
 def test_brian2_is_fed_the_benchmarks_values_and_the_engines_input_spikes():
-    compare, circuit = comparison(), load_circuit("insect")
+    compare, circuit = example("compare_brian2"), load_circuit("insect")
     feeds = compare.random_feeds(np.random.default_rng(0), circuit, 400, 5)
     np.testing.assert_array_equal(feeds, random_feeds(np.random.default_rng(0), circuit, 400, 5))
     spiked = Engine(circuit, agents=5).run(feeds)[:, :, len(circuit.neuron_names) :]  # the input neurons'

@@ -3,7 +3,6 @@ search's result and learns on a held-out seed that the search never saw, where t
 circuit does not; the search script (examples/search_fast_learner.py) refuses options it cannot run."""
 
 import dataclasses
-import importlib.util
 import subprocess
 import sys
 from pathlib import Path
@@ -14,20 +13,18 @@ import pytest
 from services.brain.circuit import load_circuit
 from spikinglab import evaluate
 
+from .examples import EXAMPLES, example
+
 SEED = 2  # a held-out seed (0-31; the search used 1000-1047 and 2000-2047): fast_learner learns at 2,095
 TICKS = 10_000  # room for the learning time and the 5,000 collision-free ticks after it
-SCRIPT = Path(__file__).parents[1] / "examples" / "search_fast_learner.py"
+SCRIPT = EXAMPLES / "search_fast_learner.py"
 # a search and a report of seconds, so that a bad option the script once accepted ends the test soon
 TINY_SEARCH = ["--generations", "1", "--population", "2", "--seeds", "1", "--ticks", "1000"]
 TINY_REPORT = ["--report", "--report-ticks", "1000", "--report-seeds", "1"]
 
 
 def search_script():
-    spec = importlib.util.spec_from_file_location("search_fast_learner", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return example("search_fast_learner")
 
 
 def test_the_circuit_file_holds_the_search_result_and_the_search_space_holds_the_insect():
