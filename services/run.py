@@ -43,7 +43,16 @@ from services.options import (
     positive,
 )
 from services.run_folder import STARTED_WITH, RunFolderError, failed, kept_files, new_folder, started_with, take
-from services.run_report import learning_rate, plot, plot_trajectory, rates_text, recording_status, report, summarise
+from services.run_report import (
+    learning_rate,
+    plot,
+    plot_trajectory,
+    rates_text,
+    recording_parts,
+    recording_status,
+    report,
+    summarise,
+)
 from services.world.options import WorldOptions, add_world_args, world_from
 from services.world.world import BIN, SENSORS, MapError
 
@@ -185,7 +194,7 @@ def main(argv=None) -> int:
         failed(folder, "interrupted before the first tick" if interrupted else "the world or the brain wrote no result")
         return 130 if interrupted else 1
     recording = None if run.recording is None else recording_status(recorder_code, run.recording)
-    if run.recording is None and resume_at is not None and (folder / "recording.rrd").exists():
+    if run.recording is None and resume_at is not None and recording_parts(folder):
         recording = {"complete": False, "why": f"this part, from tick {resume_at:,}, was not recorded (--no-record)"}
     summary = summarise(folder, args, argv, circuit, time.time() - started, recording)
     if not summary["headline"]["partial"]:  # the run is whole: its learning is in weights.npz

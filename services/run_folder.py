@@ -15,15 +15,15 @@ import shutil
 from pathlib import Path
 
 from services import snapshots
-from services.brain.circuit import CIRCUITS_DIR, Circuit
+from services.brain.circuit import Circuit
 from services.world.checkpoint import CHECKPOINT
 
 log = logging.getLogger("spikinglab.run")
 STARTED_WITH = "command.json"  # the options the run was started with, for --resume
 # The files given to a run, kept in its folder under these names and read from there by world and
-# brain: what they were is what they stay, and --resume finds them from any folder. (A circuit
-# shipped with spikinglab is given by its name, not kept.)
-KEPT = {"params": "params.csv", "map": "map.txt", "load": "loaded-weights.npz", "circuit": "circuit.toml"}
+# brain: what they were is what they stay, and --resume finds them from any folder. The circuit
+# keeps its file's name (a circuit without `name` is named after its file) in a folder of its own.
+KEPT = {"params": "params.csv", "map": "map.txt", "load": "loaded-weights.npz", "circuit": "circuit"}
 RESULTS = (STARTED_WITH, "summary.json", "weights.npz")  # a folder with one of these holds a run
 
 
@@ -90,33 +90,44 @@ def take(folder: Path, args: argparse.Namespace, argv: list[str], circuit: Circu
     if args.resume:
         (folder / "FAILED.txt").unlink(missing_ok=True)  # it said how to go on: this is it
         return resume_at
-    (folder / STARTED_WITH).write_text(json.dumps({"argv": argv}))
-    given = {"params": args.params, "map": args.map, "load": args.load, "circuit": circuit.source}
-    if Path(circuit.source).resolve().parent == CIRCUITS_DIR.resolve():
-        given["circuit"] = None
-    for option, path in given.items():
+    args.given = {option: str(getattr(args, option)) for option in KEPT if getattr(args, option)}
+    for option, path in (*((o, getattr(args, o)) for o in ("params", "map", "load")), ("circuit", circuit.source)):
         if path:
-            shutil.copyfile(path, folder / KEPT[option])
-            setattr(args, option, folder / KEPT[option])
+            kept = folder / kept_name(option, path)
+            kept.parent.mkdir(exist_ok=True)
+            shutil.copyfile(path, kept)
+            setattr(args, option, kept)
+    (folder / STARTED_WITH).write_text(json.dumps({"argv": argv}))  # last: from here on the folder holds a run
     return None
 
 
+def kept_name(option: str, given: str | Path) -> Path:
+    """Where in a run folder the file given as `option` is kept."""
+    return Path(KEPT[option], Path(given).stem + ".toml") if option == "circuit" else Path(KEPT[option])
+
+
 def kept_files(folder: Path, options: argparse.Namespace) -> None:
-    """The options of a resumed run name the files kept in its folder (those its start kept)."""
-    for option, name in KEPT.items():
-        if getattr(options, option) and (folder / name).exists():
-            setattr(options, option, folder / name)
+    """The options of a resumed run name the files kept in its folder (those its start kept);
+    `options.given`: the files as they were given."""
+    options.given = {option: str(getattr(options, option)) for option in KEPT if getattr(options, option)}
+    for option in options.given:
+        kept = folder / kept_name(option, options.given[option])
+        if kept.exists():
+            setattr(options, option, kept)
 
 
 def hold(folder: Path) -> None:
     """A lock on `folder` until this process ends (its descriptor is left open): a second run in
-    the same folder at the same time is refused."""
+    the same folder at the same time is refused. (A file system without locks: no lock.)"""
     descriptor = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
     try:
         fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         os.close(descriptor)
         raise RunFolderError(f"{folder} is in use by another spikinglab run now: choose another --id") from None
+    except OSError as e:
+        os.close(descriptor)
+        log.warning("%s: cannot be locked (%s): nothing keeps another run out of it", folder, e.strerror or e)
 
 
 def started_with(folder: Path) -> list[str]:

@@ -99,10 +99,10 @@ def parameters(args: argparse.Namespace, circuit: Circuit) -> dict:
         "seed": args.seed,
         "agents": args.agents,
         **rates,
-        "circuit": circuit.source,
+        "circuit": args.given.get("circuit", circuit.source),  # each file as given (the run folder keeps a copy)
         "preset": args.preset,
-        "map": str(args.map) if args.map else None,
-        "load": str(args.load) if args.load else None,
+        "map": args.given.get("map"),
+        "load": args.given.get("load"),
         "shared_arena": args.shared,
         "training": not args.no_training,
         "learned_after": args.learned_after,
@@ -252,6 +252,13 @@ def viewer_shown() -> str:
         return found[0]
 
 
+def recording_parts(folder: Path) -> list[Path]:
+    """The run's recording, the first part first: recording.rrd, then recording-from-tickN.rrd by N
+    (not an earlier try of a part, kept as .previous.rrd)."""
+    parts = (path for path in folder.glob("recording*.rrd") if RECORDING_PART.fullmatch(path.name))
+    return sorted(parts, key=lambda path: (len(path.name), path.name))
+
+
 def report(folder: Path, summary: dict) -> None:
     head = summary["headline"]
     w = summary["final_weights"]
@@ -273,10 +280,7 @@ def report(folder: Path, summary: dict) -> None:
         + (f" (paper, {rates_text(p)}: {paper:,}; docs/results.md compares)" if paper else "")
     )
     print("weights:", ", ".join(f"{k} {v:.2f}" for k, v in mean.items()))
-    # the run's parts, the first first: recording.rrd, then recording-from-tickN.rrd by N (not an
-    # earlier try of a part, kept as .previous.rrd)
-    parts = (path for path in folder.glob("recording*.rrd") if RECORDING_PART.fullmatch(path.name))
-    recordings = sorted(parts, key=lambda path: (len(path.name), path.name))
+    recordings = recording_parts(folder)
     files = ", ".join(
         ["summary.json, collisions.png, trajectory.png, metrics.json, weights.npz", *(path.name for path in recordings)]
     )

@@ -88,8 +88,9 @@ def process_main(name: str, parser: argparse.ArgumentParser, run, argv=None, int
     try:
         end_with_parent()
         code = run(args)
-    except KeyboardInterrupt:  # where the process had no result to write yet (it says so where it had)
-        log.warning("interrupted (Ctrl-C or SIGTERM): stopped")
+    except KeyboardInterrupt:  # after what the process wrote on its way out; a router's or recorder's normal end
+        if interrupted:
+            log.warning("interrupted (Ctrl-C or SIGTERM): stopped")
         code = interrupted
     finally:
         if tracemalloc.is_tracing():  # PYTHONTRACEMALLOC=1: what of its memory Python objects hold

@@ -18,7 +18,7 @@ SERVICES = {
     "brain": (
         brain.parser,
         brain.BrainConfig,
-        ["--shard", "2/3", "--clock", "1000", "--params", "p.csv", "--a-plus", "0.03"],
+        ["--shard", "2/3", "--world-shards", "2", "--params", "p.csv", "--a-plus", "0.03"],
     ),
     "gateway": (gateway.parser, gateway.GatewayConfig, ["--backend", "sim", "--sim-map", "m.txt"]),
     "recorder": (recorder.parser, recorder.RecorderConfig, ["--detail", "0,3", "--viewer", "rerun+http://h:1/proxy"]),

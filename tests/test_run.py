@@ -118,7 +118,8 @@ def test_a_trained_insect_runs_with_training_off(tmp_path):
     assert summary["initial_weights"] == {  # the weights it started from: those loaded
         circuit.synapse_label(k): trained[:, k].round(4).tolist() for k in circuit.plastic_synapses
     }
-    assert summary["parameters"]["load"] == str(tmp_path / "test" / "loaded-weights.npz")  # kept with the run
+    assert summary["parameters"]["load"] == str(tmp_path / "train" / "weights.npz")  # as given
+    assert (tmp_path / "test" / "loaded-weights.npz").read_bytes() == (tmp_path / "train" / "weights.npz").read_bytes()
 
 
 def load_weights_initial():
@@ -218,9 +219,20 @@ def test_benchmarks_run_and_end_with_json():
     assert len(figures["recording_cost_by_pair"]) == 2  # both pairs ran, in turns
 
 
-def start_run(tmp_path, *args, cwd=ROOT):
+def start_run(tmp_path, *args, cwd=ROOT, runs=None):
     return subprocess.Popen(
-        [sys.executable, "-m", "spikinglab", "run", "--runs", tmp_path, "--id", "r", "--quiet", *map(str, args)],
+        [
+            sys.executable,
+            "-m",
+            "spikinglab",
+            "run",
+            "--runs",
+            runs or tmp_path,
+            "--id",
+            "r",
+            "--quiet",
+            *map(str, args),
+        ],
         cwd=cwd,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -319,7 +331,7 @@ def test_an_interrupted_run_goes_on_with_resume_and_ends_as_an_uninterrupted_one
     )
     assert whole.returncode == 0, whole.stderr
     assert not (tmp_path / "whole" / "r" / "checkpoint").exists()  # a whole run keeps no checkpoints
-    run = start_run(tmp_path, *options, cwd=tmp_path)
+    run = start_run(tmp_path, *options, cwd=tmp_path, runs=".")  # the run folder as ./r, resumed below by another path
     kept = tmp_path / "r" / "checkpoint" / "world.npz"
     deadline = time.monotonic() + 120
     while not kept.exists():
@@ -328,7 +340,7 @@ def test_an_interrupted_run_goes_on_with_resume_and_ends_as_an_uninterrupted_one
     run.send_signal(signal.SIGINT)
     out, err = run.communicate(timeout=90)
     assert run.returncode == 130, err
-    assert f"go on from its checkpoint at tick 4,000: spikinglab run --resume {tmp_path / 'r'}" in out
+    assert "go on from its checkpoint at tick 4,000: spikinglab run --resume r\n" in out
     again = spikinglab("run", *options, "--runs", tmp_path, "--id", "r", "--quiet", cwd=tmp_path)
     assert again.returncode == 2 and f"go on with it: spikinglab run --resume {tmp_path / 'r'}" in again.stderr
     assert spikinglab("run", "--resume", tmp_path / "r", "--ticks", 50).returncode == 2  # only its own options

@@ -23,6 +23,7 @@ def test_three_shards_run_bit_for_bit_as_one_brain(tmp_path):
     its slice of the brain's columns."""
     columns = {
         "a_plus": 0.01 * (1 + np.arange(AGENTS) % 4),
+        "a_minus": np.full(AGENTS, 0.04),
         "w_max": 10.0 + np.arange(AGENTS),
         "move_step": 1 - 0.05 * np.arange(AGENTS),
     }
@@ -59,8 +60,6 @@ def test_three_shards_run_bit_for_bit_as_one_brain(tmp_path):
             "--shard",
             f"{i}/3",
             "--once",
-            "--a-plus",
-            0.04,
             "--params",
             study,
             "--save",
@@ -76,9 +75,9 @@ def test_three_shards_run_bit_for_bit_as_one_brain(tmp_path):
     finally:
         for process in (world, *shards):
             process.kill()
-    circuit = load_circuit("insect").with_learning_rate(0.04)
+    circuit = load_circuit("insect")
     alone = World(params_for("paper"), agents=AGENTS, seed=SEED, agent_params={"move_step": columns["move_step"]})
-    brain = brain_for(alone, circuit, params={"a_plus": columns["a_plus"], "w_max": columns["w_max"]})
+    brain = brain_for(alone, circuit, params={k: columns[k] for k in ("a_plus", "a_minus", "w_max")})
     closed_loop(alone, brain, TICKS)
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["ticks"] == TICKS and sum(metrics["collisions"]) > 0

@@ -490,8 +490,10 @@ class Recorder:
                 self._columns(f"{base}/weights", [x[0] for x in weights], rr.Scalars.columns(scalars=w))
 
     def ticks_held(self) -> str:
-        """The ticks recorded, for the log: "ticks 0..100000", or "no ticks"."""
-        return "no ticks" if self.first_tick is None else f"ticks {self.first_tick}..{self.last_tick}"
+        """The ticks recorded, for the log: "ticks 0..99999", or "no ticks"."""
+        if self.first_tick is None or self.last_tick < self.first_tick:  # a final batch alone holds none
+            return "no ticks"
+        return f"ticks {self.first_tick}..{self.last_tick}"
 
     def close(self) -> None:
         self.flush()

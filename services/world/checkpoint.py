@@ -8,7 +8,7 @@ from pathlib import Path
 from services import snapshots
 from services.bus.schemas import RUN_ID
 
-from .options import WorldOptions
+from .options import WorldOptions, file_digest
 from .results import Trajectory
 from .world import World
 
@@ -26,11 +26,20 @@ def run_options(options: WorldOptions) -> dict:
         "agents": options.agents,
         "shared": options.shared,
         "preset": options.preset,
-        "map": str(options.map) if options.map else None,
+        "map": file_digest(options.map) or None,  # its contents, wherever the file lies now
         "netlogo_seed": options.netlogo_seed,
         "no_training": options.no_training,
         "learned_after": options.learned_after,
     }
+
+
+def option(key: str) -> str:
+    return "--map (its file's SHA-256)" if key == "map" else f"--{key.replace('_', '-')}"
+
+
+def shown(key: str, value):
+    """A value as a message names it: a digest by its first 12 digits."""
+    return value[:12] if key == "map" and value else value
 
 
 def keep_checkpoint(folder: Path, options: WorldOptions, world: World, trajectory: Trajectory, run_id: str) -> None:
@@ -50,7 +59,9 @@ def resume(folder: Path, options: WorldOptions, world: World, trajectory: Trajec
         return None
     arrays, meta = snapshots.read(path)
     kept, wanted = meta.get("options", {}), run_options(options)
-    differ = [f"--{k.replace('_', '-')} {kept.get(k)} there, {v} here" for k, v in wanted.items() if kept.get(k) != v]
+    differ = [
+        f"{option(k)} {shown(k, kept.get(k))} there, {shown(k, v)} here" for k, v in wanted.items() if kept.get(k) != v
+    ]
     if differ:
         raise ValueError(
             f"{path} holds run {meta.get('run')} at tick {meta.get('tick')} made with other options "

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +25,11 @@ def add_preset(p) -> None:
         default="paper",
         help="rotation and move steps: paper (5 deg, 1 patch, default) or netlogo (4 deg, 0.4 patch)",
     )
+
+
+def file_digest(path: Path | None) -> str:
+    """A file's SHA-256 (hex), "" for none: a map or parameter file is the same where its contents are."""
+    return hashlib.sha256(path.read_bytes()).hexdigest() if path else ""
 
 
 def add_learned_after(p) -> None:

@@ -12,7 +12,6 @@ metrics.json (one summary where the shards share a folder). docs/shards.md.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import time
@@ -24,7 +23,7 @@ from services.bus import keys
 from services.bus.schemas import Control, RunTerms
 from services.bus.transport import Bus, Inbox, Outbox, Presence
 
-from .options import WorldOptions
+from .options import WorldOptions, file_digest
 
 log = logging.getLogger("spikinglab.world")
 SAY_EVERY = 5.0  # seconds between "waiting for ..." lines
@@ -52,10 +51,6 @@ def others(bus: Bus, shard: tuple[int, int], done: bool = False) -> list:
 
 def terms(options: WorldOptions, run: str, world_shards: int, brain_shards: int) -> RunTerms:
     """The options of this shard that every shard of the run must share, with the run's id."""
-
-    def digest(path: Path | None) -> str:
-        return hashlib.sha256(path.read_bytes()).hexdigest() if path else ""
-
     return RunTerms(
         tick=0,
         run=run,
@@ -68,8 +63,8 @@ def terms(options: WorldOptions, run: str, world_shards: int, brain_shards: int)
         learned_after=options.learned_after,
         training=not options.no_training,
         netlogo_seed=options.netlogo_seed,
-        map=digest(options.map),
-        params=digest(options.params),
+        map=file_digest(options.map),
+        params=file_digest(options.params),
     )
 
 

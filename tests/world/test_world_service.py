@@ -47,3 +47,38 @@ def test_a_checkpoint_resumes_only_under_the_options_that_made_it(tmp_path):
     (tmp_path / "world.npz").write_bytes(b"not an npz")
     with pytest.raises(ValueError, match="not a run checkpoint"):
         resume(tmp_path, made, world_from(made), Trajectory(world, made.ticks))
+
+
+def test_a_checkpoint_knows_its_map_by_its_contents_not_its_path(tmp_path):
+    """The same map in another place (a run folder reached by another path) resumes; an edited map
+    is refused before the world is restored into an arena of another size."""
+    from services.options import config_from
+    from services.world.checkpoint import CHECKPOINT, PENDING, keep_checkpoint, resume
+    from services.world.options import world_from
+    from services.world.results import Trajectory
+    from services.world.service import WorldConfig, parser
+
+    arena = "##########\n#S...R...#\n#..G.....#\n##########\n"
+    (tmp_path / "here.txt").write_text(arena)
+    (tmp_path / "there.txt").write_text(arena)
+    (tmp_path / "edited.txt").write_text("############\n#S.........#\n############\n")
+
+    def made(name: str):
+        return config_from(parser().parse_args(["--map", str(tmp_path / name)]), WorldConfig).world
+
+    (tmp_path / "kept").mkdir()
+    keep_checkpoint(
+        tmp_path / "kept",
+        made("here.txt"),
+        world_from(made("here.txt")),
+        Trajectory(world_from(made("here.txt")), 40_000),
+        "0123456789abcdef",
+    )
+    (tmp_path / "kept" / PENDING).replace(tmp_path / "kept" / CHECKPOINT)
+    there = world_from(made("there.txt"))
+    assert resume(tmp_path / "kept", made("there.txt"), there, Trajectory(there, 40_000)) == "0123456789abcdef"
+    edited = world_from(made("edited.txt"))
+    with pytest.raises(
+        ValueError, match=r"other options \(--map \(its file's SHA-256\) [0-9a-f]{12} there, [0-9a-f]{12} here\)"
+    ):
+        resume(tmp_path / "kept", made("edited.txt"), edited, Trajectory(edited, 40_000))
