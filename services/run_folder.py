@@ -91,7 +91,8 @@ def take(folder: Path, args: argparse.Namespace, argv: list[str], circuit: Circu
         (folder / "FAILED.txt").unlink(missing_ok=True)  # it said how to go on: this is it
         return resume_at
     args.given = {option: str(getattr(args, option)) for option in KEPT if getattr(args, option)}
-    for option, path in (*((o, getattr(args, o)) for o in ("params", "map", "load")), ("circuit", circuit.source)):
+    files = {"params": args.params, "map": args.map, "load": args.load, "circuit": circuit.source}
+    for option, path in files.items():
         if path:
             kept = folder / kept_name(option, path)
             kept.parent.mkdir(exist_ok=True)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import hashlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,8 +28,10 @@ def add_preset(p) -> None:
     )
 
 
+@functools.cache
 def file_digest(path: Path | None) -> str:
-    """A file's SHA-256 (hex), "" for none: a map or parameter file is the same where its contents are."""
+    """A file's SHA-256 (hex), "" for none: a map or parameter file is the same where its contents are.
+    Read once in a process: what it was when the world loaded it, whatever becomes of it later."""
     return hashlib.sha256(path.read_bytes()).hexdigest() if path else ""
 
 

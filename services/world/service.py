@@ -31,7 +31,7 @@ from services.runtime import service_main
 from . import checkpoint, shards
 from .brains import Brains
 from .checkpoint import CHECKPOINT, PENDING, resume
-from .options import WorldOptions, add_world_args, shards_fit, world_from
+from .options import WorldOptions, add_world_args, file_digest, shards_fit, world_from
 from .results import Progress, Trajectory, metrics_of, outcome
 from .state import StateStream, world_map
 from .world import MapError, World
@@ -111,6 +111,7 @@ class WorldConfig:
 def run(config: WorldConfig, session) -> int:
     try:
         world = world_from(config.world, config.shards, config.shard)
+        file_digest(config.world.map)  # read with the map: its checkpoints name the map it loaded
         trajectory = Trajectory(world, config.world.ticks)
         resumed = resume(config.checkpoint, config.world, world, trajectory) if config.checkpoint else None
         if config.checkpoint:  # one the brain may not have answered: the run goes on from CHECKPOINT
