@@ -104,17 +104,18 @@ def test_secure_launch_files_run_over_mutual_tls_once_certs_are_made(tmp_path):
 
 
 def test_a_service_that_dies_ends_the_launch_and_is_named(tmp_path):
-    file = tmp_path / "broken.toml"
+    file, config = tmp_path / "broken.toml", tmp_path / "boss.json5"
+    config.write_text('{mode: "boss"}\n')  # JSON5 that the launch's check reads; Zenoh refuses it as the brain starts
     file.write_text(
         f'[launch]\nuntil = "world"\n[world]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n'
-        f'ticks = 1000000\n[brain]\nload = "{tmp_path}/missing.npz"\n'  # found missing as the brain starts
+        f'ticks = 1000000\n[brain]\nzenoh_config = "{config}"\n'
     )
     started = time.monotonic()
     run = launch(tmp_path, file)
     out, err = run.communicate(timeout=60)
     assert run.returncode == 1
-    assert "the brain stopped (exit 2) before the world ended" in err, err
-    assert "missing.npz" in err  # its last lines say why
+    assert "the brain stopped (exit 1) before the world ended" in err, err
+    assert "boss.json5" in err  # its last lines say why
     assert time.monotonic() - started < 30
     assert not running_with(str(tmp_path))
 
