@@ -4,7 +4,7 @@ Brian2's agent-ticks/s on this machine, to set beside the engine's (docs/results
 A agents are A copies of the circuit (services/brain/circuits/insect.toml) in one NeuronGroup of
 A x 9 neurons, with the circuit's synapses, weights, delays, floors and refractory periods, and
 STDP on its plastic synapses as Brian2 writes it (a trace per side, the circuit's A+, A-, tau+ and
-tau-). One tick is one step of 1 ms. The sensor feeds are the benchmark's (random_feeds: each
+tau-). One tick is one step of 1 ms. The sensor feeds are the benchmark's (spikinglab/bench/feeds.py: each
 sensor feeds a value in [0, 4) with probability 0.3 a tick, seed 0), turned into the input
 neurons' spike times by their latency code before the run, so Brian2 reads them from a
 SpikeGeneratorGroup; the pacemaker's kick is fed at tick 0. The timing is Brian2's own of the run
@@ -30,6 +30,7 @@ import tempfile
 import numpy as np
 
 from services.brain.circuit import Circuit, load_circuit
+from spikinglab.bench.feeds import random_feeds
 
 # Brian2 delivers a step's pulses after its thresholds, the engine before its neurons fire: pulses
 # are sent a step early (delays one less, input spikes one step before), so spikes come at the
@@ -62,16 +63,6 @@ SYNAPSES = {
     },
     "excitatory": {"model": "w : 1", "on_pre": "v_post += w * int(not_refractory_post)"},
 }
-FEED_PROBABILITY = 0.3  # spikinglab/bench/engine.py's random_feeds (it imports numba; Brian2's venv has none)
-
-
-def random_feeds(rng: np.random.Generator, circuit: Circuit, ticks: int, agents: int) -> np.ndarray:
-    """spikinglab/bench/engine.py's random_feeds: the same values for the same generator."""
-    feeds = np.full((ticks, agents, len(circuit.inputs)), np.nan)
-    cols = list(circuit.sensors.values())
-    shape = (ticks, agents, len(cols))
-    feeds[:, :, cols] = np.where(rng.random(shape) < FEED_PROBABILITY, rng.random(shape) * 4.0, np.nan)
-    return feeds
 
 
 def kind_of(syn) -> str:

@@ -42,13 +42,22 @@ from services.options import (
     output_folder,
     positive,
 )
-from services.run_folder import STARTED_WITH, RunFolderError, failed, kept_files, new_folder, started_with, take
+from services.run_folder import (
+    STARTED_WITH,
+    RunFolderError,
+    failed,
+    kept_files,
+    new_folder,
+    recording_part,
+    recording_parts,
+    started_with,
+    take,
+)
 from services.run_report import (
     learning_rate,
     plot,
     plot_trajectory,
     rates_text,
-    recording_parts,
     recording_status,
     report,
     summarise,
@@ -234,7 +243,7 @@ class RunProcesses:
     def of(cls, args: argparse.Namespace, folder: Path, resume_at: int | None) -> RunProcesses:
         kept = folder / "checkpoint"
         (world_ep, brain_ep, recorder_ep), sockets = local_endpoints("world", "brain", "recorder")
-        recording = folder / ("recording.rrd" if resume_at is None else f"recording-from-tick{resume_at}.rrd")
+        recording = recording_part(folder, resume_at)
         on_the_bus = {"publish_state": not args.no_record, "checkpoint": kept}  # they wait for the recorder
         world_log = folder / "world.log" if args.quiet else None  # else its progress bar, as it is
         world = Process("world", "world", options_for("world", args), log=world_log, raw=True)

@@ -11,6 +11,7 @@ import itertools
 import json
 import logging
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -25,6 +26,7 @@ STARTED_WITH = "command.json"  # the options the run was started with, for --res
 # keeps its file's name (a circuit without `name` is named after its file) in a folder of its own.
 KEPT = {"params": "params.csv", "map": "map.txt", "load": "loaded-weights.npz", "circuit": "circuit"}
 RESULTS = (STARTED_WITH, "summary.json", "weights.npz")  # a folder with one of these holds a run
+RECORDING_PART = re.compile(r"recording(-from-tick\d+)?\.rrd")  # recording_part's names
 
 
 def new_folder(runs: Path, seed: int) -> Path:
@@ -90,16 +92,19 @@ def take(folder: Path, args: argparse.Namespace, argv: list[str], circuit: Circu
     if args.resume:
         (folder / "FAILED.txt").unlink(missing_ok=True)  # it said how to go on: this is it
         return resume_at
-    args.given = {option: str(getattr(args, option)) for option in KEPT if getattr(args, option)}
-    files = {"params": args.params, "map": args.map, "load": args.load, "circuit": circuit.source}
-    for option, path in files.items():
-        if path:
-            kept = folder / kept_name(option, path)
-            kept.parent.mkdir(exist_ok=True)
-            shutil.copyfile(path, kept)
-            setattr(args, option, kept)
+    args.given = given_files(args)
+    for option, given in args.given.items():
+        kept = folder / kept_name(option, given)
+        kept.parent.mkdir(exist_ok=True)
+        shutil.copyfile(circuit.source if option == "circuit" else given, kept)  # a circuit given by name too
+        setattr(args, option, kept)
     (folder / STARTED_WITH).write_text(json.dumps({"argv": argv}))  # last: from here on the folder holds a run
     return None
+
+
+def given_files(args: argparse.Namespace) -> dict[str, str]:
+    """The files given to a run (KEPT's options), as given."""
+    return {option: str(getattr(args, option)) for option in KEPT if getattr(args, option)}
 
 
 def kept_name(option: str, given: str | Path) -> Path:
@@ -110,7 +115,7 @@ def kept_name(option: str, given: str | Path) -> Path:
 def kept_files(folder: Path, options: argparse.Namespace) -> None:
     """The options of a resumed run name the files kept in its folder (those its start kept);
     `options.given`: the files as they were given."""
-    options.given = {option: str(getattr(options, option)) for option in KEPT if getattr(options, option)}
+    options.given = given_files(options)
     for option in options.given:
         kept = folder / kept_name(option, options.given[option])
         if kept.exists():
@@ -129,6 +134,18 @@ def hold(folder: Path) -> None:
     except OSError as e:
         os.close(descriptor)
         log.warning("%s: cannot be locked (%s): nothing keeps another run out of it", folder, e.strerror or e)
+
+
+def recording_part(folder: Path, resume_at: int | None) -> Path:
+    """The recording of a run's part: recording.rrd from its start, recording-from-tickN.rrd from a
+    resume at tick N (the viewer shows the parts as one recording)."""
+    return folder / ("recording.rrd" if resume_at is None else f"recording-from-tick{resume_at}.rrd")
+
+
+def recording_parts(folder: Path) -> list[Path]:
+    """The run's recording, the first part first (not an earlier try of a part, kept as .previous.rrd)."""
+    parts = (path for path in folder.glob("recording*.rrd") if RECORDING_PART.fullmatch(path.name))
+    return sorted(parts, key=lambda path: (len(path.name), path.name))
 
 
 def started_with(folder: Path) -> list[str]:

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import shlex
 from pathlib import Path
 
@@ -16,11 +15,10 @@ from services.brain.checkpoint import load_weights
 from services.brain.circuit import Circuit
 from services.learning import PAPER, quarter_collisions
 from services.params import read_params
-from services.run_folder import resume_hint
+from services.run_folder import recording_parts, resume_hint
 from spikinglab.cli import version
 
 PAPER_TABLE_1 = {f"{a:.2f}": n for a, n in PAPER.items()}  # keyed as summary.json shows A
-RECORDING_PART = re.compile(r"recording(-from-tick\d+)?\.rrd")  # services/run.py's names of a run's parts
 
 
 def summarise(
@@ -250,13 +248,6 @@ def viewer_shown() -> str:
         return str(Path(found[0]).relative_to(Path.cwd()))
     except ValueError:  # not under the current folder (or not absolute): as found
         return found[0]
-
-
-def recording_parts(folder: Path) -> list[Path]:
-    """The run's recording, the first part first: recording.rrd, then recording-from-tickN.rrd by N
-    (not an earlier try of a part, kept as .previous.rrd)."""
-    parts = (path for path in folder.glob("recording*.rrd") if RECORDING_PART.fullmatch(path.name))
-    return sorted(parts, key=lambda path: (len(path.name), path.name))
 
 
 def report(folder: Path, summary: dict) -> None:

@@ -28,17 +28,7 @@ from services.brain.circuit import load_circuit
 from services.brain.engine import FEED_TYPE, SEMANTICS, Engine
 from services.kernels import compiled
 from services.options import Parser, at_least
-
-FEED_PROBABILITY = 0.3  # chance per tick that a sensor feeds its input neuron a value in [0, 4)
-
-
-def random_feeds(rng, circuit, ticks, agents):
-    """Random sensor values for the sensor-bound inputs only (the pacemaker kick stays the circuit's)."""
-    feeds = np.full((ticks, agents, len(circuit.inputs)), np.nan)
-    cols = list(circuit.sensors.values())
-    shape = (ticks, agents, len(cols))
-    feeds[:, :, cols] = np.where(rng.random(shape) < FEED_PROBABILITY, rng.random(shape) * 4.0, np.nan)
-    return feeds
+from spikinglab.bench.feeds import random_feeds
 
 
 def best_rate(engine, feeds, repeats, agents=1):

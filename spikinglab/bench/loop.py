@@ -34,7 +34,8 @@ from services.loop import brain_for, closed_loop
 from services.options import Parser, at_least
 from services.world.world import World
 from spikinglab.bench import steady_rate
-from spikinglab.bench.engine import best_rate, random_feeds
+from spikinglab.bench.engine import best_rate
+from spikinglab.bench.feeds import random_feeds
 from spikinglab.bench.recorder import one_run
 
 
