@@ -3,13 +3,23 @@ a numba compile: raised there, it can land in a callback from LLVM, where Python
 it, and numba then fails with "RuntimeError: no compiled object yet" (a traceback and exit 1, not
 the run ended at the ticks done). A signal that comes while the main thread compiles is raised as
 that compile lets go of numba's compiler lock, before the next can take it (kernels compile
-lazily, at their first call, one after another on a first tick, and mid-run too)."""
+lazily, at their first call, one after another on a first tick, and mid-run too).
+
+Nor is it raised where it would go astray, and an import can be in either place:
+- in a weakref callback or a __del__ (an import's module lock has one), where Python drops it: it
+  is taken again as that callback returns;
+- in code that eval or exec runs from a string (namedtuple and dataclass make methods so), where
+  CPython marks the process as ended by Ctrl-C even when the program takes the interrupt: the
+  process would then die of SIGINT at its exit, not with the exit code it chose (130). It is
+  raised once that code has returned."""
 
 from __future__ import annotations
 
+import _thread
 import signal
 import sys
 import threading
+import time
 from contextlib import contextmanager
 
 _pending = threading.Event()  # an interrupt waits for the compile under way to end
@@ -46,7 +56,11 @@ def _listen() -> None:
 
 
 def on_interrupt(signum, frame) -> None:
-    """The handler: KeyboardInterrupt now, or as the compile under way ends."""
+    """The handler: KeyboardInterrupt now, a little later where it would go astray, or as the compile
+    under way ends."""
+    if _astray(frame):
+        _later()
+        return
     lock = _compiler_lock()
     if lock is None or not lock.is_locked():
         raise KeyboardInterrupt
@@ -61,10 +75,47 @@ def on_interrupt(signum, frame) -> None:
         )
 
 
+def _take_again(unraisable) -> None:
+    """sys.unraisablehook: a KeyboardInterrupt that Python dropped is taken again, once this hook
+    and the callback have returned; anything else is reported as Python does."""
+    if isinstance(unraisable.exc_value, KeyboardInterrupt) and threading.current_thread() is threading.main_thread():
+        _later()
+    else:
+        sys.__unraisablehook__(unraisable)
+
+
+def _later() -> None:
+    """Ctrl-C again, 1 ms on: SIGINT to the main thread, so that a sleep or wait there ends as well,
+    sent by a thread this one does not wait for (a handler run here, in the hook, would go astray)."""
+
+    def send() -> None:
+        time.sleep(0.001)
+        signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
+
+    try:
+        _thread.start_new_thread(send, ())
+    except RuntimeError:  # the interpreter is shutting down: nothing is left to interrupt
+        pass
+
+
+def _astray(frame) -> bool:
+    """Whether a KeyboardInterrupt raised in `frame` would go astray: in the hook above, or in code
+    eval or exec runs from a string. (`python -c`'s own code is such a string, but its namespace is
+    __main__'s.)"""
+    while frame is not None:
+        if frame.f_code is _take_again.__code__:
+            return True
+        if frame.f_code.co_filename == "<string>" and frame.f_globals.get("__name__") != "__main__":
+            return True
+        frame = frame.f_back
+    return False
+
+
 def take_interrupts(*signals: int) -> None:
     """SIGINT, and each of `signals`, raise KeyboardInterrupt in the main thread, outside compiles."""
     for signum in (signal.SIGINT, *signals):
         signal.signal(signum, on_interrupt)
+    sys.unraisablehook = _take_again
 
 
 @contextmanager

@@ -1,6 +1,10 @@
 """Ctrl-C never lands inside a numba compile (services/interrupts.py): it waits for the compile
-under way, not for the next, then ends the process as Ctrl-C does, even one waiting in a sleep."""
+under way, not for the next, then ends the process as Ctrl-C does, even one waiting in a sleep. Nor
+is it lost where Python drops what a weakref callback raises, nor raised in eval'd code, where it
+would change the exit code the program chose."""
 
+import os
+import signal
 import subprocess
 import sys
 import textwrap
@@ -53,3 +57,89 @@ def test_ctrl_c_during_a_compile_waits_for_it_then_interrupts():
         == 1
     )
     assert "Traceback" not in done.stderr
+
+
+CTRL_C_IN_A_WEAKREF_CALLBACK = textwrap.dedent(
+    """
+    import os, signal, sys, time, weakref
+    from services.interrupts import take_interrupts
+
+    class Thing:
+        pass
+
+    def callback(ref):  # as an import's module lock has: Python prints and drops what it raises
+        os.kill(os.getpid(), signal.SIGINT)
+        for _ in range(1000):  # the handler runs within these steps
+            pass
+
+    if sys.argv[1] == "taken":
+        take_interrupts()
+    thing = Thing()
+    ref = weakref.ref(thing, callback)
+    began = time.monotonic()
+    try:
+        del thing
+        time.sleep(5)
+        print("not interrupted")
+    except KeyboardInterrupt:
+        print(f"interrupted after {time.monotonic() - began:.1f} s")
+    """
+)
+
+
+def test_ctrl_c_dropped_in_a_weakref_callback_is_taken_again():
+    def run(handler):
+        return subprocess.run(
+            [sys.executable, "-c", CTRL_C_IN_A_WEAKREF_CALLBACK, handler],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+
+    dropped = run("python's")  # the case it guards against: Python's own handler loses the Ctrl-C
+    assert dropped.stdout == "not interrupted\n" and "Exception ignored in" in dropped.stderr
+    taken = run("taken")
+    said = taken.stdout.split()
+    assert said[:2] == ["interrupted", "after"] and float(said[2]) < 2.5, taken.stdout + taken.stderr  # not at 5 s
+    assert taken.stderr == ""
+
+
+CTRL_C_IN_EVAL = textwrap.dedent(
+    """
+    import os, signal, sys, time
+    from services.interrupts import take_interrupts
+
+    if sys.argv[1] == "taken":
+        take_interrupts()
+    made = {"__name__": "made", "os": os, "signal": signal}  # as namedtuple's methods are made
+    try:
+        eval("os.kill(os.getpid(), signal.SIGINT) or sum(range(100_000))", made)
+        time.sleep(5)
+        print("not interrupted")
+    except KeyboardInterrupt:
+        print("interrupted")
+    sys.exit(130)
+    """
+)
+
+
+def test_ctrl_c_in_code_run_from_a_string_keeps_the_exit_code(tmp_path):
+    """Run with -m, as `python -m spikinglab` and the services are: there CPython's mark of an
+    interrupt raised in eval'd code decides the exit."""
+    (tmp_path / "ctrl_c_in_eval.py").write_text(CTRL_C_IN_EVAL)
+
+    def run(handler):
+        return subprocess.run(
+            [sys.executable, "-m", "ctrl_c_in_eval", handler],
+            cwd=tmp_path,
+            env={**os.environ, "PYTHONPATH": str(ROOT)},
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+
+    died = run("python's")  # the case it guards against: taken, and yet the process dies of SIGINT
+    assert died.stdout == "interrupted\n" and died.returncode == -signal.SIGINT
+    taken = run("taken")
+    assert (taken.stdout, taken.returncode, taken.stderr) == ("interrupted\n", 130, "")
