@@ -9,9 +9,9 @@ Nor is it raised where it would go astray, and an import can be in either place:
 - in a weakref callback or a __del__ (an import's module lock has one), where Python drops it: it
   is taken again as that callback returns;
 - in code that eval or exec runs from a string (namedtuple and dataclass make methods so), where
-  CPython marks the process as ended by Ctrl-C even when the program takes the interrupt: the
-  process would then die of SIGINT at its exit, not with the exit code it chose (130). It is
-  raised once that code has returned."""
+  CPython marks the process as ended by Ctrl-C even when the program takes the interrupt: run with
+  -m (as the commands and services are), it would then die of SIGINT at its exit, not with the exit
+  code it chose (130). It is raised once that code has returned."""
 
 from __future__ import annotations
 
@@ -85,12 +85,13 @@ def _take_again(unraisable) -> None:
 
 
 def _later() -> None:
-    """Ctrl-C again, 1 ms on: SIGINT to the main thread, so that a sleep or wait there ends as well,
-    sent by a thread this one does not wait for (a handler run here, in the hook, would go astray)."""
+    """Ctrl-C again, 1 ms on: SIGINT to this, the main thread, so that a sleep or wait here ends as
+    well, sent by a thread this one does not wait for (a handler run now would go astray too)."""
+    main = threading.get_ident()
 
     def send() -> None:
         time.sleep(0.001)
-        signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
+        signal.pthread_kill(main, signal.SIGINT)
 
     try:
         _thread.start_new_thread(send, ())
@@ -99,13 +100,18 @@ def _later() -> None:
 
 
 def _astray(frame) -> bool:
-    """Whether a KeyboardInterrupt raised in `frame` would go astray: in the hook above, or in code
-    eval or exec runs from a string. (`python -c`'s own code is such a string, but its namespace is
-    __main__'s.)"""
+    """Whether a KeyboardInterrupt raised in `frame` would go astray: in the hook above, or while
+    eval or exec runs a string's top-level code (not a function that code made, called later; and
+    not `python -c`'s own code, which is such a string too, run in __main__)."""
     while frame is not None:
-        if frame.f_code is _take_again.__code__:
+        code = frame.f_code
+        if code is _take_again.__code__:
             return True
-        if frame.f_code.co_filename == "<string>" and frame.f_globals.get("__name__") != "__main__":
+        if (
+            code.co_filename == "<string>"
+            and code.co_name == "<module>"
+            and frame.f_globals.get("__name__") != "__main__"
+        ):
             return True
         frame = frame.f_back
     return False
