@@ -87,10 +87,16 @@ def process_names(file: Path, launcher_pid: int) -> dict[int, str]:
     launcher = psutil.Process(launcher_pid)
     names = {launcher_pid: "launch"}
     for child in launcher.children(recursive=True):
-        if child.cmdline() == launcher.cmdline():
-            continue  # forked by the launcher, not yet the service it becomes
-        command = tuple(child.cmdline()[2:])
-        assert command in commands, f"a process that the launch file does not name: {child.cmdline()}"
+        try:
+            cmdline = child.cmdline()
+        except psutil.NoSuchProcess:
+            continue
+        if cmdline in (launcher.cmdline(), []):
+            # forked by the launcher, not yet the service it becomes; or inside execve, where the new
+            # program's arguments are not yet in place (read as none), or dead (a zombie)
+            continue
+        command = tuple(cmdline[2:])
+        assert command in commands, f"a process that the launch file does not name: {cmdline}"
         names[child.pid] = commands[command]
     return names
 
