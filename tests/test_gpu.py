@@ -160,7 +160,7 @@ def device_env() -> dict[str, str]:
 def test_sweep_and_table1_on_the_device_write_the_cpu_tables(tmp_path):
     """Both read every insect's ticks on a noxious patch, which the kernel keeps for them."""
     device = device_env()
-    sweep = [sys.executable, "-m", "spikinglab", "sweep", "--a-plus", "0.08", "--seeds", "2", "--ticks", "2000"]
+    sweep = [sys.executable, "-m", "spikinglab", "sweep", "--a-plus", "0.08", "--seeds", "2", "--ticks", "1000"]
     sweep += ["--runs", str(tmp_path)]
     table1 = [sys.executable, "-m", "spikinglab", "bench", "table1", "--seeds", "1", "--ticks", "1000"]
     table1 += ["--a-plus", "0.08", "--workers", "1"]

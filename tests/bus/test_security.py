@@ -50,8 +50,15 @@ def secure_bus(tmp_path):
         yield endpoint, folder
 
 
-def session_as(role: str, folder, endpoint: str) -> zenoh.Session:
-    return zenoh.open(make_config(connect=[endpoint], config_file=zenoh_config_file(str(folder / f"{role}.json5"))))
+REFUSED_WITHIN_MS = 3000  # a client refused waits this long, not 10 s: a TLS handshake on loopback takes ms
+
+
+def session_as(role: str, folder, endpoint: str, wait_ms: int | None = None) -> zenoh.Session:
+    """A session with `role`'s certificate; `wait_ms`: how long a client waits for its router."""
+    config = zenoh_config_file(str(folder / f"{role}.json5"))
+    if wait_ms is not None:
+        config["settings"] = config["settings"] | {"connect": {"timeout_ms": {"client": wait_ms}}}
+    return zenoh.open(make_config(connect=[endpoint], config_file=config))
 
 
 def secured(role: str, folder, endpoint: str) -> tuple:
@@ -147,14 +154,20 @@ def test_a_peer_without_a_valid_certificate_cannot_connect(secure_bus, tmp_path)
     endpoint, folder = secure_bus
     with session_as("viewer", folder, endpoint) as viewer:  # the control: a certificate of the CA connects
         assert list(viewer.info.routers_zid())
+    wait = {"connect": {"timeout_ms": {"client": REFUSED_WITHIN_MS}}}
     no_certificate = {"mode": "client", "transport": {"link": {"tls": {"root_ca_certificate": str(folder / "ca.pem")}}}}
     assert certs.main([str(tmp_path / "other"), "--new-ca"]) == 0  # the right roles, from another CA
     with pytest.raises(zenoh.ZError):
-        zenoh.open(make_config(connect=[endpoint], config_file={"file": "-", "settings": no_certificate}))
+        zenoh.open(make_config(connect=[endpoint], config_file={"file": "-", "settings": no_certificate | wait}))
     with pytest.raises(zenoh.ZError):
-        session_as("brain", tmp_path / "other", endpoint)
+        session_as("brain", tmp_path / "other", endpoint, wait_ms=REFUSED_WITHIN_MS)
     with pytest.raises(zenoh.ZError):  # nor in the clear
-        zenoh.open(make_config(connect=[endpoint.replace("tls/", "tcp/")], mode="client"))
+        zenoh.open(
+            make_config(
+                connect=[endpoint.replace("tls/", "tcp/")],
+                config_file={"file": "-", "settings": {"mode": "client"} | wait},
+            )
+        )
 
 
 def test_a_service_at_a_tls_endpoint_without_certificates_is_told_it_needs_them(secure_bus, tmp_path):
