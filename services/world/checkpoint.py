@@ -8,7 +8,7 @@ from pathlib import Path
 from services import snapshots
 from services.bus.schemas import RUN_ID
 
-from .options import WorldOptions, file_digest
+from .options import WorldOptions, file_digest, shown_option
 from .results import Trajectory
 from .world import World
 
@@ -37,11 +37,6 @@ def option(key: str) -> str:
     return "--map (its file's SHA-256)" if key == "map" else f"--{key.replace('_', '-')}"
 
 
-def shown(key: str, value):
-    """A value as a message names it: a digest by its first 12 digits."""
-    return value[:12] if key == "map" and value else value
-
-
 def keep_checkpoint(folder: Path, options: WorldOptions, world: World, trajectory: Trajectory, run_id: str) -> None:
     """The world as it is now, kept as PENDING until the brain has kept its own (then CHECKPOINT)."""
     arrays = {
@@ -60,7 +55,9 @@ def resume(folder: Path, options: WorldOptions, world: World, trajectory: Trajec
     arrays, meta = snapshots.read(path)
     kept, wanted = meta.get("options", {}), run_options(options)
     differ = [
-        f"{option(k)} {shown(k, kept.get(k))} there, {shown(k, v)} here" for k, v in wanted.items() if kept.get(k) != v
+        f"{option(k)} {shown_option(k, kept.get(k))} there, {shown_option(k, v)} here"
+        for k, v in wanted.items()
+        if kept.get(k) != v
     ]
     if differ:
         raise ValueError(

@@ -35,6 +35,12 @@ def file_digest(path: Path | None) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest() if path else ""
 
 
+def shown_option(field: str, value) -> str:
+    """An option's value as a message names it: a file's digest (the map's, the parameters') by its
+    first 12 digits, as git shows a commit; "none" where unset."""
+    return "none" if value in ("", None) else str(value)[:12] if field in ("map", "params") else str(value)
+
+
 def add_learned_after(p) -> None:
     """--learned-after, the world's and the sweep's."""
     p.add_argument(

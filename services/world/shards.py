@@ -23,7 +23,7 @@ from services.bus import keys
 from services.bus.schemas import Control, RunTerms
 from services.bus.transport import Bus, Inbox, Outbox, Presence
 
-from .options import WorldOptions, file_digest
+from .options import WorldOptions, file_digest, shown_option
 
 log = logging.getLogger("spikinglab.world")
 SAY_EVERY = 5.0  # seconds between "waiting for ..." lines
@@ -89,12 +89,9 @@ class ShardsDisagree(ValueError):
 
 def differences(mine: RunTerms, lead: RunTerms) -> list[str]:
     """Each option on which this shard and the lead differ, as '--seed 7 here, 5 at world shard 1'."""
-
-    def shown(field: str, value) -> str:  # a digest by its first 12 digits, as git shows a commit
-        return "none" if value in ("", None) else str(value)[:12] if field in ("map", "params") else str(value)
-
     return [
-        f"{option} {shown(field, getattr(mine, field))} here, {shown(field, getattr(lead, field))} at world shard 1"
+        f"{option} {shown_option(field, getattr(mine, field))} here, "
+        f"{shown_option(field, getattr(lead, field))} at world shard 1"
         for field, option in OPTION.items()
         if getattr(mine, field) != getattr(lead, field)
     ]
