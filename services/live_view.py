@@ -14,8 +14,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from services.recorder.screenshot import viewer_command
 from services.recorder.service import free_port, viewer_answers, web_viewer_url
+from services.recorder.viewer import viewer_command
 
 log = logging.getLogger("spikinglab.run")
 SHOWN_WITHIN_S = 60.0  # the viewer servers are up well within this (a few seconds here)

@@ -15,6 +15,7 @@ from services.brain.checkpoint import load_weights
 from services.brain.circuit import Circuit
 from services.learning import PAPER, quarter_collisions
 from services.params import read_params
+from services.recorder.viewer import viewer_command
 from services.run_folder import recording_parts, resume_hint
 from spikinglab.cli import version
 
@@ -119,10 +120,10 @@ def learning_rate(circuit, which: str = "a_plus") -> float | list[float]:
 def recording_status(code: int | None, path: Path) -> dict:
     """Whether the recording (of this process's part of the run) is whole; if its recorder died, the
     file is given its footer back (so that it opens) and the tick it reaches is said."""
-    from services.recorder.screenshot import last_tick, repair  # rerun: only for a run that records
-
     if code == 0:
         return {"complete": True}
+    from services.recorder.screenshot import last_tick, repair  # rerun (0.5 s to import): only for a file to mend
+
     status = {"complete": False, "why": f"the recorder stopped (exit {code})"}
     if path.exists():
         status["repaired"] = repair(path)
@@ -239,8 +240,6 @@ def partial_mark(summary: dict) -> str:
 def viewer_shown() -> str:
     """The viewer command to print: the `rerun` this install has (a venv's beside its Python, else
     on PATH), relative to here when under it; `rerun` (from rerun-sdk) if none is found."""
-    from services.recorder.screenshot import viewer_command  # rerun: only for a run that recorded
-
     found = viewer_command()
     if found is None:
         return "rerun"

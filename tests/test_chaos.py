@@ -17,7 +17,8 @@ from services.brain.checkpoint import load_weights
 from services.brain.circuit import load_circuit
 from services.ev3_gateway.fake_brick import FakeBrick
 from services.loop import brain_for, closed_loop
-from services.recorder.screenshot import last_tick, viewer_command
+from services.recorder.screenshot import last_tick
+from services.recorder.viewer import viewer_command
 from services.world.checkpoint import CHECKPOINT
 from services.world.results import metrics_of
 from services.world.world import World

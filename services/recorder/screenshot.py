@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import os
 import re
-import shutil
 import signal
 import socket
 import subprocess
@@ -25,13 +24,7 @@ from rerun.error_utils import RerunWarning
 
 from services.options import Parser, at_least, output_file
 
-
-def viewer_command() -> list[str] | None:
-    """The Rerun viewer: the `rerun` beside this Python (a venv's), else one on PATH."""
-    beside = Path(sys.executable).with_name("rerun")
-    found = str(beside) if beside.exists() else shutil.which("rerun")
-    return [found] if found else None
-
+from .viewer import viewer_command
 
 RRD_MAGIC = b"RRF2"  # the first bytes of a Rerun recording
 # what the viewer says when it found nothing to render with (no Vulkan driver; wgpu's GL fallback fails too)
