@@ -243,8 +243,6 @@ class Recorder:
         self.agents = pos.shape[1]
         self._count_gap("world", m.tick, len(pos))
         self.last_tick = max(self.last_tick, m.tick + len(pos) - 1)
-        if self._collisions_at_bin is None:
-            self._collisions_at_bin = np.zeros(self.agents, np.int64)
         ticks = m.tick + np.arange(len(pos))
         if len(ticks):  # none in a run's final batch when it ended before its first tick
             self.b["pose"].append((ticks, pos, heading))
@@ -257,9 +255,12 @@ class Recorder:
                 if (mine[:, 1] == self.arena_shown).any():
                     self._log_map(int(t))
         for k in np.flatnonzero((ticks + 1) % BIN == 0):  # the learning curve, per BIN ticks like the world's
-            self.b["bins"].append(
-                (int(ticks[k]), float((collisions[k] - self._collisions_at_bin).mean()), float(food[k].mean()))
-            )
+            # The collisions count from the run's start (a resumed run's too), so a bin's are known
+            # from the count at its start: 0 for the run's first, else the end of the bin before,
+            # which a recording begun later (a resumed run's part, a late recorder) has not seen.
+            at_start = 0 if ticks[k] + 1 == BIN else self._collisions_at_bin
+            if at_start is not None:
+                self.b["bins"].append((int(ticks[k]), float((collisions[k] - at_start).mean()), float(food[k].mean())))
             self._collisions_at_bin = collisions[k].copy()
         for k, a in zip(*np.nonzero(events[:, :, EV_LEARNED])):
             t = int(ticks[k])

@@ -367,6 +367,46 @@ def test_the_trail_is_cut_where_the_insect_was_put_back_and_nowhere_else(tmp_pat
     assert pieces == {0: 0, 50: 1, 100: 1, 150: 2}  # tick 0: one position, no line yet
 
 
+@pytest.mark.parametrize(
+    ("first", "bins"),
+    [(0, [999, 1999, 2999]), (500, [999, 1999, 2999]), (8000, [9999, 10999])],  # 8000: a resumed run's part
+)
+def test_the_learning_curve_draws_only_the_bins_whose_start_the_recording_knows(tmp_path, first, bins):
+    """The world counts collisions from the run's start (a resumed run's count goes on from its
+    checkpoint): a bin's are the count at its end less the count at its start, 0 for the run's
+    first bin. A recording that begins after both (a resumed part) leaves out its first bin rather
+    than draw the whole run's collisions in it."""
+    import rerun as rr
+
+    from services.bus.schemas import WorldState, new_run_id
+    from services.recorder.recorder import Recorder
+
+    ticks = np.arange(first, first + 3000)
+    collisions = ((ticks + 1) // 100)[:, None]  # one collision every 100 ticks: 10 in each bin of 1,000
+    rec = rr.RecordingStream("spikinglab-test", recording_id="curve")
+    rec.save(str(tmp_path / "curve.rrd"))
+    recorder = Recorder(rec)
+    arrays = {
+        "sensors": np.full((len(ticks), 1, len(SENSORS)), np.nan),
+        "pos": np.full((len(ticks), 1, 2), 50.0),
+        "heading": np.zeros((len(ticks), 1)),
+        "events": np.zeros((len(ticks), 1, 4), np.int64),
+        "collisions": collisions,
+        "food": np.zeros((len(ticks), 1), np.int64),
+    }
+    run = new_run_id()
+    for lo in range(0, len(ticks), 700):  # batches that do not end at a bin's end
+        part = {name: values[lo : lo + 700] for name, values in arrays.items()}
+        final = lo + 700 >= len(ticks)
+        recorder.on(WorldState.of(part, [], tick=int(ticks[lo]), run=run, sensor_names=SENSORS, final=final))
+    recorder.close()
+    rec.flush()
+    rec.disconnect()
+    curve = read(tmp_path / "curve.rrd")["/learning/collisions_per_1000"]
+    assert list(curve["tick"]) == bins
+    assert [v[0] for v in curve["Scalars:scalars"]] == [10.0] * len(bins)
+
+
 def test_a_recorder_keeps_an_earlier_recording_at_its_out_until_it_has_its_own(tmp_path):
     """A launch file's fixed --out: the run that follows may end before its first tick (refused by
     a shard, say); the earlier recording is kept as recording.previous.rrd, never emptied."""
