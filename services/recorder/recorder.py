@@ -357,10 +357,13 @@ class Recorder:
         self._flushed_to = self.last_tick
         if not self._announced and self.first_tick is not None:
             self._announced = True
-            if self.first_tick > 0:
+            begun = self.first_map.tick if self.first_map is not None else 0  # the world's map: where its data begin
+            if self.first_tick > begun:
                 self.event(
                     f"recording starts at tick {self.first_tick}: the recorder started late", "WARN", self.first_tick
                 )
+            elif begun > 0:  # the map of a run resumed from its checkpoint
+                self.event(f"the run resumed at tick {begun}: this recording holds it from there", "INFO", begun)
         if b["pose"]:
             self._flush_world(b)
         if b["brain"] or b["weights"]:

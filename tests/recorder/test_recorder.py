@@ -368,24 +368,32 @@ def test_the_trail_is_cut_where_the_insect_was_put_back_and_nowhere_else(tmp_pat
 
 
 @pytest.mark.parametrize(
-    ("first", "bins"),
-    [(0, [999, 1999, 2999]), (500, [999, 1999, 2999]), (8000, [9999, 10999])],  # 8000: a resumed run's part
+    ("first", "bins", "said"),
+    [
+        (0, [999, 1999, 2999], None),
+        (500, [999, 1999, 2999], "recording starts at tick 500: the recorder started late"),  # its map of tick 0
+        (8000, [9999, 10999], "the run resumed at tick 8000: this recording holds it from there"),  # its map of 8000
+    ],
 )
-def test_the_learning_curve_draws_only_the_bins_whose_start_the_recording_knows(tmp_path, first, bins):
+def test_a_recording_begun_mid_run_says_why_and_draws_only_the_bins_whose_start_it_knows(tmp_path, first, bins, said):
     """The world counts collisions from the run's start (a resumed run's count goes on from its
     checkpoint): a bin's are the count at its end less the count at its start, 0 for the run's
     first bin. A recording that begins after both (a resumed part) leaves out its first bin rather
-    than draw the whole run's collisions in it."""
+    than draw the whole run's collisions in it. The world's map names the tick its data begin at:
+    0, or where a run resumed; a recording that starts later started late."""
     import rerun as rr
 
-    from services.bus.schemas import WorldState, new_run_id
+    from services.bus.schemas import Array, WorldMap, WorldState, new_run_id
     from services.recorder.recorder import Recorder
 
-    ticks = np.arange(first, first + 3000)
+    params, run, ticks = params_for("paper"), new_run_id(), np.arange(first, first + 3000)
     collisions = ((ticks + 1) // 100)[:, None]  # one collision every 100 ticks: 10 in each bin of 1,000
     rec = rr.RecordingStream("spikinglab-test", recording_id="curve")
     rec.save(str(tmp_path / "curve.rrd"))
     recorder = Recorder(rec)
+    grid = generate_map(params, 0)[None]
+    map_tick = 0 if first < 1000 else first
+    recorder.on(WorldMap(tick=map_tick, run=run, grid=Array.of(grid), x_min=params.x_min, y_min=params.y_min))
     arrays = {
         "sensors": np.full((len(ticks), 1, len(SENSORS)), np.nan),
         "pos": np.full((len(ticks), 1, 2), 50.0),
@@ -394,7 +402,6 @@ def test_the_learning_curve_draws_only_the_bins_whose_start_the_recording_knows(
         "collisions": collisions,
         "food": np.zeros((len(ticks), 1), np.int64),
     }
-    run = new_run_id()
     for lo in range(0, len(ticks), 700):  # batches that do not end at a bin's end
         part = {name: values[lo : lo + 700] for name, values in arrays.items()}
         final = lo + 700 >= len(ticks)
@@ -402,9 +409,13 @@ def test_the_learning_curve_draws_only_the_bins_whose_start_the_recording_knows(
     recorder.close()
     rec.flush()
     rec.disconnect()
-    curve = read(tmp_path / "curve.rrd")["/learning/collisions_per_1000"]
+    data = read(tmp_path / "curve.rrd")
+    curve = data["/learning/collisions_per_1000"]
     assert list(curve["tick"]) == bins
     assert [v[0] for v in curve["Scalars:scalars"]] == [10.0] * len(bins)
+    texts = [t[0] for t in data["/events"]["TextLog:text"]]
+    about_start = [t for t in texts if "started late" in t or "resumed" in t]
+    assert about_start == ([said] if said else [])
 
 
 def test_a_recorder_keeps_an_earlier_recording_at_its_out_until_it_has_its_own(tmp_path):
