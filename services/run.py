@@ -120,8 +120,8 @@ def parser() -> argparse.ArgumentParser:
         "--resume",
         type=Path,
         metavar="FOLDER",
-        help="go on with the interrupted run in FOLDER (e.g. runs/<id>) from its last checkpoint, with "
-        "the options it was started with (--quiet, --no-record, --view and --view-host may differ)",
+        help="go on with the interrupted run in FOLDER (e.g. runs/<id>) from its last checkpoint, with the "
+        "options it was started with; how it is watched (--quiet, --no-record, --view, --view-host) is as given now",
     )
     return p
 
@@ -168,9 +168,8 @@ def resumed(p: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.Na
         p.exit_on_error = True
         p.error(f"argument --resume: {folder / STARTED_WITH} holds options this run refuses: {e}")
     p.exit_on_error = True
-    for k in RESUME_MAY_CHANGE:  # as given now, where given
-        if getattr(args, k) != defaults[k]:
-            setattr(options, k, getattr(args, k))
+    for k in RESUME_MAY_CHANGE:  # as given now: a run started --quiet or --no-record goes on shown or recorded
+        setattr(options, k, getattr(args, k))
     options.runs, options.id, options.resume = folder.parent, folder.name, folder
     kept_files(folder, options)  # the copies the run began with: the files given may have changed since
     return options

@@ -406,8 +406,8 @@ def test_readme_headline_is_what_the_default_run_computes():
 
     text = " ".join((ROOT / "README.md").read_text().split())
     said = re.search(
-        r"collisions fall from ([\d,]+) in the first quarter to ([\d,]+) in the last, the insect is "
-        r"collision-free from tick ([\d,]+) on.*?BLACK->PAIN rises from ([\d.]+) to ([\d.]+) while "
+        r"collisions fall from ([\d,]+) in the first quarter to ([\d,]+) in the last, its learning time "
+        r"is tick ([\d,]+) .*?BLACK->PAIN rises from ([\d.]+) to ([\d.]+) while "
         r"BLACK->REWARD falls to ([\d.]+)",
         text,
     )

@@ -370,6 +370,22 @@ def test_an_interrupted_run_goes_on_with_resume_and_ends_as_an_uninterrupted_one
     assert nothing.returncode == 2 and "nothing to resume" in nothing.stderr
 
 
+def test_a_resumed_run_is_watched_as_its_resume_command_says(tmp_path):
+    """How a run is watched is the resume's own choice: a run started --quiet --no-record goes on
+    shown and recorded unless the resume says so again; what the run is stays as it was started."""
+    from services.run import arguments, parser
+
+    folder = tmp_path / "r"
+    folder.mkdir()
+    (folder / "command.json").write_text(json.dumps({"argv": ["--ticks", "8000", "--quiet", "--no-record"]}))
+    plain = arguments(parser(), ["--resume", str(folder)])
+    assert (plain.quiet, plain.no_record, plain.ticks) == (False, False, 8000)
+    again = arguments(parser(), ["--resume", str(folder), "--quiet", "--no-record"])
+    assert (again.quiet, again.no_record, again.ticks) == (True, True, 8000)
+    viewed = arguments(parser(), ["--resume", str(folder), "--view"])  # refused before: --no-record was the start's
+    assert (viewed.view, viewed.no_record) == (True, False)
+
+
 def test_the_replay_line_names_a_viewer_that_exists_from_any_folder(tmp_path, monkeypatch):
     from services.run_report import viewer_shown
 
