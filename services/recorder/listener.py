@@ -53,6 +53,7 @@ class Listener:
         self.received, self.first_at = 0, time.monotonic()
         self.heard_at = time.monotonic()  # when the run recorded last sent a message that was recorded
         self.left_at: float | None = None  # when world and brain were first seen gone, the run not ended
+        self.leaving: list[tuple[str, int]] = []  # (world or brain, tick seen) gone, its run's end not yet come
 
     def step(self, message) -> bool:
         """One read of the inbox (`message`, or None when none came): recorded, and everything
@@ -60,6 +61,7 @@ class Listener:
         self.say_presence()
         if message is not None:
             self.take(message)
+        self.say_left()
         # the run recorded has gone quiet: the next one, if the run recorded was cut short or --forever
         if (
             self.next_run
@@ -81,12 +83,27 @@ class Listener:
         for name, presence in self.watched.items():
             while not presence.events.empty():
                 change, _ = presence.events.get()
-                # stamped with the tick the recorder has got to, which can trail the run
-                self.recorder.event(
-                    f"{name} {'is on the bus' if change == 'up' else 'left the bus'} "
-                    f"(seen while recording tick {max(self.recorder.last_tick, 0)})",
-                    "INFO" if change == "up" else "WARN",
-                )
+                tick = max(self.recorder.last_tick, 0)  # the tick the recorder has got to: it can trail the run
+                if change == "down":
+                    self.leaving.append((name, tick))
+                    continue
+                self.say_left(came_back=name)
+                self.recorder.event(f"{name} is on the bus (seen while recording tick {tick})", "INFO", tick)
+
+    def say_left(self, came_back: str | None = None, at_end: bool = False) -> None:
+        """Each departure seen, once it is known how it went: after the run's end for it (its final
+        batch, which can come after the news that it left), or without it (WARN): it came back
+        (`came_back`: its name), or the recording ends first (`at_end`)."""
+        waiting = []
+        for name, tick in self.leaving:
+            ended = self.recorder.world_done if name == "world" else self.recorder.brain_done
+            if ended or at_end or name == came_back:
+                how = "" if ended else " before the run's end"
+                text = f"{name} left the bus{how} (seen while recording tick {tick})"
+                self.recorder.event(text, "INFO" if ended else "WARN", tick)
+            else:
+                waiting.append((name, tick))
+        self.leaving = waiting
 
     def take(self, message) -> None:
         if self.received == 0:
@@ -121,6 +138,7 @@ class Listener:
 
     def start_next_run(self) -> None:
         """The run recorded is closed; the run of the messages held gets a file and a Recorder."""
+        self.say_left(at_end=True)
         self.recorder.close()
         if self.rec is not self.first_stream:
             self.rec.flush()
@@ -202,6 +220,7 @@ class Listener:
             )
             self.recorder.event(text, "WARN")
             log.warning("%s", text)
+        self.say_left(at_end=True)
         self.recorder.close()
         for stream in [self.rec] if self.rec is self.first_stream else [self.rec, self.first_stream]:
             stream.flush()

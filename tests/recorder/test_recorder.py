@@ -105,6 +105,9 @@ def test_spikes_weights_and_learning_curve_are_the_brains(recorded_run):
     assert [v[0] for v in curve["Scalars:scalars"]] == metrics["collisions_per_1000_ticks"][0]
     texts = [t[0] for t in data["/events"]["TextLog:text"]]
     assert f"run ended at tick {TICKS}" in texts
+    # a run that ended warns of nothing: world and brain leaving after their final batches is no fault
+    warned = [text for text, level in zip(texts, data["/events"]["TextLog:level"]) if level != ["INFO"]]
+    assert warned == []
     assert RrdReader(str(folder / "recording.rrd")).blueprints  # the layout is in the file
 
 
