@@ -67,6 +67,7 @@ from services.world.world import BIN, SENSORS, MapError
 
 log = logging.getLogger("spikinglab.run")
 RESUME_MAY_CHANGE = ("quiet", "no_record", "view", "view_host")  # how a run is watched, not what it is
+RATES = ("a_plus", "a_minus")  # the learning rates, as the circuit and a --params file name them
 LOCAL = "127.0.0.1"  # the live view's servers listen here unless --view-host says otherwise
 
 
@@ -277,10 +278,10 @@ def announce(args: argparse.Namespace, circuit: Circuit, columns: dict, run_id: 
         args.ticks,
         args.seed,
         args.agents,
-        rates_text({which: learning_rate(circuit, which) for which in ("a_plus", "a_minus")}),
+        rates_text({which: "per agent" if which in columns else learning_rate(circuit, which) for which in RATES}),
         args.preset,
-        f", map {args.map}" if args.map else "",
-        f", per-agent parameters {', '.join(columns)} from {args.params}" if columns else "",
+        f", map {args.given.get('map')}" if args.map else "",  # the files as given (the run reads its copies)
+        f", per-agent parameters {', '.join(columns)} from {args.given.get('params')}" if columns else "",
         args.semantics,
         f"; resumed at tick {resume_at:,}" if resume_at is not None else "",
     )

@@ -255,21 +255,24 @@ def report(folder: Path, summary: dict) -> None:
     mean = {k: float(np.mean(v)) for k, v in w.items()}
     if head["partial"]:
         print(partial_mark(summary) + resume_hint(folder))
-    print(
-        f"\ncollisions: {head['collisions_first_quarter']:.0f} in the first quarter, "
-        f"{head['collisions_last_quarter']:.0f} in the last quarter "
-        f"({head['ticks_done']:,} ticks, {summary['ticks_per_s']:,.0f} ticks/s)"
-    )
     times = summary["learning_time"]
     p = summary["parameters"]
     paper = paper_time(p)
+    of_all = f" (mean of {p['agents']:,} insects)" if p["agents"] > 1 else ""
+    resumed = head["resumed_at"]
+    pace = f"{summary['ticks_per_s']:,.0f} ticks/s" + (f" from tick {resumed:,}, where it resumed" if resumed else "")
+    print(
+        f"\ncollisions{of_all}: {head['collisions_first_quarter']:.0f} in the first quarter, "
+        f"{head['collisions_last_quarter']:.0f} in the last quarter ({head['ticks_done']:,} ticks, {pace})"
+    )
     print(
         f"learned: {head['learned']}"
         f" (criterion: {p['learned_after']:,} ticks off noxious patches); learning time: "
         + ", ".join("not reached" if t is None else f"tick {t:,}" for t in times[:8])
+        + (f" ... (the first 8 of {len(times):,}: summary.json has each)" if len(times) > 8 else "")
         + (f" (paper, {rates_text(p)}: {paper:,}; docs/results.md compares)" if paper else "")
     )
-    print("weights:", ", ".join(f"{k} {v:.2f}" for k, v in mean.items()))
+    print(f"weights{of_all}:", ", ".join(f"{k} {v:.2f}" for k, v in mean.items()))
     recordings = recording_parts(folder)
     files = ", ".join(
         ["summary.json, collisions.png, trajectory.png, metrics.json, weights.npz", *(path.name for path in recordings)]

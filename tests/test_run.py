@@ -83,6 +83,11 @@ def test_per_agent_parameters_from_a_file_reach_world_and_brain(tmp_path):
     per_agent = json.loads((folder / "summary.json").read_text())["parameters"]["per_agent"]
     assert per_agent == {"a_plus": [0.04, 0.0], "a_minus": [0.04, 0.0], "move_step": [1.0, 0.5]}
     assert (folder / "params.csv").read_text() == study.read_text()
+    # the first line names the rates as the file sets them and the file as given (the run reads its copy);
+    # the report says its figures are the insects' mean
+    said = done.stdout + done.stderr
+    assert f"A+ = A- = per agent, world paper, per-agent parameters a_plus, a_minus, move_step from {study}," in said
+    assert "collisions (mean of 2 insects): " in said and "weights (mean of 2 insects): " in said
     weights = load_weights(folder / "weights.npz", load_circuit("insect"))
     np.testing.assert_array_equal(weights[1], load_weights_initial()[0])  # A+ = A- = 0: nothing learnt
     assert not np.array_equal(weights[0], weights[1])
@@ -269,7 +274,7 @@ def test_the_replay_line_names_the_runs_parts_and_not_an_earlier_try(tmp_path, c
     (folder / "recording-from-tick5000.rrd").write_bytes(b"")
     head = {"learned": "no", "partial": False, "resumed_at": 10000, "ticks_done": 12000}
     head |= {"collisions_first_quarter": 9.0, "collisions_last_quarter": 1.0}
-    parameters = {"learned_after": 5000, "a_plus": 0.02, "a_minus": 0.02}
+    parameters = {"learned_after": 5000, "a_plus": 0.02, "a_minus": 0.02, "agents": 1}
     report(
         folder,
         {"headline": head, "final_weights": {}, "learning_time": [None], "parameters": parameters, "ticks_per_s": 1},
