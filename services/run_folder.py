@@ -26,7 +26,7 @@ STARTED_WITH = "command.json"  # the options the run was started with, for --res
 # keeps its file's name (a circuit without `name` is named after its file) in a folder of its own.
 KEPT = {"params": "params.csv", "map": "map.txt", "load": "loaded-weights.npz", "circuit": "circuit"}
 RESULTS = (STARTED_WITH, "summary.json", "weights.npz")  # a folder with one of these holds a run
-RECORDING_PART = re.compile(r"recording(-from-tick\d+)?\.rrd")  # recording_part's names
+RECORDING_PART = re.compile(r"recording(?:-from-tick(\d+))?\.rrd")  # recording_part's names: the tick it starts at
 
 
 def new_folder(runs: Path, seed: int) -> Path:
@@ -142,10 +142,11 @@ def recording_part(folder: Path, resume_at: int | None) -> Path:
     return folder / ("recording.rrd" if resume_at is None else f"recording-from-tick{resume_at}.rrd")
 
 
-def recording_parts(folder: Path) -> list[Path]:
-    """The run's recording, the first part first (not an earlier try of a part, kept as .previous.rrd)."""
-    parts = (path for path in folder.glob("recording*.rrd") if RECORDING_PART.fullmatch(path.name))
-    return sorted(parts, key=lambda path: (len(path.name), path.name))
+def recording_parts(folder: Path) -> dict[Path, int]:
+    """The run's recording by part, the first first (not an earlier try of a part, kept as
+    .previous.rrd): {path: the tick it starts at}."""
+    parts = {path: RECORDING_PART.fullmatch(path.name) for path in folder.glob("recording*.rrd")}
+    return dict(sorted(((path, int(m.group(1) or 0)) for path, m in parts.items() if m), key=lambda part: part[1]))
 
 
 def started_with(folder: Path) -> list[str]:

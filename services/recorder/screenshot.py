@@ -23,6 +23,7 @@ from rerun.chunk import RrdReader
 from rerun.error_utils import RerunWarning
 
 from services.options import Parser, at_least, output_file
+from services.run_folder import recording_parts
 
 from .viewer import viewer_command
 
@@ -182,7 +183,9 @@ def main(argv=None) -> int:
         print(f"spikinglab screenshot: {args.recording}: {e}", file=sys.stderr)
         return 2
     if args.tick is not None and args.tick > last:
-        p.error(f"argument --tick: {args.tick:,} is beyond the recording's last tick, {last:,}")
+        later = [path for path, start in recording_parts(args.recording.parent).items() if last < start <= args.tick]
+        held = f"; {later[-1]}, a later part of the run, holds it" if later else ""
+        p.error(f"argument --tick: {args.tick:,} is beyond the recording's last tick, {last:,}{held}")
     try:
         out = screenshot(
             args.recording,

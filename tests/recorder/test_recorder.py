@@ -527,6 +527,15 @@ def test_screenshot_refuses_a_tick_beyond_the_recordings_last(tmp_path):
         "spikinglab screenshot: argument --tick: 500 is beyond the recording's last tick, 499 "
         "(see spikinglab screenshot --help)\n"
     )
+    (tmp_path / "run").mkdir()
+    first = write_recording(tmp_path / "run" / "recording.rrd", ticks=500)  # a resumed run's parts
+    for part_start in (400, 600):
+        (tmp_path / "run" / f"recording-from-tick{part_start}.rrd").write_bytes(b"")
+    done = screenshot_of(first, "--tick", 700)
+    assert done.returncode == 2 and done.stderr.startswith(
+        "spikinglab screenshot: argument --tick: 700 is beyond the recording's last tick, 499; "
+        f"{tmp_path / 'run' / 'recording-from-tick600.rrd'}, a later part of the run, holds it"
+    )
 
 
 def test_screenshot_without_a_graphics_driver_says_what_to_install_in_one_line(tmp_path):
