@@ -173,7 +173,7 @@ def test_malformed_messages_on_every_topic_are_rejected_and_the_run_goes_on(tmp_
     assert metrics["collisions"] == world.metrics.collisions.tolist()
     assert metrics["food"] == world.metrics.food.tolist()
     np.testing.assert_array_equal(load_weights(tmp_path / "weights.npz", brain.circuit), brain.engine.get_weights())
-    assert last_tick(tmp_path / "run.rrd") == ticks  # poses through tick 3999, then "run ended at tick 4000"
+    assert last_tick(tmp_path / "run.rrd") == ticks - 1  # poses through tick 3999, and "run ended at tick 4000" there
 
 
 def test_brain_and_world_meet_only_through_a_router(tmp_path):

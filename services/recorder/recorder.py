@@ -267,7 +267,8 @@ class Recorder:
             self.event(f"agent {a} learned: no collision for the required run of ticks (tick {t})", "INFO", t)
         if m.final:
             self.world_done = True
-            self.event(f"run ended at tick {m.tick + len(pos)}", "INFO", m.tick + len(pos))
+            # at its last tick: the recording's ticks are those run (0 .. N - 1 of N)
+            self.event(f"run ended at tick {m.tick + len(pos)}", "INFO", m.tick + len(pos) - 1)
 
     def _keep_vision(self, ticks, names, sensed, pos, heading) -> None:
         """Each detail agent's vision ray (from where it stood after the tick before, as far as the
