@@ -35,11 +35,10 @@ def summarise(
     stats = folder / "brain-stats.json"
     brain_stats = json.loads(stats.read_text()) if stats.exists() else {}
     weights = load_weights(folder / "weights.npz", circuit)
-    if args.load:  # one agent's, or one row per agent
-        loaded = np.broadcast_to(load_weights(args.load, circuit), weights.shape)
-        initial = {circuit.synapse_label(k): loaded[:, k].round(4).tolist() for k in circuit.plastic_synapses}
-    else:
-        initial = {circuit.synapse_label(k): circuit.synapses[k].weight for k in circuit.plastic_synapses}
+    # per agent, as the final weights: the circuit's, or those loaded (one agent's, or one row per agent)
+    started = load_weights(args.load, circuit) if args.load else [synapse.weight for synapse in circuit.synapses]
+    started = np.broadcast_to(started, weights.shape)
+    initial = {circuit.synapse_label(k): started[:, k].round(4).tolist() for k in circuit.plastic_synapses}
     summary = {
         "headline": headline(metrics, args.agents),
         "initial_weights": initial,

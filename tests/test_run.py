@@ -40,6 +40,7 @@ def test_run_writes_summary_plot_weights_and_logs(tmp_path):
     assert set(summary["final_weights"]) == {f"{a}->{m}" for a in ("BLACK", "RED", "GREEN") for m in ("PAIN", "REWARD")}
     weights = load_weights(folder / "weights.npz", load_circuit("insect"))
     assert summary["final_weights"]["BLACK->PAIN"] == [round(float(weights[0, 0]), 4)]
+    assert summary["initial_weights"]["BLACK->PAIN"] == [5.0]  # per agent too: the circuit's
     png = (folder / "collisions.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
     assert f"written to {folder}" in done.stdout and "learning time" in done.stdout
