@@ -349,6 +349,7 @@ def read_launch_file(path: Path) -> tuple[list[Process], str | None]:
         processes.append(process)
     if not processes:
         raise LaunchError(f"{path} names no process: add a table such as [world]")
+    check_worlds_params(path, processes, parsed)
     check_world_shards_agree(path, processes, parsed)
     check_brains_fit_worlds(path, processes, parsed)
     check_brains_weights(path, processes, parsed)
@@ -356,6 +357,17 @@ def read_launch_file(path: Path) -> tuple[list[Process], str | None]:
     if until is not None and (not isinstance(until, str) or until not in data):
         raise LaunchError(f"{path}, [launch]: until = {until!r} is not one of its processes ({', '.join(data)})")
     return processes, until
+
+
+def check_worlds_params(path: Path, processes: list[Process], parsed: dict[str, argparse.Namespace]) -> None:
+    """A world's `params` file, read as the world reads it and checked to fit its agents: it would
+    stop at its start with the others running."""
+    for world in (p for p in processes if p.service == "world" and parsed[p.name].params is not None):
+        args = parsed[world.name]
+        try:
+            file_for_agents(args.params, args.agents, f"agents = {args.agents}")
+        except ValueError as e:
+            raise LaunchError(f"{path}, [{world.name}]: {e}") from None
 
 
 def check_world_shards_agree(path: Path, processes: list[Process], parsed: dict[str, argparse.Namespace]) -> None:

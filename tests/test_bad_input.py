@@ -55,6 +55,8 @@ def files(tmp_path_factory):
     unfit = {"rows": f'params = "{folder / "rows.csv"}"', "shards": 'shard = "2/2"', "group": 'group = "other"'}
     for name, brain in unfit.items():  # a brain each that could never serve its world: refused before anything starts
         (folder / f"unfit-{name}.toml").write_text(f"[world]\nagents = 2\n[brain]\nonce = true\n{brain}\n")
+    world_rows = f'[world]\nagents = 2\nparams = "{folder / "rows.csv"}"\n[brain]\nonce = true\n'
+    (folder / "world-rows.toml").write_text(world_rows)  # the world's own file does not fit it
     (folder / "load-missing.toml").write_text(
         f'[brain]\nconnect = ["tcp/127.0.0.1:7447"]\nload = "{folder / "missing.npz"}"\n'
     )
@@ -372,6 +374,12 @@ CASES = [
         "launch {f}/unfit-rows.toml",
         2,
         "unfit-rows.toml, [brain]: parameter file {f}/rows.csv: 3 rows of values for 2 agents (agents of [world])",
+    ),
+    (
+        "launch world params for other agents",
+        "launch {f}/world-rows.toml",
+        2,
+        "world-rows.toml, [world]: parameter file {f}/rows.csv: 3 rows of values for 2 agents (agents = 2)",
     ),
     (
         "launch brain shards unlike the world's",

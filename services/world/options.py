@@ -56,7 +56,12 @@ def add_world_args(p: argparse.ArgumentParser, ticks: int = 40_000, least_ticks:
     """The world's options; --ticks of at least `least_ticks` (`why`: what needs them)."""
     w = p.add_argument_group("world")
     w.add_argument("--ticks", type=at_least(least_ticks), default=ticks, help=f"ticks to run{why} (default {ticks:,})")
-    w.add_argument("--seed", type=at_least(0), default=0, help="world seed: maps and headings (agent a uses seed + a)")
+    w.add_argument(
+        "--seed",
+        type=at_least(0),
+        default=0,
+        help="world seed: maps and headings (agent a: the map of seed + a, a heading drawn from (seed, a))",
+    )
     w.add_argument("--agents", type=at_least(1), default=1, help="insects stepped together (default 1)")
     w.add_argument("--shared", action="store_true", help="all agents share one arena (default: one each)")
     add_preset(w)
