@@ -163,7 +163,7 @@ def synapse_groups(b2, circuit: Circuit, neurons, feeds: np.ndarray) -> tuple[li
 
 
 def main(argv=None) -> dict:
-    p = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    p = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     p.add_argument("--agents", type=int, default=1000, help="copies of the circuit (default 1,000)")
     p.add_argument("--ticks", type=int, default=5000, help="ticks of the run (default 5,000)")
     p.add_argument("--threads", type=int, nargs="+", default=[1, 2], help="OpenMP threads, a run each (default 1 2)")

@@ -44,12 +44,14 @@ def cost(result, ticks):
 
 
 def main():
-    p = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    p.add_argument("--generations", type=at_least(1), default=10)
+    p = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    p.add_argument("--generations", type=at_least(1), default=10, help="generations of the search (default 10)")
     # the cost reads the collisions of the run's last quarter: at least one bin of them
-    p.add_argument("--ticks", type=at_least(BIN), default=60_000)
-    p.add_argument("--seeds", type=at_least(1), default=4)
-    p.add_argument("--population", type=at_least(2), default=8, help="candidates per generation (CMA-ES: 2 or more)")
+    p.add_argument("--ticks", type=at_least(BIN), default=60_000, help="ticks each candidate runs (default 60,000)")
+    p.add_argument("--seeds", type=at_least(1), default=4, help="seeds each candidate runs on (default 4)")
+    p.add_argument(
+        "--population", type=at_least(2), default=8, help="candidates per generation (CMA-ES: 2 or more; default 8)"
+    )
     p.add_argument("--cluster", type=address_option, metavar="ADDRESS", help="a Dask scheduler, tcp://HOST:PORT")
     args = p.parse_args()
     try:

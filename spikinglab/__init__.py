@@ -70,3 +70,8 @@ def __getattr__(name: str):
     if name in API:
         return getattr(import_module(API[name]), name)
     raise AttributeError(f"module 'spikinglab' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    """The API's names too (a notebook completes them before any is imported)."""
+    return sorted({*globals(), *API})

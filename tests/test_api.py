@@ -14,6 +14,7 @@ from .processes import ROOT
 
 def test_every_api_name_loads():
     assert sorted(spikinglab.__all__) == sorted(spikinglab.API)
+    assert set(spikinglab.API) <= set(dir(spikinglab))  # what a notebook completes
     for name in spikinglab.__all__:
         assert getattr(spikinglab, name) is not None, name
 
