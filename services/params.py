@@ -65,6 +65,14 @@ PARALLEL_FROM = 256  # agents; from here, engine and world kernels run across co
 LEARNING_FIELDS = ("a_plus", "a_minus", "tau_plus", "tau_minus", "w_max")
 
 
+class AgentValueError(ValueError):
+    """A per-agent value out of range: `agent` is its row."""
+
+    def __init__(self, text: str, agent: int):
+        super().__init__(text)
+        self.agent = agent
+
+
 def agent_columns(agents: int, params: Mapping | None, side: str | None = None) -> dict[str, np.ndarray]:
     """The given columns as float arrays [agents] (a number: the same for all), checked.
 
@@ -91,9 +99,10 @@ def agent_columns(agents: int, params: Mapping | None, side: str | None = None) 
         bad = ~np.isfinite(column) | ((column <= 0) if p.positive else (column < 0))
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
-            raise ValueError(
+            raise AgentValueError(
                 f"per-agent parameter {name}: agent {k} has {column[k]}, it must be a finite number "
-                f"{'>' if p.positive else '>='} 0"
+                f"{'>' if p.positive else '>='} 0",
+                k,
             )
         out[name] = column
     return out
@@ -151,6 +160,8 @@ def read_params(path: Path) -> dict[str, np.ndarray]:
                 ) from None
     try:
         return agent_columns(len(rows), dict(zip(names, values.T)))
+    except AgentValueError as e:
+        raise ValueError(f"parameter file {path}, line {rows[e.agent][0]}: {e}") from None
     except ValueError as e:
         raise ValueError(f"parameter file {path}: {e}") from None
 

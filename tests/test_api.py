@@ -110,6 +110,12 @@ BAD_CALLS = [
         "grid: patch colours are 0..3, it holds [9]",
     ),
     (
+        "grid a list of the wrong shape",
+        lambda: spikinglab.World(P, grid=WRONG([[0] * P.width] * P.height)),  # a list of the right one is taken
+        f"grid shape {(P.height, P.width)} does not match the params' arena {(P.width, P.height)}",
+    ),
+    ("grid a word", lambda: spikinglab.World(P, grid=WRONG("#####")), "grid shape () does not match"),
+    (
         "move step NaN",
         lambda: spikinglab.params_for("paper", move_step=float("nan")),
         "move_step must be a number above 0, got nan",

@@ -52,6 +52,7 @@ def files(tmp_path_factory):
     (folder / "rows.csv").write_text("a_plus\n0.01\n0.02\n0.03\n")
     (folder / "word.csv").write_text("a_plus,move_step\n0.02,1\n0.02,fast\n")
     (folder / "low.csv").write_text("w_max\n3\n")
+    (folder / "negative.csv").write_text("a_plus\n0.02\n-0.02\n")
     unfit = {"rows": f'params = "{folder / "rows.csv"}"', "shards": 'shard = "2/2"', "group": 'group = "other"'}
     for name, brain in unfit.items():  # a brain each that could never serve its world: refused before anything starts
         (folder / f"unfit-{name}.toml").write_text(f"[world]\nagents = 2\n[brain]\nonce = true\n{brain}\n")
@@ -327,6 +328,12 @@ CASES = [
         "run --agents 2 --params {f}/word.csv",
         2,
         "word.csv, line 3: move_step is 'fast', not a number",
+    ),
+    (
+        "run params out of range",
+        "run --agents 2 --params {f}/negative.csv",
+        2,
+        "negative.csv, line 3: per-agent parameter a_plus: agent 1 has -0.02, it must be a finite number >= 0",
     ),
     ("brain params the circuit refuses", "brain --params {f}/low.csv", 2, "low.csv: /"),  # names the circuit too
     (

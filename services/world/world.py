@@ -345,8 +345,8 @@ def checked_arguments(p: WorldParams, agents, seed, shared, grid, training, numb
     if shared and numbers is not None:
         raise ValueError("numbers: agents of a shared arena are its agents 0..A-1")
     if grid is not None:
-        if grid.shape != (p.width, p.height):
-            raise ValueError(f"grid shape {grid.shape} does not match the params' arena {(p.width, p.height)}")
+        if np.shape(grid) != (p.width, p.height):  # a list of lists too; a string, a number: shape ()
+            raise ValueError(f"grid shape {np.shape(grid)} does not match the params' arena {(p.width, p.height)}")
         if not np.isin(grid, np.arange(COLOURS)).all():
             unknown = sorted(set(np.unique(grid).tolist()) - set(range(COLOURS)))
             raise ValueError(f"grid: patch colours are 0..{COLOURS - 1}, it holds {unknown}")
@@ -356,9 +356,9 @@ def checked_arguments(p: WorldParams, agents, seed, shared, grid, training, numb
 class World:
     """A insects in their arenas. `sense()` then `act(actions)` per tick.
 
-    Agent a is agent `numbers[a]` (default a) of the world of `seed`: its arena, its heading and its
-    brain's netlogo order come from seed + numbers[a], so a population can hold the same insect
-    several times (one per parameter setting). `agent_params`: the world's per-agent columns
+    Agent a is agent `numbers[a]` (default a) of the world of `seed`: its arena and its brain's
+    netlogo order come from seed + numbers[a], its heading from (seed, numbers[a]), so a population
+    can hold the same insect several times (one per parameter setting). `agent_params`: the world's per-agent columns
     (services.params: rotation and move steps), each a number or one value per agent."""
 
     def __init__(
@@ -414,7 +414,7 @@ class World:
         self.reset()
 
     def reset(self) -> None:
-        """Fresh arenas and insects from the seed (agent a's arena and heading use seed + a)."""
+        """Fresh arenas and insects from the seed (agent a's arena: seed + a's; its heading: (seed, a)'s)."""
         p = self.params
         for g in range(self.grid.shape[0]):
             self.grid[g] = (
