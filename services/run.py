@@ -54,7 +54,7 @@ from services.run_folder import (
     take,
 )
 from services.run_report import (
-    learning_rate,
+    learning_rates,
     plot,
     plot_trajectory,
     rates_text,
@@ -67,7 +67,6 @@ from services.world.world import BIN, SENSORS, MapError
 
 log = logging.getLogger("spikinglab.run")
 RESUME_MAY_CHANGE = ("quiet", "no_record", "view", "view_host")  # how a run is watched, not what it is
-RATES = ("a_plus", "a_minus")  # the learning rates, as the circuit and a --params file name them
 LOCAL = "127.0.0.1"  # the live view's servers listen here unless --view-host says otherwise
 
 
@@ -278,7 +277,7 @@ def announce(args: argparse.Namespace, circuit: Circuit, columns: dict, run_id: 
         args.ticks,
         args.seed,
         args.agents,
-        rates_text({which: "per agent" if which in columns else learning_rate(circuit, which) for which in RATES}),
+        rates_text(learning_rates(circuit, columns)),
         args.preset,
         f", map {args.given.get('map')}" if args.map else "",  # the files as given (the run reads its copies)
         f", per-agent parameters {', '.join(columns)} from {args.given.get('params')}" if columns else "",

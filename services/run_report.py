@@ -88,15 +88,11 @@ def headline(metrics: dict, agents: int) -> dict:
 def parameters(args: argparse.Namespace, circuit: Circuit) -> dict:
     """The run's parameters; `per_agent`: the --params file's columns ({}: none)."""
     per_agent = {name: column.tolist() for name, column in (read_params(args.params) if args.params else {}).items()}
-    rates = {which: learning_rate(circuit, which) for which in ("a_plus", "a_minus")}
-    for which in set(rates) & set(per_agent):  # set per agent by the --params file
-        values = sorted(set(per_agent[which]))
-        rates[which] = values[0] if len(values) == 1 else values
     return {
         "ticks": args.ticks,
         "seed": args.seed,
         "agents": args.agents,
-        **rates,
+        **learning_rates(circuit, per_agent),
         "circuit": args.given.get("circuit", circuit.source),  # each file as given (the run folder keeps a copy)
         "preset": args.preset,
         "map": args.given.get("map"),
@@ -108,6 +104,16 @@ def parameters(args: argparse.Namespace, circuit: Circuit) -> dict:
         "order": args.order,
         "per_agent": per_agent,
     }
+
+
+def learning_rates(circuit, per_agent) -> dict:
+    """A+ and A- (a_plus, a_minus): the circuit's, or the values a --params file's columns
+    (`per_agent`) set, one number where all agents share it."""
+    rates = {which: learning_rate(circuit, which) for which in ("a_plus", "a_minus")}
+    for which in set(rates) & set(per_agent):
+        values = sorted(set(map(float, per_agent[which])))
+        rates[which] = values[0] if len(values) == 1 else values
+    return rates
 
 
 def learning_rate(circuit, which: str = "a_plus") -> float | list[float]:

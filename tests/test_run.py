@@ -87,7 +87,7 @@ def test_per_agent_parameters_from_a_file_reach_world_and_brain(tmp_path):
     # the first line names the rates as the file sets them and the file as given (the run reads its copy);
     # the report says its figures are the insects' mean
     said = done.stdout + done.stderr
-    assert f"A+ = A- = per agent, world paper, per-agent parameters a_plus, a_minus, move_step from {study}," in said
+    assert f"A+ = A- = [0.0, 0.04], world paper, per-agent parameters a_plus, a_minus, move_step from {study}," in said
     assert "collisions (mean of 2 insects): " in said and "weights (mean of 2 insects): " in said
     weights = load_weights(folder / "weights.npz", load_circuit("insect"))
     np.testing.assert_array_equal(weights[1], load_weights_initial()[0])  # A+ = A- = 0: nothing learnt
