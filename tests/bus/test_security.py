@@ -50,14 +50,14 @@ def secure_bus(tmp_path):
         yield endpoint, folder
 
 
-REFUSED_WITHIN_MS = 3000  # a client refused waits this long, not 10 s: a TLS handshake on loopback takes ms
+# a client refused gives up after 3 s, not a service's 10: a TLS handshake on loopback takes ms
+GIVE_UP_SOON = {"connect": {"timeout_ms": {"client": 3000}}}
 
 
-def session_as(role: str, folder, endpoint: str, wait_ms: int | None = None) -> zenoh.Session:
-    """A session with `role`'s certificate; `wait_ms`: how long a client waits for its router."""
+def session_as(role: str, folder, endpoint: str, settings: dict | None = None) -> zenoh.Session:
+    """A session with `role`'s certificate, and `settings` over its config file's."""
     config = zenoh_config_file(str(folder / f"{role}.json5"))
-    if wait_ms is not None:
-        config["settings"] = config["settings"] | {"connect": {"timeout_ms": {"client": wait_ms}}}
+    config["settings"] = config["settings"] | (settings or {})
     return zenoh.open(make_config(connect=[endpoint], config_file=config))
 
 
@@ -154,18 +154,18 @@ def test_a_peer_without_a_valid_certificate_cannot_connect(secure_bus, tmp_path)
     endpoint, folder = secure_bus
     with session_as("viewer", folder, endpoint) as viewer:  # the control: a certificate of the CA connects
         assert list(viewer.info.routers_zid())
-    wait = {"connect": {"timeout_ms": {"client": REFUSED_WITHIN_MS}}}
     no_certificate = {"mode": "client", "transport": {"link": {"tls": {"root_ca_certificate": str(folder / "ca.pem")}}}}
+    no_certificate |= GIVE_UP_SOON
     assert certs.main([str(tmp_path / "other"), "--new-ca"]) == 0  # the right roles, from another CA
     with pytest.raises(zenoh.ZError):
-        zenoh.open(make_config(connect=[endpoint], config_file={"file": "-", "settings": no_certificate | wait}))
+        zenoh.open(make_config(connect=[endpoint], config_file={"file": "-", "settings": no_certificate}))
     with pytest.raises(zenoh.ZError):
-        session_as("brain", tmp_path / "other", endpoint, wait_ms=REFUSED_WITHIN_MS)
+        session_as("brain", tmp_path / "other", endpoint, GIVE_UP_SOON)
     with pytest.raises(zenoh.ZError):  # nor in the clear
         zenoh.open(
             make_config(
                 connect=[endpoint.replace("tls/", "tcp/")],
-                config_file={"file": "-", "settings": {"mode": "client"} | wait},
+                config_file={"file": "-", "settings": {"mode": "client"} | GIVE_UP_SOON},
             )
         )
 
