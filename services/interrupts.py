@@ -138,3 +138,48 @@ def ctrl_c_held():
             signal.signal(signum, handler)
     if came:
         raise KeyboardInterrupt
+
+
+class Waits:
+    """Ctrl-C (and SIGTERM, where it is taken as Ctrl-C) within ctrl_c_in_waits() is noted in
+    `came`, for the loop to end where it can; it is raised at once only inside `with waits:` (a
+    wait that loses nothing when cut), or as such a wait begins."""
+
+    def __init__(self):
+        self.open = False
+        self.came = False
+
+    def __enter__(self) -> Waits:
+        if self.came:
+            self.came = False
+            raise KeyboardInterrupt
+        self.open = True
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.open = False
+
+
+@contextmanager
+def ctrl_c_in_waits():
+    """A loop that must not be cut anywhere (a message taken from the bus and not yet kept is lost
+    when KeyboardInterrupt is raised) notes Ctrl-C and ends by itself (Waits). Set once around the
+    loop: a step costs it nothing."""
+    waits = Waits()
+    taken = [signum for signum in (signal.SIGINT, signal.SIGTERM) if callable(signal.getsignal(signum))]
+    before = {signum: signal.getsignal(signum) for signum in taken}
+
+    def handler(signum, frame) -> None:
+        previous = before[signum]
+        if waits.open and callable(previous):
+            previous(signum, frame)
+        else:
+            waits.came = True
+
+    for signum in taken:
+        signal.signal(signum, handler)
+    try:
+        yield waits
+    finally:
+        for signum, previous in before.items():
+            signal.signal(signum, previous)

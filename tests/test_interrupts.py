@@ -143,3 +143,31 @@ def test_ctrl_c_in_code_run_from_a_string_keeps_the_exit_code(tmp_path):
     assert died.stdout == "interrupted\n" and died.returncode == -signal.SIGINT
     taken = run("taken")
     assert (taken.stdout, taken.returncode, taken.stderr) == ("interrupted\n", 130, "")
+
+
+def test_ctrl_c_in_a_loop_is_noted_raised_only_in_a_wait_and_dropped_at_its_end():
+    """ctrl_c_in_waits: Ctrl-C outside a wait is noted (the loop ends where it can) and raised as
+    the next wait begins; inside one it is raised at once; the handlers are then put back."""
+    from services.interrupts import ctrl_c_in_waits
+
+    seen = []
+    try:
+        with ctrl_c_in_waits() as waits:
+            for step in range(3):
+                with waits:
+                    pass
+                os.kill(os.getpid(), signal.SIGINT)  # the handler runs before the next line
+                seen.append((step, waits.came))
+    except KeyboardInterrupt:
+        seen.append("interrupted")
+    assert seen == [(0, True), "interrupted"]
+    try:
+        with ctrl_c_in_waits() as waits, waits:
+            os.kill(os.getpid(), signal.SIGINT)
+            seen.append("not interrupted in a wait")
+    except KeyboardInterrupt:
+        seen.append("interrupted in a wait")
+    assert seen[-1] == "interrupted in a wait"
+    with ctrl_c_in_waits():
+        os.kill(os.getpid(), signal.SIGINT)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

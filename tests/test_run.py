@@ -14,6 +14,7 @@ from services.brain.checkpoint import load_weights
 from services.brain.circuit import load_circuit
 from services.bus.batching import state_batch
 from services.run_report import learning_rate, paper_time, rates_text
+from spikinglab import World, brain_for, closed_loop, params_for
 from spikinglab.bench.fuzz import KEY_OF
 
 from .processes import ROOT, running_with, wait_for, wait_for_ticks
@@ -261,6 +262,12 @@ def test_ctrl_c_writes_a_partial_result_and_leaves_nothing_running(tmp_path):
             tmp_path / "r" / plot
         )
     assert not running_with(str(tmp_path))
+    world = World(params_for("paper"))
+    brain = brain_for(world, load_circuit("insect"))
+    closed_loop(world, brain, head["ticks_done"])
+    weights = brain.engine.get_weights()
+    got = json.loads((tmp_path / "r" / "summary.json").read_text())["all_final_weights"]
+    assert got == {brain.circuit.synapse_label(k): weights[:, k].tolist() for k in range(weights.shape[1])}
 
 
 def test_the_replay_line_names_the_runs_parts_and_not_an_earlier_try(tmp_path, capsys):

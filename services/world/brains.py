@@ -11,12 +11,14 @@ import numpy as np
 from services.bus import keys
 from services.bus.schemas import Array, BusError, Motor, Sensors
 from services.bus.transport import Bus, wait_for_subscriber
+from services.interrupts import Waits
 from services.options import shard_slice, shards_meet
 
 from .world import SENSORS, World, world_actions
 
 log = logging.getLogger("spikinglab.world")
 RESEND_AFTER = 1.0  # seconds without an answer before the sensors are sent again
+LAST_ANSWER_S = 2.0  # after Ctrl-C: how long the world still waits for the answer to the tick it asked for
 UNANSWERED_S = 10.0  # a brain on the bus that has not answered a tick for this long is named (then every minute)
 
 
@@ -79,13 +81,21 @@ class Brains:
             outbox.put(request)
         return requests
 
-    def collect(self, world: World, requests: list[Sensors]) -> np.ndarray:
+    def collect(self, world: World, requests: list[Sensors], waits: Waits) -> np.ndarray:
         """Every shard's answer to `requests` (its tick): the actions of all agents. A shard that
-        is silent for RESEND_AFTER is asked again, and one that left the bus is named and waited for."""
+        is silent for RESEND_AFTER is asked again, and one that left the bus is named and waited for.
+        Ctrl-C is noted in `waits`, not raised here, where it would lose an answer just received:
+        the answers are still taken for LAST_ANSWER_S, and KeyboardInterrupt raised if they do not
+        come, or at once where a shard that left the bus is waited for."""
         answers: list[np.ndarray | None] = [None] * len(self.shards)
-        silence = Silence(self, requests[0].tick)
+        silence, deadline = Silence(self, requests[0].tick, waits), None
         while any(a is None for a in answers):
-            answer = self.motor.get(timeout=RESEND_AFTER)
+            if deadline is None and waits.came:
+                deadline = time.monotonic() + LAST_ANSWER_S
+            left = RESEND_AFTER if deadline is None else min(RESEND_AFTER, deadline - time.monotonic())
+            if left <= 0:
+                raise KeyboardInterrupt
+            answer = self.motor.get(timeout=left)
             if answer is None:
                 silence.ask_again([k for k, a in enumerate(answers) if a is None], requests)
             elif isinstance(answer, Motor):  # (the inbox takes nothing else)
@@ -124,8 +134,8 @@ class Silence:
     """The shards that have not answered a tick yet: asked again, waited for when they left the
     bus, and named in the log when they stay silent on it."""
 
-    def __init__(self, brains: Brains, tick: int):
-        self.brains, self.tick = brains, tick
+    def __init__(self, brains: Brains, tick: int, waits: Waits):
+        self.brains, self.tick, self.waits = brains, tick, waits
         self.asked_at, self.said_at = time.monotonic(), None
 
     def ask_again(self, silent: list[int], requests: list[Sensors]) -> None:
@@ -134,7 +144,8 @@ class Silence:
             if not b.presences[k].alive:
                 log.warning("%s lost at tick %d: waiting for it to come back", b.names[k], self.tick)
                 b.lost_at.append(self.tick)
-                wait_for_subscriber(b.sensors[k], b.waited_for[k], b.presences[k])
+                with self.waits:  # Ctrl-C ends the run here, at once
+                    wait_for_subscriber(b.sensors[k], b.waited_for[k], b.presences[k])
                 log.info("%s back: continuing at tick %d", b.names[k], self.tick)
                 self.asked_at, self.said_at = time.monotonic(), None
             b.sensors[k].put(requests[k])

@@ -24,6 +24,7 @@ from services.bus import keys
 from services.bus.config import BusConfig, add_bus_args
 from services.bus.schemas import Control, RunTerms, Sensors, new_run_id
 from services.bus.transport import Bus, wait_for_subscriber
+from services.interrupts import ctrl_c_in_waits
 from services.options import Parser, at_least, output_file, output_folder
 from services.options import shard as shard_of_n
 from services.runtime import service_main
@@ -210,31 +211,37 @@ def tick_loop(
 ) -> None:
     """The lock-step ticks: each waits for the brain's answer (every shard's) to the last sensors sent.
     The recorder's share of tick t is kept after tick t + 1's sensors are sent, while the brain steps.
+    Ctrl-C ends the run once the tick asked for is taken, if its answer comes (Brains.collect): the
+    brain has stepped exactly the ticks the world ends the run at (its weights are those ticks').
     `lead_ended`: a world shard's, whether the lead shard has ended the run (cut short there)."""
     spare = world.sensors.copy()  # the next tick's sensors go here while tick t's are kept
     ticks, folder = config.world.ticks, config.checkpoint
-    for t in range(world.tick, ticks):
-        if lead_ended is not None and lead_ended():
-            log.warning("world shard 1 ended the run at its tick %d: this shard ends it at %d", lead_ended.tick, t)
-            return
-        actions = brains.collect(world, requests)
-        if requests[0].checkpoint and folder:
-            checkpoint.confirm(folder)  # the brain has kept this tick too
-        world.act(actions)
-        trajectory.keep(t)
-        sensed = world.sensors  # tick t's
-        if t + 1 < ticks:  # the brain's next tick first: the recorder can wait
-            keep = folder is not None and (t + 1) % config.checkpoint_every == 0
-            if keep and folder:
-                checkpoint.keep_checkpoint(folder, config.world, world, trajectory, requests[0].run)
-            if stream is not None:  # sense() fills every value: a swap, not a copy, keeps tick t's
-                world.sensors, spare = spare, world.sensors
-            requests = brains.send(world, t + 1, requests[0].run, keep)
-        if stream is not None:  # the next sense() left poses, events and changes as act() made them
-            stream.keep(t, sensed)
-            if stream.full or t + 1 == ticks:
-                stream.send(final=t + 1 == ticks)
-        progress.update(t + 1)
+    with ctrl_c_in_waits() as waits:
+        for t in range(world.tick, ticks):
+            if lead_ended is not None and lead_ended():
+                log.warning("world shard 1 ended the run at its tick %d: this shard ends it at %d", lead_ended.tick, t)
+                return
+            actions = brains.collect(world, requests, waits)
+            if requests[0].checkpoint and folder:
+                checkpoint.confirm(folder)  # the brain has kept this tick too
+            world.act(actions)
+            trajectory.keep(t)
+            sensed = world.sensors  # tick t's
+            ending = waits.came  # a Ctrl-C that came before tick t + 1 is asked for ends the run here
+            if t + 1 < ticks and not ending:  # the brain's next tick first: the recorder can wait
+                keep = folder is not None and (t + 1) % config.checkpoint_every == 0
+                if keep and folder:
+                    checkpoint.keep_checkpoint(folder, config.world, world, trajectory, requests[0].run)
+                if stream is not None:  # sense() fills every value: a swap, not a copy, keeps tick t's
+                    world.sensors, spare = spare, world.sensors
+                requests = brains.send(world, t + 1, requests[0].run, keep)
+            if stream is not None:  # the next sense() left poses, events and changes as act() made them
+                stream.keep(t, sensed)
+                if stream.full or t + 1 == ticks:
+                    stream.send(final=t + 1 == ticks)
+            progress.update(t + 1)
+            if ending and t + 1 < ticks:
+                raise KeyboardInterrupt
 
 
 def steady_rate(brains: Brains, start: int, done: int, started: float, elapsed: float) -> dict:
