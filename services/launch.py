@@ -43,7 +43,7 @@ from services.brain.circuit import load_circuit
 from services.commands import ENDLESS, PARENT, SERVICES
 from services.interrupts import ctrl_c_held
 from services.options import Parser, UsageError, output_folder
-from services.params import file_for_agents
+from services.params import file_for_agents, read_params
 from services.world.world import SENSORS
 
 log = logging.getLogger("spikinglab.launch")
@@ -443,7 +443,8 @@ def check_brains_weights(path: Path, processes: list[Process], parsed: dict[str,
     for brain in (p for p in processes if p.service == "brain" and parsed[p.name].load is not None):
         args = parsed[brain.name]
         try:
-            load_weights(args.load, load_circuit(args.circuit))
+            w_max = read_params(args.params).get("w_max") if args.params is not None else None
+            load_weights(args.load, load_circuit(args.circuit), w_max=w_max)
         except ValueError as e:
             raise LaunchError(f"{path}, [{brain.name}]: {e}") from None
 

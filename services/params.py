@@ -123,10 +123,9 @@ def setting_count(params: Mapping) -> int:
     return lengths.pop() if lengths else 1
 
 
-def read_params(path: Path) -> dict[str, np.ndarray]:
-    """Per-agent parameters from a CSV file (`--params`): a header of parameter names, then one row
-    of numbers per agent, or a single row for every agent; blank lines and lines starting with #
-    are skipped. The columns, each as long as the rows; ValueError names the file, line and fault."""
+def param_lines(path: Path) -> list[tuple[int, list[str]]]:
+    """A --params file's header and rows of values, each with its line number; blank lines and
+    lines starting with # are skipped. ValueError where it cannot be read or holds no row."""
     try:
         with open(path, newline="", encoding="utf-8-sig") as f:  # a spreadsheet's CSV may start with a BOM
             lines = [
@@ -143,7 +142,20 @@ def read_params(path: Path) -> dict[str, np.ndarray]:
             f"parameter file {path}: expected a header of parameter names and at least one row of "
             f"values (e.g. a_plus,w_max / 0.02,15)"
         )
-    (_, header), rows = lines[0], lines[1:]
+    return lines
+
+
+def agent_line(path: Path, agent: int) -> int:
+    """The line of a --params file that holds `agent`'s values (its only row, where it has one)."""
+    rows = param_lines(path)[1:]
+    return rows[agent if len(rows) > 1 else 0][0]
+
+
+def read_params(path: Path) -> dict[str, np.ndarray]:
+    """Per-agent parameters from a CSV file (`--params`, param_lines): a header of parameter names,
+    then one row of numbers per agent, or a single row for every agent. The columns, each as long
+    as the rows; ValueError names the file, line and fault."""
+    (_, header), *rows = lines = param_lines(path)
     names = [name.strip() for name in header]
     if len(set(names)) < len(names):
         raise ValueError(f"parameter file {path}, line {lines[0][0]}: a parameter named twice ({', '.join(names)})")

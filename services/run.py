@@ -83,7 +83,7 @@ def parser() -> argparse.ArgumentParser:
         help="A+ = A- of the learning neurons (default: the circuit's, 0.02 for the insect)",
     )
     add_engine_args(p)
-    p.add_argument("--load", type=Path, help="start the brain from these weights (.npz checkpoint)")
+    p.add_argument("--load", type=Path, help="start the brain from these weights (a run's weights.npz)")
     p.add_argument("--runs", type=output_folder, default=Path("runs"), help="where run folders go (default runs/)")
     p.add_argument("--id", type=folder_name, help="name of the run folder (default: date, time and seed)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -222,7 +222,7 @@ def checked_inputs(args: argparse.Namespace) -> tuple[Circuit, dict]:
         circuit = circuit.with_learning_rate(args.a_plus)
     world_from(config_from(args, WorldOptions, whole=False))  # and the --params file, for the world's agents
     columns = brain_params(args.params, circuit, args.a_plus) if args.params else {}
-    loaded = len(load_weights(args.load, circuit)) if args.load else 1
+    loaded = len(load_weights(args.load, circuit, w_max=columns.get("w_max"))) if args.load else 1
     if loaded not in (1, args.agents):
         raise ValueError(f"{args.load}: weights of {loaded} agents, the run has {args.agents} (or give one agent's)")
     return circuit, columns

@@ -38,6 +38,10 @@ def files(tmp_path_factory):
     (folder / "occupied").write_text("a file, not a folder\n")
     (folder / "soak" / "brain.json").mkdir(parents=True)  # where the soak's brain writes its stats
     save_weights(folder / "two.npz", Engine(circuit, agents=2), circuit)
+    save_weights(folder / "large.npz", Engine(circuit).get_weights() * 10, circuit)
+    save_weights(folder / "double.npz", Engine(circuit).get_weights() * 2, circuit)
+    save_weights(folder / "nan.npz", Engine(circuit).get_weights() * np.nan, circuit)
+    (folder / "low-wmax.csv").write_text("w_max\n6\n")
     (folder / "sweeps" / "done").mkdir(parents=True)
     (folder / "sweeps" / "done" / "table.md").write_text("an earlier sweep's table\n")
     (folder / "list.toml").write_text("[world]\nticks = [1000, 2000]\n")
@@ -301,13 +305,13 @@ CASES = [
         "run truncated checkpoint",
         "run --load {f}/truncated.npz",
         2,
-        "truncated.npz: not a weights checkpoint (not an .npz archive: truncated, or another kind of file",
+        "truncated.npz: not a weights file (not an .npz archive: truncated, or another kind of file",
     ),
     (
         "run foreign npz",
         "run --load {f}/foreign.npz",
         2,
-        "foreign.npz: not a weights checkpoint (an .npz without the arrays weights and synapses",
+        "foreign.npz: not a weights file (an .npz without the arrays weights and synapses",
     ),
     ("run missing checkpoint", "run --load {f}/missing.npz", 2, "missing.npz: cannot read it (No such file"),
     ("run map without start", "run --map {f}/nostart.txt", 2, "nostart.txt: no start 'S' in the map"),
@@ -335,7 +339,12 @@ CASES = [
         2,
         "negative.csv, line 3: per-agent parameter a_plus: agent 1 has -0.02, it must be a finite number >= 0",
     ),
-    ("brain params the circuit refuses", "brain --params {f}/low.csv", 2, "low.csv: /"),  # names the circuit too
+    (
+        "brain params the circuit refuses",
+        "brain --params {f}/low.csv",
+        2,
+        "low.csv, line 2: the values of agent 0 (w_max 3) do not fit circuit 'insect': BLACK->PAIN: weight 5.0",
+    ),
     (
         "run params and --a-plus both set A+",  # the file's would win, and the run's first line say --a-plus's
         "run --agents 3 --params {f}/rows.csv --a-plus 0.03",
@@ -352,6 +361,8 @@ CASES = [
     ("world params missing", "world --params {f}/none.csv", 2, "none.csv: cannot read it (No such file or directory)"),
     ("screenshot of a text file", "screenshot {f}/not.rrd", 2, "not.rrd: not a Rerun recording (.rrd)"),
     ("screenshot of nothing", "screenshot {f}/none.rrd", 2, "none.rrd: no such recording"),
+    ("screenshot of a folder", "screenshot {f}/sweeps", 2, "sweeps: a folder; expected a recording (.rrd)"),
+    ("screenshot to a text file", "screenshot {f}/not.rrd --out {f}/shot.txt", 2, "shot.txt: a screenshot is a PNG"),
     ("screenshot of a text file at a tick", "screenshot {f}/not.rrd --tick 5", 2, "not.rrd: not a Rerun recording"),
     (
         "record viewer where none runs",
@@ -463,6 +474,19 @@ CASES = [
         "edited/command.json holds options this run refuses: argument --ticks: expected a whole number, got 'zz'",
     ),
     ("run weights of other agents", "run --load {f}/two.npz", 2, "two.npz: weights of 2 agents, the run has 1"),
+    ("run weights not numbers", "run --load {f}/nan.npz", 2, "nan.npz: weights must be finite numbers > 0"),
+    (
+        "run weights out of range",
+        "run --load {f}/large.npz",
+        2,
+        "large.npz: weight 50.0 of plastic synapse BLACK->PAIN of agent 0 outside [1.0, 15.0]",
+    ),
+    (
+        "run weights above a params file's w_max",  # the brain would stop at its start with the others running
+        "run --load {f}/double.npz --params {f}/low-wmax.csv",
+        2,
+        "double.npz: weight 10.0 of plastic synapse BLACK->PAIN of agent 0 outside [1.0, 6.0] (w_max of the --params",
+    ),
     ("run circuit not text", "run --circuit {f}/two.npz", 2, "two.npz: not a circuit file (not text"),
 ]
 

@@ -18,7 +18,7 @@ from numba import njit
 from numba.core import types
 from numba.experimental import structref
 
-from services.params import LEARNING_FIELDS
+from services.params import LEARNING_FIELDS, AgentValueError
 
 from .circuit import Circuit
 from .netlogo_stream import STREAM_TURNS, source_order
@@ -305,8 +305,17 @@ def learning_tables(circuit: Circuit, params: dict, agents: int) -> tuple:
     profile = np.array([kinds.index(k) for k in keys], dtype=np.int64)
     first = [keys.index(k) for k in kinds]  # a neuron of each profile
     tables = []
-    for row in settings:
-        neuron_types = _variant(circuit, {k: float(v) for k, v in zip(names, row)}).neuron_types
+    for g, row in enumerate(settings):
+        values = {k: float(v) for k, v in zip(names, row)}
+        try:
+            neuron_types = _variant(circuit, values).neuron_types
+        except ValueError as e:  # the circuit's fault names its file: this one is the values'
+            agent = int(np.flatnonzero(group == g)[0])
+            given = ", ".join(f"{k} {v:g}" for k, v in values.items())
+            problem = str(e).removeprefix(f"{circuit.source}: ")
+            raise AgentValueError(
+                f"the values of agent {agent} ({given}) do not fit circuit {circuit.name!r}: {problem}", agent
+            ) from None
         table, _ = stdp_table(neuron_types)
         tables.append(
             np.column_stack(

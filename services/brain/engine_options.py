@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from services.options import add_netlogo_seed
-from services.params import file_rows, read_params, side_of
+from services.params import AgentValueError, agent_line, file_rows, read_params, side_of
 
 from .build import DEFAULT_SEMANTICS, ORDERS, SEMANTICS, check_options, learning_tables
 
@@ -74,6 +74,8 @@ def brain_params(path: Path, circuit, a_plus: float | None = None) -> dict:
         )
     try:
         learning_tables(circuit, side_of(columns, "brain"), file_rows(columns))
+    except AgentValueError as e:
+        raise ValueError(f"parameter file {path}, line {agent_line(path, e.agent)}: {e}") from None
     except ValueError as e:
         raise ValueError(f"parameter file {path}: {e}") from None
     return columns

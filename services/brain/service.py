@@ -143,8 +143,9 @@ def run(config: BrainConfig, session) -> int:
         circuit = load_circuit(config.circuit)
         if config.a_plus is not None:
             circuit = circuit.with_learning_rate(config.a_plus)
-        weights = load_weights(config.load, circuit, say=True) if config.load else None
         params = brain_params(config.params, circuit, config.a_plus) if config.params else None
+        w_max = (params or {}).get("w_max")
+        weights = load_weights(config.load, circuit, say=True, w_max=w_max) if config.load else None
     except (CircuitError, ValueError, OSError) as e:
         log.error("%s", e)
         return 2

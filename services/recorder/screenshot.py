@@ -167,15 +167,24 @@ def window_size(text: str) -> str:
     return text
 
 
+def png_file(text: str) -> Path:
+    """--out: a PNG file that can be written (the viewer picks the format by the name)."""
+    path = output_file(text)
+    if path.suffix.lower() != ".png":
+        raise argparse.ArgumentTypeError(f"{text}: a screenshot is a PNG file, named .png")
+    return path
+
+
 def main(argv=None) -> int:
     p = Parser(prog="spikinglab screenshot", description=(__doc__ or "").splitlines()[0])
     p.add_argument("recording", type=Path)
-    p.add_argument("--out", type=output_file, help="PNG file (default: beside the recording, replay.png)")
+    p.add_argument("--out", type=png_file, help="PNG file (default: beside the recording, replay.png)")
     p.add_argument("--tick", type=at_least(0), help="where the time cursor goes (default: the last tick)")
     p.add_argument("--size", type=window_size, default="1600x900", help="window size in points (default 1600x900)")
     args = p.parse_args(argv)
     if not args.recording.is_file():
-        print(f"spikinglab screenshot: {args.recording}: no such recording", file=sys.stderr)
+        what = "a folder; expected a recording (.rrd)" if args.recording.is_dir() else "no such recording"
+        print(f"spikinglab screenshot: {args.recording}: {what}", file=sys.stderr)
         return 2
     try:
         last = recorded_until(args.recording)  # read whatever --tick says: it also tells a recording from other files
