@@ -60,6 +60,8 @@ def brain_for(world: World, circuit: Circuit | str, params: Mapping | None = Non
 
 def checked_seeds(seeds: Iterable[int]) -> list[int]:
     """The insect numbers as a list; ValueError unless one or more, each a whole number >= 0."""
+    if not isinstance(seeds, Iterable) or isinstance(seeds, (str, bytes)):
+        raise ValueError(f"seeds: insect numbers, e.g. range(4) or [0, 5] (not a count), got {seeds!r}")
     given = list(seeds)
     if not given or not all(is_int(s) and s >= 0 for s in given):
         raise ValueError(f"seeds: insect numbers, whole numbers >= 0 (one or more), got {given[:8]}")
@@ -260,7 +262,8 @@ def evaluate(
     world of seed 0 (its arenas, headings and netlogo orders; seed s is agent s of `spikinglab run
     --agents`, and the sweep's seed s). Returns arrays [settings, seeds]: "learning_time" (the last
     tick on a noxious patch before `learned_after` ticks off them; -1: not within `ticks`),
-    "collisions", "food", and "collisions_last_quarter" (of the run's collision bins).
+    "collisions", "food", and "collisions_last_quarter" (of the run's whole 1,000-tick bins: 0
+    in a run of fewer than 1,000 ticks).
 
     `options` (Setup): the circuit (a name or a Circuit), the world's preset, `learned_after`,
     the engine's semantics and netlogo order, and `netlogo_seed`.
@@ -279,6 +282,11 @@ def evaluate(
         raise TypeError(f"params: a mapping of per-agent parameter -> values, e.g. {example}, got {params!r}")
     seeds = checked_seeds(seeds)
     check_ticks(ticks, 1)
+    unknown = sorted(set(options) - set(Setup.__annotations__))
+    if unknown:
+        raise TypeError(f"evaluate: unknown option {unknown[0]!r} (its options: {', '.join(Setup.__annotations__)})")
+    if on_block is not None and not callable(on_block):
+        raise TypeError(f"on_block: a function called with the insects of each block done, got {on_block!r}")
     if device != "cpu":
         from services.gpu import check_device  # numba.cuda only when the device is asked for
 

@@ -147,12 +147,15 @@ class Circuit:
         """Set A+ (and A-, default = A+) of every neuron type that is the target of a plastic synapse."""
         a_minus = a_plus if a_minus is None else a_minus
         for value, label in ((a_plus, "A+"), (a_minus, "A-")):
-            if not (math.isfinite(value) and value >= 0):
-                raise CircuitError(f"{self.source}: {label} must be a finite number >= 0, got {value}")
+            if not (is_number(value) and value >= 0):
+                raise CircuitError(f"{self.source}: {label} must be a finite number >= 0, got {value!r}")
         return self.with_learning_params(a_plus=a_plus, a_minus=a_minus)
 
     def with_learning_params(self, **fields) -> Circuit:
         """Set NeuronType fields (w_max, tau_plus, ...) of every neuron that a plastic synapse targets."""
+        known = [f.name for f in dataclasses.fields(NeuronType)[1:]]
+        if unknown := sorted(set(fields) - set(known)):
+            raise CircuitError(f"{self.source}: unknown learning value {unknown[0]!r} (known: {', '.join(known)})")
         learning = self.learning_neurons
         types = []
         for n, t in enumerate(self.neuron_types):
@@ -176,6 +179,8 @@ def builtin_circuit_path(name: str) -> Path:
 
 def load_circuit(path_or_name: str | Path) -> Circuit:
     """Load a circuit file; a bare name such as "insect" means services/brain/circuits/insect.toml."""
+    if not isinstance(path_or_name, str | Path):
+        raise TypeError(f"load_circuit: a circuit's name or file, e.g. 'insect', got {path_or_name!r}")
     path = Path(path_or_name)
     if path.suffix != ".toml" and not path.exists():
         path = builtin_circuit_path(str(path_or_name))

@@ -372,6 +372,8 @@ class World:
         numbers=None,
         agent_params=None,
     ):
+        if params is not None and not isinstance(params, WorldParams):
+            raise TypeError(f"params: a WorldParams, e.g. params_for('paper'), got {params!r}")
         self.params = p = params or WorldParams()
         self.numbers = checked_arguments(p, agents, seed, shared, grid, training, numbers)
         self.agents, self.seed, self.shared = agents, seed, shared
