@@ -72,13 +72,14 @@ def headline(metrics: dict, agents: int) -> dict:
     """Whether the insects learnt, and how their collisions fell from the first quarter to the last."""
     bins = np.array(metrics["collisions_per_1000_ticks"], dtype=float).reshape(agents, -1)
     first, last = quarter_collisions(bins)
+    whole = bins.shape[1] > 0  # a run of under 1,000 ticks has no bin to compare: None
     times = metrics["learning_time"]
     learned = sum(t is not None for t in times)
     return {
         "learned": "yes" if learned == len(times) else "no" if not learned else f"{learned} of {len(times)}",
         "learning_time": times if len(times) > 1 else times[0],
-        "collisions_first_quarter": round(float(first.mean()), 1),
-        "collisions_last_quarter": round(float(last.mean()), 1),
+        "collisions_first_quarter": round(float(first.mean()), 1) if whole else None,
+        "collisions_last_quarter": round(float(last.mean()), 1) if whole else None,
         "ticks_done": metrics["ticks"],
         "partial": metrics.get("partial", False),
         "resumed_at": metrics.get("resumed_at"),  # the tick this part of the run went on from (None: from 0)
@@ -102,6 +103,7 @@ def parameters(args: argparse.Namespace, circuit: Circuit) -> dict:
         "learned_after": args.learned_after,
         "semantics": args.semantics,
         "order": args.order,
+        "netlogo_seed": args.netlogo_seed,
         "per_agent": per_agent,
     }
 
@@ -266,10 +268,13 @@ def report(folder: Path, summary: dict) -> None:
     of_all = f" (mean of {p['agents']:,} insects)" if p["agents"] > 1 else ""
     resumed = head["resumed_at"]
     pace = f"{summary['ticks_per_s']:,.0f} ticks/s" + (f" from tick {resumed:,}, where it resumed" if resumed else "")
-    print(
-        f"\ncollisions{of_all}: {head['collisions_first_quarter']:.0f} in the first quarter, "
-        f"{head['collisions_last_quarter']:.0f} in the last quarter ({head['ticks_done']:,} ticks, {pace})"
+    first, last = head["collisions_first_quarter"], head["collisions_last_quarter"]
+    quarters = (
+        f"{first:.0f} in the first quarter, {last:.0f} in the last quarter"
+        if last is not None
+        else "none compared (no whole 1,000 ticks)"
     )
+    print(f"\ncollisions{of_all}: {quarters} ({head['ticks_done']:,} ticks, {pace})")
     print(
         f"learned: {head['learned']}"
         f" (criterion: {p['learned_after']:,} ticks off noxious patches); learning time: "

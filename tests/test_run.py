@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -51,12 +52,16 @@ def test_the_summary_names_the_command_main_was_given(tmp_path):
     """In-process, as an API caller runs it: the options given to main(argv), not this process's sys.argv."""
     from services.run import main
 
-    argv = ["--ticks", "1000", "--seed", "2", "--no-record", "--quiet", "--runs", str(tmp_path), "--id", "a b"]
+    argv = ["--ticks", "1000", "--seed", "2", "--preset", "netlogo", "--netlogo-seed", "7850"]
+    argv += ["--no-record", "--quiet", "--runs", str(tmp_path), "--id", "a b"]
     assert main(argv) == 0
     summary = json.loads((tmp_path / "a b" / "summary.json").read_text())
-    given = f"--ticks 1000 --seed 2 --no-record --quiet --runs {tmp_path} --id 'a b'"
+    given = (
+        f"--ticks 1000 --seed 2 --preset netlogo --netlogo-seed 7850 --no-record --quiet --runs {tmp_path} --id 'a b'"
+    )
     assert summary["command"] == f"spikinglab run {given}"
     assert summary["parameters"]["seed"] == 2 and summary["run"] == "a b"
+    assert summary["parameters"]["netlogo_seed"] == 7850  # what the arenas and headings come from
     assert summary["headline"]["collisions_first_quarter"] == summary["headline"]["collisions_last_quarter"]  # one bin
 
 
@@ -328,6 +333,18 @@ def test_a_run_stopped_in_its_first_thousand_ticks_still_plots(tmp_path):
     }
     plot(tmp_path, summary)  # no finished bin yet: an empty plot, not a traceback after Ctrl-C
     assert (tmp_path / "collisions.png").stat().st_size > 0
+
+
+def test_a_run_of_no_whole_thousand_ticks_compares_no_quarters(capsys):
+    """Its 2 collisions are in no bin: the quarters are not 0 and 0 but not compared."""
+    from services.run_report import headline, report
+
+    head = headline({"collisions_per_1000_ticks": [], "learning_time": [None], "ticks": 718, "partial": True}, 1)
+    assert head["collisions_first_quarter"] is None and head["collisions_last_quarter"] is None
+    parameters = {"learned_after": 5000, "a_plus": 0.02, "a_minus": 0.02, "agents": 1, "ticks": 100_000}
+    summary = {"headline": head, "final_weights": {}, "learning_time": [None], "parameters": parameters}
+    report(Path("r"), summary | {"ticks_per_s": 1})
+    assert "collisions: none compared (no whole 1,000 ticks) (718 ticks, 1 ticks/s)" in capsys.readouterr().out
 
 
 def test_an_interrupted_run_goes_on_with_resume_and_ends_as_an_uninterrupted_one(tmp_path):
