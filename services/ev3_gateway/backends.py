@@ -20,6 +20,7 @@ import socket
 import struct
 import threading
 import time
+import traceback
 from dataclasses import dataclass
 from typing import cast
 
@@ -162,6 +163,7 @@ class EV3Backend(Backend):
             self._ev3 = self._dc.EV3(protocol=self.protocol, host=cast(str, self.host))
         except Exception as e:  # ev3-dc raises NoEV3, OSError, usb errors, AssertionError, ...
             self._ev3 = None
+            close_sockets_of(e)
             raise RobotLinkError(f"cannot connect to the EV3 over {self.protocol}: {e}") from None
         # ev3-dc leaves Nagle on: a motor command (no reply) sent while the previous small packet is
         # unacknowledged would wait for the brick's delayed ACK, about 40 ms
@@ -225,6 +227,26 @@ class EV3Backend(Backend):
             self._ev3, self._link = None, None
 
 
+def close_sockets_of(error: BaseException) -> None:
+    """Close the sockets a failed connect left open in its frames: ev3-dc raises NoEV3 with its
+    beacon socket (UDP port 3015) still bound, so every later try failed with "Address already in
+    use" and a brick that came after the first try was never found."""
+    for frame, _ in traceback.walk_tb(error.__traceback__):
+        for value in frame.f_locals.values():
+            if isinstance(value, socket.socket):
+                value.close()
+
+
+def sim_floor(patch_cm: float, object_cm: float, map_path=None) -> tuple:
+    """The simulated EV3's floor as World params and grid (None: the paper's); ValueError where its
+    objects do not fit their squares, MapError where the map cannot be read."""
+    from services.world.world import map_world, params_for
+
+    if not 0 < object_cm <= patch_cm:
+        raise ValueError(f"the objects ({object_cm} cm) must fit their squares ({patch_cm} cm)")
+    return map_world(map_path, params_for("paper")) if map_path else (params_for("paper"), None)
+
+
 class SimBackend(Backend):
     """A simulated EV3 on the paper's floor, in real time.
 
@@ -249,13 +271,9 @@ class SimBackend(Backend):
         from services.world.physics import build_objects
         from services.world.world import BLACK as W_BLACK
         from services.world.world import RED as W_RED
-        from services.world.world import World, map_world, params_for
+        from services.world.world import World
 
-        if not 0 < object_cm <= patch_cm:
-            raise ValueError(f"the objects ({object_cm} cm) must fit their squares ({patch_cm} cm)")
-        params, grid = params_for("paper"), None
-        if map_path:
-            params, grid = map_world(map_path, params)
+        params, grid = sim_floor(patch_cm, object_cm, map_path)
         self.world = World(params, seed=seed, grid=grid)
         self.objects = build_objects(self.world, object_cm / patch_cm, colours=(W_BLACK, W_RED))
         self.patch_cm, self.speed, self.turn, self.link_s = patch_cm, speed_cm_s / patch_cm, turn_deg_s, link_ms / 1000

@@ -316,7 +316,9 @@ class FakeBrick:
 def parser() -> Parser:
     p = Parser(
         prog="spikinglab fake-brick",
-        description="A fake EV3 brick on loopback for the gateway (--backend ev3) to find and drive.",
+        description="A fake EV3 brick on loopback for the gateway (--backend ev3) to find and drive: TCP "
+        f"127.0.0.1:5555 (the next free port up if taken), found by its beacon to UDP port {BEACON_PORT}. One at "
+        "a time on a machine: a gateway links to the first beacon it hears.",
     )
     p.add_argument(
         "--colour",

@@ -377,8 +377,8 @@ class Gateway:
             log.warning("robot link lost: %s; reconnecting", error)
 
     def connect(self) -> None:
-        """(Re)connect, trying every second, until linked or done."""
-        waited = 0
+        """(Re)connect, trying every second, until linked or done; a failed try is said every 10 s."""
+        began, said = time.monotonic(), -math.inf
         if not self.stats["link_losses"] and (searching := self.backend.searching()):
             log.info("looking for the robot: %s", searching)
         while not self.done.is_set():
@@ -386,12 +386,13 @@ class Gateway:
                 if not self.try_link():
                     return
                 self.linked.set()
-                log.info("robot linked%s", f" again after {waited} s" if self.stats["link_losses"] else "")
+                again = f" again after {time.monotonic() - began:.0f} s" if self.stats["link_losses"] else ""
+                log.info("robot linked%s", again)
                 return
             except RobotLinkError as e:
-                if waited % 10 == 0:
+                if time.monotonic() - said >= 10:
+                    said = time.monotonic()
                     log.warning("%s (retrying every second)", e)
-                waited += 1
                 self.done.wait(1.0)
 
     def try_link(self) -> bool:

@@ -2,6 +2,7 @@
 simulated EV3 senses its world; readings map onto the insect's senses."""
 
 import math
+import socket
 import struct
 import time
 
@@ -9,7 +10,7 @@ import pytest
 from ev3_dc import GVX, LCX
 
 from services.ev3_gateway.backends import EV3Backend, Reading, RobotLinkError, SimBackend, Wiring
-from services.ev3_gateway.fake_brick import FakeBrick, parameter
+from services.ev3_gateway.fake_brick import BEACON_PORT, FakeBrick, parameter
 from services.ev3_gateway.service import sensor_values
 from services.vocabulary import INSECT_SENSORS
 
@@ -59,8 +60,15 @@ def test_fake_brick_answers_reads_and_refuses_what_a_brick_would():
 
 
 def test_ev3_backend_drives_the_fake_brick_over_its_wifi_protocol():
+    """Also once a try heard no beacon (ev3-dc's 10 s): ev3-dc's error holds its socket bound to UDP
+    port 3015 (in the gateway, until the garbage collector came), and every later try failed."""
+    robot = EV3Backend("WiFi", wiring=Wiring(motors="BC", speed=40, spin_speed=25))
+    with pytest.raises(RobotLinkError, match="No EV3 device found") as failed:
+        robot.connect()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as beacon:
+        beacon.bind(("", BEACON_PORT))  # free, though the error is still held
+    del failed
     with FakeBrick() as brick:
-        robot = EV3Backend("WiFi", wiring=Wiring(motors="BC", speed=40, spin_speed=25))
         robot.connect()  # found by its UDP beacon, TCP unlock, as with a real brick
         brick.set(colour=5, distance_cm=4.2, touch=1)
         reading = robot.read()
