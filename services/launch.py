@@ -343,6 +343,8 @@ def read_launch_file(path: Path) -> tuple[list[Process], str | None]:
     for name, table in data.items():
         if not isinstance(table, dict):
             raise LaunchError(f"{path}: {name!r} should be a table [{name}] of a process's options")
+        if not re.fullmatch(r"\w[\w-]*", name):  # its log is <name>.log in the logs folder
+            raise LaunchError(f"{path}: [{name!r}]: a process's name is letters, digits, _ and -")
         options = dict(table)
         process = Process(name, str(options.pop("service", name)), options)
         parsed[name] = process.check(f"{path}, [{name}]")
@@ -350,6 +352,7 @@ def read_launch_file(path: Path) -> tuple[list[Process], str | None]:
     if not processes:
         raise LaunchError(f"{path} names no process: add a table such as [world]")
     check_worlds_params(path, processes, parsed)
+    check_maps(path, processes, parsed)
     check_world_shards_agree(path, processes, parsed)
     check_brains_fit_worlds(path, processes, parsed)
     check_brains_weights(path, processes, parsed)
@@ -368,6 +371,23 @@ def check_worlds_params(path: Path, processes: list[Process], parsed: dict[str, 
             file_for_agents(args.params, args.agents, f"agents = {args.agents}")
         except ValueError as e:
             raise LaunchError(f"{path}, [{world.name}]: {e}") from None
+
+
+def check_maps(path: Path, processes: list[Process], parsed: dict[str, argparse.Namespace]) -> None:
+    """A world's `map`, and a simulated EV3's floor (`sim_map`, its objects' size), read as they
+    will be: the process would stop at its start with the others running."""
+    from services.ev3_gateway.backends import sim_floor
+    from services.world.world import map_world, params_for
+
+    for process in processes:
+        args = parsed[process.name]
+        try:
+            if process.service == "world" and args.map is not None:
+                map_world(args.map, params_for(args.preset))
+            elif process.service == "gateway" and args.backend == "sim":
+                sim_floor(args.sim_patch_cm, args.sim_object_cm, args.sim_map)
+        except (ValueError, OSError) as e:  # MapError is a ValueError
+            raise LaunchError(f"{path}, [{process.name}]: {e}") from None
 
 
 def check_world_shards_agree(path: Path, processes: list[Process], parsed: dict[str, argparse.Namespace]) -> None:

@@ -19,7 +19,11 @@ DEFAULT_LISTEN = "tcp/0.0.0.0:7447"
 
 
 def parser() -> Parser:
-    p = Parser(prog="spikinglab router", description="A Zenoh router for services on several machines.")
+    p = Parser(
+        prog="spikinglab router",
+        description=f"A Zenoh router for services on several machines; without --listen it listens on {DEFAULT_LISTEN} "
+        "(every interface).",
+    )
     add_bus_args(p, group=False)  # it routes every group's keys
     return p
 

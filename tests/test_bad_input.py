@@ -47,6 +47,9 @@ def files(tmp_path_factory):
     (folder / "list.toml").write_text("[world]\nticks = [1000, 2000]\n")
     (folder / "word.toml").write_text('[world]\npublish_state = "yes"\n')
     (folder / "false.toml").write_text("[world]\nticks = false\n")
+    (folder / "escape.toml").write_text('[world]\n[brain]\n["../escape"]\nservice = "record"\n')
+    (folder / "nomap.toml").write_text(f'[world]\nmap = "{folder / "none.txt"}"\n[brain]\n')
+    (folder / "bigobjects.toml").write_text('[gateway]\nbackend = "sim"\nsim_object_cm = 100\n[brain]\nclock = 50\n')
     (folder / "unfit-circuit.toml").write_text('[world]\nticks = 500\n[brain]\ncircuit = "conditioning"\n')
     (folder / "edited" / "command.json").parent.mkdir()
     (folder / "edited" / "command.json").write_text('{"argv": ["--ticks", "zz"]}')  # a run's options, edited by hand
@@ -467,6 +470,9 @@ CASES = [
         "[launch]: until = ['world'] is not one of its processes (world)",
     ),
     ("launch list and a file", "launch --list simulation", 2, "argument --list: names the shipped launch files"),
+    ("launch name a path", "launch {f}/escape.toml", 2, "escape.toml: ['../escape']: a process's name is letters"),
+    ("launch world map missing", "launch {f}/nomap.toml", 2, "none.txt: cannot read map file"),
+    ("launch sim objects too big", "launch {f}/bigobjects.toml", 2, "[gateway]: the objects (100.0 cm) must fit their"),
     (
         "run resumed with options edited",
         "run --resume {f}/edited",
@@ -561,7 +567,7 @@ def test_a_service_with_no_endpoint_says_that_nothing_can_reach_it(tmp_path):
     world = start("world", "--group", tmp_path.name, log=log)
     try:
         wait_for(lambda: "waiting for a brain" in log.read_text(), 60, "the world to wait for a brain")
-        assert "WARNING no --connect and no --listen: no other process can reach this one" in log.read_text()
+        assert "WARNING no --connect and no --listen: no other process knows where to reach this one" in log.read_text()
     finally:
         world.terminate()
         world.wait(10)

@@ -222,7 +222,8 @@ def open_session(args: argparse.Namespace, mode: str | None = None) -> Session:
     session = session_for(args.connect, args.listen, args.zenoh_config, mode)
     if not (args.connect or args.listen or args.zenoh_config or mode == "router"):  # a router listens on 7447
         log.warning(
-            "no --connect and no --listen: no other process can reach this one (multicast scouting is off); "
+            "no --connect and no --listen: no other process knows where to reach this one (it listens on a "
+            "port of Zenoh's choosing, and multicast scouting is off); "
             "give it --listen ENDPOINT and the others --connect ENDPOINT (docs/bus.md)"
         )
     if args.connect:
