@@ -29,7 +29,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from services.bus import keys
-from services.options import Parser, whole_within
+from services.options import Parser, folder_path, whole_within
 
 log = logging.getLogger("spikinglab.certs")
 
@@ -293,7 +293,7 @@ MOST_DAYS = 36_500  # 100 years; X.509 dates end with the year 9999
 
 def parser() -> Parser:
     p = Parser(prog="spikinglab certs", description=(__doc__ or "").partition("\n")[0])
-    p.add_argument("folder", type=Path, metavar="DIR", help="where to write them (made if missing)")
+    p.add_argument("folder", type=folder_path, metavar="DIR", help="where to write them (made if missing)")
     p.add_argument(
         "--host",
         action="append",

@@ -188,9 +188,16 @@ def _unwritable(folder: Path) -> str | None:
     return None
 
 
+def folder_path(text: str) -> Path:
+    """A folder's path, not "" (which would be the current folder unasked)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a folder, got an empty name (the current one: give .)")
+    return Path(text)
+
+
 def output_folder(text: str) -> Path:
     """A folder option that is written to: one that exists and takes files, or one that can be made."""
-    path = Path(text)
+    path = folder_path(text)
     why = _unwritable(path)
     if why:
         raise argparse.ArgumentTypeError(f"cannot write to the folder {text}: {why}")
@@ -199,6 +206,8 @@ def output_folder(text: str) -> Path:
 
 def output_file(text: str) -> Path:
     """A file option that is written to: not a folder, and its folder exists and takes files or can be made."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a file name, got an empty one")
     path = Path(text)
     if path.is_dir():
         raise argparse.ArgumentTypeError(f"{text} is a folder; expected a file name")

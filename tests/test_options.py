@@ -46,3 +46,15 @@ def test_a_value_argparse_would_take_for_an_option_is_refused_saying_how_to_give
 def test_a_launch_files_negative_value_reaches_the_service():
     """It went as two arguments, `--a-plus -1e-05`, and argparse said "expected one argument"."""
     assert Process("brain", "brain", {"a_plus": -1e-05}).check().a_plus == -1e-05
+
+
+@pytest.mark.parametrize("command", [["certs", ""], ["launch", "simulation", "--logs", ""], ["record", "--out", ""]])
+def test_an_empty_name_is_no_folder_or_file_to_write_to(command, tmp_path, monkeypatch, capsys):
+    """Not the current folder unasked: `certs ""` wrote its keys there and made it private."""
+    from spikinglab import cli
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as ended:
+        cli.main(command)
+    assert ended.value.code == 2 and "got an empty" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
