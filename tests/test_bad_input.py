@@ -246,6 +246,7 @@ ARGUMENTS = [
     ),
     ("world group of two segments", "world --group a/b", 2, "argument --group: group name 'a/b' must be one key"),
     ("brain on CPU -1", "brain --cpu -1", 2, "argument --cpu: must be at least 0, got -1"),
+    ("brain on a CPU not here", "brain --cpu 4096", 2, "argument --cpu: CPU 4096 is not one this process may use"),
     ("record serving on no address", "record --serve --grpc-host 999.1.1.1", 2, "'999.1.1.1' is not an IP address"),
     ("gateway speed beyond 100", "gateway --speed 500", 2, "--speed must be within -100..100, got 500"),
     ("gateway Bluetooth without its brick", "gateway --protocol Bluetooth", 2, "--protocol Bluetooth needs --host"),

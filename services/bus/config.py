@@ -104,10 +104,21 @@ def add_bus_args(parser: argparse.ArgumentParser, group: bool = True) -> None:
         )
     bus.add_argument(
         "--cpu",
-        type=at_least(0),
+        type=cpu_number,
         metavar="N",
         help="run this process on CPU N only (a lock-step pair on separate cores is ~30 %% faster)",
     )
+
+
+def cpu_number(text: str) -> int:
+    """--cpu: a CPU this process may run on (Linux says which), refused before start rather than
+    warned of once the process runs elsewhere."""
+    cpu = at_least(0)(text)
+    usable = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
+    if usable is not None and cpu not in usable:
+        cpus = ", ".join(map(str, sorted(usable)))
+        raise argparse.ArgumentTypeError(f"CPU {cpu} is not one this process may use ({cpus})")
+    return cpu
 
 
 @dataclass(frozen=True)
