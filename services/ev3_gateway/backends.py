@@ -14,6 +14,7 @@ machine lacks for a link (missing_for) as LinkUnavailable, when the EV3 backend 
 
 from __future__ import annotations
 
+import errno
 import math
 import platform
 import socket
@@ -164,7 +165,10 @@ class EV3Backend(Backend):
         except Exception as e:  # ev3-dc raises NoEV3, OSError, usb errors, AssertionError, ...
             self._ev3 = None
             close_sockets_of(e)
-            raise RobotLinkError(f"cannot connect to the EV3 over {self.protocol}: {e}") from None
+            why = str(e)
+            if isinstance(e, OSError) and e.errno == errno.EADDRINUSE and self.protocol == "WiFi":
+                why = "UDP port 3015, where a brick's beacon comes, is held by another program (another gateway?)"
+            raise RobotLinkError(f"cannot connect to the EV3 over {self.protocol}: {why}") from None
         # ev3-dc leaves Nagle on: a motor command (no reply) sent while the previous small packet is
         # unacknowledged would wait for the brick's delayed ACK, about 40 ms
         link = getattr(getattr(self._ev3, "_physical_ev3", None), "_socket", None)

@@ -63,6 +63,10 @@ def test_ev3_backend_drives_the_fake_brick_over_its_wifi_protocol():
     """Also once a try heard no beacon (ev3-dc's 10 s): ev3-dc's error holds its socket bound to UDP
     port 3015 (in the gateway, until the garbage collector came), and every later try failed."""
     robot = EV3Backend("WiFi", wiring=Wiring(motors="BC", speed=40, spin_speed=25))
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as taken:
+        taken.bind(("", BEACON_PORT))
+        with pytest.raises(RobotLinkError, match="UDP port 3015, where a brick's beacon comes, is held by another"):
+            robot.connect()
     with pytest.raises(RobotLinkError, match="No EV3 device found") as failed:
         robot.connect()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as beacon:
