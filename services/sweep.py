@@ -8,6 +8,7 @@ the paper's numbers.
 
 from __future__ import annotations
 
+import argparse
 import datetime
 import json
 import signal
@@ -248,8 +249,15 @@ def run_with_progress(args) -> list[dict]:
         )
 
 
+def each_value_once(args: argparse.Namespace) -> None:
+    """--a-plus: a value given twice would be a row twice in the table."""
+    twice = sorted({a for a in args.a_plus if args.a_plus.count(a) > 1})
+    if twice:
+        raise ValueError(f"argument --a-plus: {twice[0]:g} given twice")
+
+
 def parser() -> Parser:
-    p = Parser(prog="spikinglab sweep", description=(__doc__ or "").partition("\n")[0])
+    p = Parser(prog="spikinglab sweep", description=(__doc__ or "").partition("\n")[0], together=[each_value_once])
     p.add_argument(
         "--a-plus",
         type=positive,

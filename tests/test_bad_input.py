@@ -132,6 +132,7 @@ ARGUMENTS = [
     ),
     ("sweep 500 ticks", "sweep --ticks 500", 2, "argument --ticks: must be at least 1,000, got 500"),
     ("sweep no seeds", "sweep --seeds 0", 2, "argument --seeds: must be at least 1, got 0"),
+    ("sweep a value twice", "sweep --a-plus 0.02 0.03 0.02", 2, "argument --a-plus: 0.02 given twice"),
     ("conditioning no trials", "conditioning --trials 0", 2, "argument --trials: must be at least 1, got 0"),
     ("screenshot window size", "screenshot {f}/not.rrd --size big", 2, "argument --size: expected WIDTHxHEIGHT"),
     ("run negative seed", "run --seed -1", 2, "argument --seed: must be at least 0, got -1"),
