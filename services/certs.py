@@ -366,7 +366,8 @@ def main(argv=None) -> int:
             ca_key, ca_cert = ca
             log.info("using the CA in %s (--new-ca makes a new one)", folder)
         hosts = ["localhost", "127.0.0.1", *args.host]
-        if dropped := [host for host in hosts_named(folder / "router.pem") if host not in hosts]:
+        named_before = [] if ca is None else hosts_named(folder / "router.pem")  # a new CA starts afresh
+        if dropped := [host for host in named_before if host not in hosts]:
             log.warning(
                 "the router's certificate here named %s too, which the new ones do not (give --host again to keep it)",
                 ", ".join(dropped),
@@ -377,7 +378,8 @@ def main(argv=None) -> int:
     except (OSError, ValueError) as e:
         print(f"spikinglab certs: cannot write the certificates in {folder}: {e}", file=sys.stderr)
         return 1
-    print(f"wrote a CA, certificates and Zenoh configs for {', '.join(PUTS)} in {folder}")
+    made = "a CA, certificates" if ca is None else "certificates of the CA there"
+    print(f"wrote {made} and Zenoh configs for {', '.join(PUTS)} in {folder}")
     print(
         "copy ca.pem and a role's .pem, .key and .json5 to the same path on the machine that runs it; keep ca.key safe"
     )

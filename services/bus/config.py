@@ -8,6 +8,7 @@ config file turns it on: sessions find each other through the endpoints given.
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
 import logging
 import os
@@ -147,6 +148,9 @@ def zenoh_config_file(text: str) -> dict:
     missing = missing_tls_file(settings)
     if missing:
         raise argparse.ArgumentTypeError(f"{text}: {missing} (copy it there, or edit the path in {text})")
+    unfit = unfit_certificate(settings)
+    if unfit:
+        raise argparse.ArgumentTypeError(f"{text}: {unfit}")
     return {"file": text, "settings": settings}
 
 
@@ -163,6 +167,44 @@ def missing_tls_file(settings: dict) -> str | None:
                 Path(path).open("rb").close()
             except OSError as e:
                 return f"transport.link.tls.{field} {path}: {e.strerror}"
+    return None
+
+
+def unfit_certificate(settings: dict) -> str | None:
+    """The first certificate the config names that is expired, not yet valid, or not signed by
+    its root CA, with why; Zenoh itself says only that the TLS link timed out."""
+    tls = setting(settings, "transport", "link", "tls")
+    if not isinstance(tls, dict) or not isinstance(tls.get("root_ca_certificate"), str):
+        return None
+    from cryptography import x509  # only for a config with TLS
+    from cryptography.exceptions import InvalidSignature
+
+    now = datetime.datetime.now(datetime.UTC)
+    ca = None
+    for field in ("root_ca_certificate", "listen_certificate", "connect_certificate"):
+        path = tls.get(field)
+        if not isinstance(path, str):
+            continue
+        where = f"transport.link.tls.{field} {path}"
+        try:
+            cert = x509.load_pem_x509_certificate(Path(path).read_bytes())
+        except ValueError:
+            return f"{where}: not a PEM certificate"
+        if now > cert.not_valid_after_utc or now < cert.not_valid_before_utc:
+            return (
+                f"{where}: valid from {cert.not_valid_before_utc:%Y-%m-%d %H:%M} to "
+                f"{cert.not_valid_after_utc:%Y-%m-%d %H:%M} UTC, not now (`spikinglab certs` makes new ones)"
+            )
+        if ca is None:
+            ca = cert
+            continue
+        try:
+            cert.verify_directly_issued_by(ca)
+        except (ValueError, TypeError, InvalidSignature):
+            return (
+                f"{where}: not signed by the CA of {tls['root_ca_certificate']} (certificates of one "
+                "`spikinglab certs` folder go together)"
+            )
     return None
 
 

@@ -42,7 +42,8 @@ def test_a_config_moved_without_its_certificates_names_the_file_it_lacks(made, t
 
 @pytest.mark.parametrize("field", TLS_FILES)
 def test_every_tls_file_field_is_checked(made, tmp_path, field):
-    tls = {name: str(made / "brain.pem") for name in TLS_FILES}
+    mine = {"root_ca_certificate": "ca.pem"}
+    tls = {name: str(made / mine.get(name, "brain.key" if name.endswith("key") else "brain.pem")) for name in TLS_FILES}
     path = tmp_path / "config.json5"
     path.write_text(json.dumps({"mode": "client", "transport": {"link": {"tls": tls}}}))
     assert zenoh_config_file(str(path))["settings"]["transport"]["link"]["tls"] == tls

@@ -2,6 +2,7 @@
 processes on loopback. A peer without a certificate cannot connect; a peer with a valid certificate
 of another role reads the run but cannot steer it, end it or move the robot."""
 
+import argparse
 import contextlib
 import json
 import re
@@ -66,9 +67,10 @@ def secured(role: str, folder, endpoint: str) -> tuple:
     return ("--connect", endpoint, "--zenoh-config", folder / f"{role}.json5")
 
 
-def test_certs_makes_a_ca_and_a_certificate_and_config_per_role(tmp_path, caplog):
+def test_certs_makes_a_ca_and_a_certificate_and_config_per_role(tmp_path, caplog, capsys):
     folder = tmp_path / "certs"
     assert certs.main([str(folder), "--host", "192.168.1.10", "--host", "lab-pc.local"]) == 0
+    assert "wrote a CA, certificates and Zenoh configs for" in capsys.readouterr().out
     ca = x509.load_pem_x509_certificate((folder / "ca.pem").read_bytes())
     for role in certs.PUTS:
         cert = x509.load_pem_x509_certificate((folder / f"{role}.pem").read_bytes())
@@ -85,6 +87,11 @@ def test_certs_makes_a_ca_and_a_certificate_and_config_per_role(tmp_path, caplog
     assert certs.main([str(folder)]) == 0
     assert x509.load_pem_x509_certificate((folder / "ca.pem").read_bytes()) == ca
     assert "named 192.168.1.10, lab-pc.local too, which the new ones do not (give --host again" in caplog.text
+    assert "wrote certificates of the CA there and Zenoh configs for" in capsys.readouterr().out
+    assert certs.main([str(folder), "--host", "192.168.1.10"]) == 0
+    caplog.clear()
+    assert certs.main([str(folder), "--new-ca"]) == 0  # a new CA: the old router certificate's names do not count
+    assert "which the new ones do not" not in caplog.text
 
 
 def files_in(folder) -> dict[str, bytes]:
@@ -140,6 +147,22 @@ def test_certs_refuses_days_past_its_bound_before_making_anything(tmp_path, caps
     assert ended.value.code == 2
     assert f"argument --days: must be at most {certs.MOST_DAYS:,}" in capsys.readouterr().err
     assert not folder.exists()
+
+
+def test_a_config_whose_certificate_is_of_another_ca_or_expired_is_refused_naming_it(tmp_path):
+    """Before the session: Zenoh would say only that the TLS link timed out."""
+    ours, other = tmp_path / "ours", tmp_path / "other"
+    assert certs.main([str(ours)]) == 0 and certs.main([str(other)]) == 0
+    config = json5.loads((ours / "brain.json5").read_text())
+    config["transport"]["link"]["tls"]["connect_certificate"] = str(other / "brain.pem")
+    (tmp_path / "mixed.json5").write_text(json.dumps(config))
+    with pytest.raises(argparse.ArgumentTypeError, match=r"certificate .*other/brain.pem: not signed by the CA"):
+        zenoh_config_file(str(tmp_path / "mixed.json5"))
+    assert zenoh_config_file(str(ours / "brain.json5"))  # the control: its own certificate fits
+    key, ca = certs.load_ca(ours)
+    certs.make_certificate(ours, "brain", ["127.0.0.1"], key, ca, days=0)  # expired as it is made
+    with pytest.raises(argparse.ArgumentTypeError, match=r"brain.pem: valid from .* UTC, not now"):
+        zenoh_config_file(str(ours / "brain.json5"))
 
 
 def test_certificates_of_the_longest_days_open_a_session(tmp_path):
