@@ -375,7 +375,7 @@ CASES = [
         1,
         "no viewer answers at rerun+http://127.0.0.1:{closed}/proxy",
     ),
-    ("port in use", "brain --listen tcp/127.0.0.1:{busy}", 1, "Address already in use"),
+    ("port in use", "brain --listen tcp/127.0.0.1:{busy}", 1, "Address already in use (os error 98)]"),  # no .rs
     ("zenoh config Zenoh refuses", "brain --zenoh-config {f}/badmode.json5", 1, "badmode.json5: "),
     ("certs where a file is", "certs {f}/occupied", 2, "occupied is a file, not a folder for the certificates"),
     ("launch file not TOML", "launch {f}/broken.toml", 2, "broken.toml is not valid TOML"),

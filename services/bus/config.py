@@ -12,6 +12,7 @@ import datetime
 import json
 import logging
 import os
+import re
 import threading
 import time
 from dataclasses import dataclass
@@ -36,6 +37,7 @@ NOTHING_ANSWERS_AFTER = 10.0  # seconds: then a --connect that reached nobody is
 # what this Zenoh can listen and connect on (its unixpipe, vsock and serial are not built in)
 PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream")
 # transport.link.tls's fields that name a file (what `spikinglab certs` writes into its configs)
+RUST_PLACE = re.compile(r" at /\S+?\.rs:\d+\.?")  # " at /root/.cargo/.../tcp.rs:61." in Zenoh's errors
 TLS_FILES = (
     "root_ca_certificate",
     "listen_certificate",
@@ -230,7 +232,7 @@ def make_config(connect=(), listen=(), config_file: dict | None = None, mode: st
         return zenoh.Config.from_json5(json.dumps(settings))
     except Exception as e:  # zenoh's own error type: a key or value it does not take
         where = f"--zenoh-config {config_file['file']}" if config_file else "the bus config"
-        raise BusConfigError(f"{where}: {str(e).split(' at /')[0]}") from None
+        raise BusConfigError(f"{where}: {zenoh_says(e)}") from None
 
 
 def session_for(connect=(), listen=(), config_file: dict | None = None, mode: str | None = None) -> Session:
@@ -238,7 +240,7 @@ def session_for(connect=(), listen=(), config_file: dict | None = None, mode: st
     try:
         return zenoh.open(make_config(connect, listen, config_file, mode))
     except zenoh.ZError as e:
-        reason = str(e).split(" at /")[0]  # without the Rust source location
+        reason = zenoh_says(e)
         endpoints = connect_endpoints(connect, config_file)
         if "Unable to connect" in reason and not all(point.startswith("tls/") for point in endpoints):
             # Zenoh says only "Timeout!" when a TLS router is given a tcp/ endpoint
@@ -246,6 +248,11 @@ def session_for(connect=(), listen=(), config_file: dict | None = None, mode: st
         raise BusConfigError(
             f"cannot open the bus session (connect {list(connect)}, listen {list(listen)}): {reason}"
         ) from None
+
+
+def zenoh_says(error: Exception) -> str:
+    """Zenoh's error without the Rust source locations it gives, at every level of its nesting."""
+    return RUST_PLACE.sub("", str(error)).strip()
 
 
 def connect_endpoints(connect, config_file: dict | None) -> list[str]:

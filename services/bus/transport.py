@@ -19,6 +19,7 @@ from collections.abc import Callable
 import zenoh
 
 from . import keys
+from .config import zenoh_says
 from .schemas import BusError, Message, decode, encode
 
 log = logging.getLogger("spikinglab.bus")
@@ -285,7 +286,7 @@ def close_session(session: zenoh.Session) -> None:
     try:
         session.close()
     except zenoh.ZError as e:
-        log.warning("the bus session did not close cleanly (%s): a peer does not answer", str(e).split(" at /")[0])
+        log.warning("the bus session did not close cleanly (%s): a peer does not answer", zenoh_says(e))
 
 
 class Bus:
